@@ -38,7 +38,16 @@ def visual_description(rng: np.random.Generator, class_name: str, mat_name: str,
     look = material(mat_name).look.word
     if not class_name:
         template = _CLOSEUP[rng.integers(len(_CLOSEUP))]
-        return template.format(colour=colour, look=look)
+        return _articles(template.format(colour=colour, look=look))
     template = _TEMPLATES[rng.integers(len(_TEMPLATES))]
     bg = material(bg_name).look.word if bg_name else "plain"
-    return template.format(colour=colour, look=look, cls=class_name, bg=bg)
+    return _articles(template.format(colour=colour, look=look, cls=class_name, bg=bg))
+
+
+def _articles(text: str) -> str:
+    """Use "an" before a vowel sound ("an olive ...")."""
+    words = text.split(" ")
+    for i in range(len(words) - 1):
+        if words[i] == "a" and words[i + 1][:1].lower() in "aeiou":
+            words[i] = "an"
+    return " ".join(words)

@@ -15,7 +15,7 @@ from ratouch.errors import ConfigError
 from ratouch.world.caption import tactile_label, visual_description
 from ratouch.world.config import SPLITS, WorldConfig
 from ratouch.world.material import MATERIALS, Material, material
-from ratouch.world.objects import CLASS_INDEX, OBJECT_CLASSES, ObjectClass
+from ratouch.world.objects import CLASS_INDEX, OBJECT_CLASSES, ObjectClass, classes_with_material
 from ratouch.world.scene import Box, ScenePlan, plan_scene, render_scene
 from ratouch.world.tactile import TactilePlan, plan_tactile, render_tactile, sensor_background
 from ratouch.world.texture import PatternSpec, make_tile, mip_pyramid
@@ -84,6 +84,14 @@ class World:
             self._pyramids[spec] = mip_pyramid(make_tile(spec))
         return self._pyramids[spec]
 
+    def warm(self) -> "World":
+        """Build every material's texture pyramids now (about 2 s), e.g. before forking
+        worker processes so that they inherit them instead of rebuilding them."""
+        for m in MATERIALS:
+            self.pyramid(m.look.pattern)
+            self.pyramid(m.feel.pattern)
+        return self
+
     def sensor_background(self, sensor: int) -> np.ndarray:
         """The float (H, W, 3) no-contact image of a sensor unit."""
         if sensor not in self._backgrounds:
@@ -118,6 +126,10 @@ class World:
         if subset == "structured":
             cls = None
             mat = MATERIALS[rng.integers(len(MATERIALS))]
+        elif split == "probe":  # balanced over materials, for the material-recognition probe
+            mat = MATERIALS[rng.integers(len(MATERIALS))]
+            names = classes_with_material(mat.name)
+            cls = OBJECT_CLASSES[CLASS_INDEX[names[rng.integers(len(names))]]]
         else:
             cls = OBJECT_CLASSES[rng.integers(len(OBJECT_CLASSES))]
             mat = material(_pick(rng, cls.materials))

@@ -39,6 +39,13 @@ _MIN_RING_PX = 1.1
 # Polygon rows (columns) whose centre is within this many pixels beyond the polygon's ends are
 # still drawn, with the end interval: with footprint sampling, no end vertex gets lost.
 _END_PX = 0.45
+# Half-height of the row footprint over which thin ellipses are sampled (a little under half a
+# pixel, so that an ellipse ending exactly on a pixel edge grows no nub into the next row).
+_FOOT_PX = 0.45
+# Tilted ellipses with a minor radius under this many pixels are sampled over row footprints.
+_THIN_PX = 2.5
+# Corner radii under this many pixels are not worth drawing.
+_MIN_CORNER_PX = 1.0
 # Holes (subtractive parts) narrower than this many pixels are skipped rather than drawn:
 # at small scales they would only eat away the thin walls around them.
 _MIN_HOLE_PX = 2.0
@@ -47,22 +54,40 @@ _MIN_HOLE_PX = 2.0
 # --------------------------------------------------------------------------- primitives
 
 
-def _window(
-    X: np.ndarray, Y: np.ndarray, x0: float, x1: float, y0: float, y1: float
-) -> tuple[int, int, int, int] | None:
-    """Index window of the sorted sample vectors X, Y covered by the box [x0, x1] × [y0, y1]."""
-    i0 = int(np.searchsorted(X, x0, "left"))
-    i1 = int(np.searchsorted(X, x1, "right"))
-    if i0 >= i1:
-        return None
-    j0 = int(np.searchsorted(Y, y0, "left"))
-    j1 = int(np.searchsorted(Y, y1, "right"))
-    if j0 >= j1:
-        return None
-    return i0, i1, j0, j1
+class _Grid:
+    """The pixel-centre samples of the bbox sub-grid, in design coordinates.
+
+    Column k sits at x0 + k * dx (k < nx), row j at y0 + j * dy (j < ny); dx and dy are
+    also the size of one pixel in design units.
+    """
+
+    __slots__ = ("X", "Y", "x0", "y0", "dx", "dy", "nx", "ny")
+
+    def __init__(self, x0: float, y0: float, dx: float, dy: float, nx: int, ny: int) -> None:
+        self.x0, self.y0, self.dx, self.dy, self.nx, self.ny = x0, y0, dx, dy, nx, ny
+        self.X = x0 + np.arange(nx) * dx
+        self.Y = y0 + np.arange(ny) * dy
+
+    @staticmethod
+    def _span(lo: float, hi: float, start: float, step: float, n: int) -> tuple[int, int]:
+        a = (lo - start) / step
+        b = (hi - start) / step
+        i0 = 0 if a <= 0.0 else (math.ceil(a) if a < n else n)
+        i1 = n if b >= n - 1 else (math.floor(b) + 1 if b >= 0.0 else 0)
+        return i0, i1
+
+    def cols(self, lo: float, hi: float) -> tuple[int, int]:
+        """Index range [i0, i1) of the columns with lo <= x <= hi."""
+        return self._span(lo, hi, self.x0, self.dx, self.nx)
+
+    def rows(self, lo: float, hi: float) -> tuple[int, int]:
+        """Index range [j0, j1) of the rows with lo <= y <= hi."""
+        return self._span(lo, hi, self.y0, self.dy, self.ny)
 
 
-_Render = tuple[tuple[int, int, int, int], "np.ndarray | bool"]
+# (i0, i1, j0, j1, local): local is a bool array of shape (j1 - j0, i1 - i0), or True for
+# "the whole window".
+_Render = tuple[int, int, int, int, "np.ndarray | bool"]
 
 
 class _Prim:
@@ -74,18 +99,16 @@ class _Prim:
 
     __slots__ = ("ext",)
 
-    def render(self, X: np.ndarray, Y: np.ndarray, pdx: float, pdy: float) -> _Render | None:
-        """Rasterise on the sample grid X (columns) × Y (rows), both increasing.
+    def render(self, g: _Grid, grow: bool) -> _Render | None:
+        """Rasterise on the grid.
 
         Args:
-            X: design x of every sampled column.
-            Y: design y of every sampled row.
-            pdx: width of one pixel in design units (for the minimum-thickness rule).
-            pdy: height of one pixel in design units.
+            g: the sample grid.
+            grow: widen sub-pixel parts to about a pixel and sample sharp ends over the pixel
+                footprint (for additive parts; holes are drawn exactly).
 
         Returns:
-            ((i0, i1, j0, j1), local) with `local` a bool array of shape (j1-j0, i1-i0) or
-            True for "the whole window", or None when the primitive covers no sample.
+            (i0, i1, j0, j1, local), or None when the primitive covers no sample.
         """
         raise NotImplementedError
 
@@ -101,19 +124,28 @@ class _Rect(_Prim):
         self.r = max(0.0, r)
         self.ext = (self.cx - self.hw, self.cy - self.hh, self.cx + self.hw, self.cy + self.hh)
 
-    def render(self, X: np.ndarray, Y: np.ndarray, pdx: float, pdy: float) -> _Render | None:
-        hw = max(self.hw, _MIN_HALF_PX * pdx)
-        hh = max(self.hh, _MIN_HALF_PX * pdy)
-        win = _window(X, Y, self.cx - hw, self.cx + hw, self.cy - hh, self.cy + hh)
-        if win is None:
+    def render(self, g: _Grid, grow: bool) -> _Render | None:
+        hw, hh = self.hw, self.hh
+        if grow:
+            hw = max(hw, _MIN_HALF_PX * g.dx)
+            hh = max(hh, _MIN_HALF_PX * g.dy)
+        i0, i1 = g.cols(self.cx - hw, self.cx + hw)
+        j0, j1 = g.rows(self.cy - hh, self.cy + hh)
+        if i0 >= i1 or j0 >= j1:
             return None
         r = min(self.r, hw, hh)
-        if r <= 0.0:
-            return win, True
-        i0, i1, j0, j1 = win
-        ax = np.maximum(np.abs(X[i0:i1] - self.cx) - (hw - r), 0.0)
-        ay = np.maximum(np.abs(Y[j0:j1] - self.cy) - (hh - r), 0.0)
-        return win, (ay * ay)[:, None] + (ax * ax)[None, :] <= r * r
+        if r < _MIN_CORNER_PX * max(g.dx, g.dy):
+            return i0, i1, j0, j1, True
+        ax = np.maximum(np.abs(g.X[i0:i1] - self.cx) - (hw - r), 0.0)
+        ay = np.maximum(np.abs(g.Y[j0:j1] - self.cy) - (hh - r), 0.0)
+        return i0, i1, j0, j1, (ay * ay)[:, None] + (ax * ax)[None, :] <= r * r
+
+
+def _half_widths(d: np.ndarray, r_along: float, r_across: float) -> np.ndarray:
+    """Half-chord of an ellipse at distances d from its centre (-1 where it misses)."""
+    q = d / r_across
+    q = 1.0 - q * q
+    return np.where(q > 0.0, r_along * np.sqrt(np.maximum(q, 0.0)), -1.0)
 
 
 class _Ellipse(_Prim):
@@ -168,41 +200,99 @@ class _Ellipse(_Prim):
         hh = ry * math.sqrt(max(0.0, 1.0 - ((xn - cx) / rx) ** 2))
         return (max(xlo, cx - hw), max(ylo, cy - hh), min(xhi, cx + hw), min(yhi, cy + hh))
 
-    def render(self, X: np.ndarray, Y: np.ndarray, pdx: float, pdy: float) -> _Render | None:
-        cx, cy = self.cx, self.cy
-        if self.sin == 0.0:
-            rx = max(self.rx, _MIN_RADIUS_PX * pdx)
-            ry = max(self.ry, _MIN_RADIUS_PX * pdy)
-            xlo, xhi, ylo, yhi = self.clip
-            win = _window(
-                X, Y, max(xlo, cx - rx), min(xhi, cx + rx), max(ylo, cy - ry), min(yhi, cy + ry)
-            )
-            if win is None:
-                return None
-            i0, i1, j0, j1 = win
-            dx = X[i0:i1] - cx
-            dy = Y[j0:j1] - cy
-            qx, qy = (dx / rx) ** 2, (dy / ry) ** 2
-            inside = qy[:, None] + qx[None, :] <= 1.0
-            if self.hole > 0.0:
-                irx = rx - max(self.hole, _MIN_RING_PX * pdx)
-                iry = ry - max(self.hole, _MIN_RING_PX * pdy)
-                if irx > 0.0 and iry > 0.0:
-                    inside &= (dy / iry)[:, None] ** 2 + (dx / irx)[None, :] ** 2 > 1.0
-            return win, inside
-        m = _MIN_RADIUS_PX * max(pdx, pdy)
-        rx, ry = max(self.rx, m), max(self.ry, m)
-        c, s = self.cos, self.sin
-        hx, hy = math.hypot(rx * c, ry * s), math.hypot(rx * s, ry * c)
-        win = _window(X, Y, cx - hx, cx + hx, cy - hy, cy + hy)
-        if win is None:
+    def render(self, g: _Grid, grow: bool) -> _Render | None:
+        if self.sin != 0.0:
+            return self._render_rotated(g, grow)
+        cx, cy, rx, ry = self.cx, self.cy, self.rx, self.ry
+        if grow:
+            rx = max(rx, _MIN_RADIUS_PX * g.dx)
+            ry = max(ry, _MIN_RADIUS_PX * g.dy)
+        xlo, xhi, ylo, yhi = self.clip
+        rx_px, ry_px = rx / g.dx, ry / g.dy
+        # Evaluate as one interval per row (per column for tall ellipses). A flat ellipse only
+        # a few pixels high would lose its pointed ends between two rows of pixel centres, so
+        # then each row is tested over its pixel footprint instead of its centre.
+        by_rows = rx_px >= ry_px
+        if by_rows:
+            foot = _FOOT_PX * g.dy if grow and ry_px * ry_px < 2.0 * rx_px else 0.0
+            i0, i1 = g.cols(max(xlo, cx - rx), min(xhi, cx + rx))
+            j0, j1 = g.rows(max(ylo, cy - ry - foot), min(yhi, cy + ry + foot))
+        else:
+            foot = _FOOT_PX * g.dx if grow and rx_px * rx_px < 2.0 * ry_px else 0.0
+            i0, i1 = g.cols(max(xlo, cx - rx - foot), min(xhi, cx + rx + foot))
+            j0, j1 = g.rows(max(ylo, cy - ry), min(yhi, cy + ry))
+        if i0 >= i1 or j0 >= j1:
             return None
-        i0, i1, j0, j1 = win
-        dx = (X[i0:i1] - cx)[None, :]
-        dy = (Y[j0:j1] - cy)[:, None]
-        t1 = dx * (c / rx) + dy * (s / rx)
-        t2 = dy * (c / ry) - dx * (s / ry)
-        return win, t1 * t1 + t2 * t2 <= 1.0
+        ax = np.abs(g.X[i0:i1] - cx)
+        ay = np.abs(g.Y[j0:j1] - cy)
+        if not by_rows:
+            ax, ay, rx, ry = ay, ax, ry, rx  # work on the transpose
+        hw = _half_widths(np.maximum(ay - foot, 0.0), rx, ry)
+        inside = ax[None, :] <= hw[:, None]
+        if self.hole > 0.0:
+            t_along = self.hole
+            t_across = self.hole
+            if grow:
+                t_along = max(t_along, _MIN_RING_PX * (g.dx if by_rows else g.dy))
+                t_across = max(t_across, _MIN_RING_PX * (g.dy if by_rows else g.dx))
+            irx, iry = rx - t_along, ry - t_across
+            if irx > 0.0 and iry > 0.0:
+                inside &= ax[None, :] > _half_widths(ay + foot, irx, iry)[:, None]
+        return i0, i1, j0, j1, inside if by_rows else inside.T
+
+    def _render_rotated(self, g: _Grid, grow: bool) -> _Render | None:
+        # One interval per row, from the ellipse's quadratic form A x^2 + B x y + C y^2 <= 1.
+        # With `grow`, each row takes the union of the chords over its pixel footprint (the
+        # left boundary is convex, so its minimum is at a footprint end or at the leftmost
+        # point), so thin tilted parts keep their tips.
+        cx, cy, rx, ry = self.cx, self.cy, self.rx, self.ry
+        if grow:
+            m = _MIN_RADIUS_PX * max(g.dx, g.dy)
+            rx, ry = max(rx, m), max(ry, m)
+        c, s = self.cos, self.sin
+        if not grow or min(rx, ry) >= _THIN_PX * max(g.dx, g.dy):
+            # Fat enough for plain pixel-centre sampling of the quadratic form.
+            hx, hy = math.hypot(rx * c, ry * s), math.hypot(rx * s, ry * c)
+            i0, i1 = g.cols(cx - hx, cx + hx)
+            j0, j1 = g.rows(cy - hy, cy + hy)
+            if i0 >= i1 or j0 >= j1:
+                return None
+            ex = (g.X[i0:i1] - cx)[None, :]
+            ey = (g.Y[j0:j1] - cy)[:, None]
+            t1 = ex * (c / rx) + ey * (s / rx)
+            t2 = ey * (c / ry) - ex * (s / ry)
+            return i0, i1, j0, j1, t1 * t1 + t2 * t2 <= 1.0
+        A = c * c / (rx * rx) + s * s / (ry * ry)
+        B = 2.0 * c * s * (1.0 / (rx * rx) - 1.0 / (ry * ry))
+        C = s * s / (rx * rx) + c * c / (ry * ry)
+        K = 4.0 / (rx * rx * ry * ry)  # 4AC - B^2
+        hx, hy = math.hypot(rx * c, ry * s), math.hypot(rx * s, ry * c)
+        foot = _FOOT_PX * g.dy if grow else 0.0
+        i0, i1 = g.cols(cx - hx, cx + hx)
+        j0, j1 = g.rows(cy - hy - foot, cy + hy + foot)
+        if i0 >= i1 or j0 >= j1:
+            return None
+        dy = g.Y[j0:j1] - cy
+        lo = np.maximum(dy - foot, -hy)
+        hi = np.minimum(dy + foot, hy)
+
+        def bounds(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            root = np.sqrt(np.maximum(4.0 * A - K * t * t, 0.0))
+            return (-B * t - root) / (2.0 * A), (-B * t + root) / (2.0 * A)
+
+        l1, r1 = bounds(lo)
+        l2, r2 = bounds(hi)
+        left, right = np.minimum(l1, l2), np.maximum(r1, r2)
+        y_left = B * hx / (2.0 * C)  # row of the leftmost point (the rightmost is mirrored)
+        left = np.where((lo <= y_left) & (y_left <= hi), -hx, left)
+        right = np.where((lo <= -y_left) & (-y_left <= hi), hx, right)
+        if grow:
+            mid = (left + right) * 0.5
+            half = np.maximum((right - left) * 0.5, _MIN_HALF_PX * g.dx)
+            left, right = mid - half, mid + half
+        left = np.where(lo <= hi, left, _INF)
+        ax = (g.X[i0:i1] - cx)[None, :]
+        return i0, i1, j0, j1, (ax >= left[:, None]) & (ax <= right[:, None])
 
 
 def _footprint_extremes(
@@ -217,7 +307,7 @@ def _footprint_extremes(
 
     Args:
         t: sample positions, uniformly spaced by `step`, increasing.
-        step: sample spacing.
+        step: sample spacing (0: plain point sampling).
         kt: knot positions (non-decreasing).
         lo: knot values whose footprint minimum is wanted.
         hi: knot values whose footprint maximum is wanted.
@@ -225,25 +315,24 @@ def _footprint_extremes(
     Returns:
         (lo_min, hi_max), one value per sample.
     """
+    if step <= 0.0:
+        return np.interp(t, kt, lo), np.interp(t, kt, hi)
     h = 0.5 * step
     a, b = t - h, t + h
     lo_min = np.minimum(np.interp(a, kt, lo), np.interp(b, kt, lo))
     hi_max = np.maximum(np.interp(a, kt, hi), np.interp(b, kt, hi))
-    if step > 0.0:
-        j = np.rint((kt - t[0]) / step).astype(np.intp)
-        ok = (j >= 0) & (j < t.size)
-        if ok.any():
-            np.minimum.at(lo_min, j[ok], lo[ok])
-            np.maximum.at(hi_max, j[ok], hi[ok])
+    j = np.rint((kt - t[0]) / step).astype(np.intp)
+    ok = (j >= 0) & (j < t.size)
+    if ok.any():
+        np.minimum.at(lo_min, j[ok], lo[ok])
+        np.maximum.at(hi_max, j[ok], hi[ok])
     return lo_min, hi_max
 
 
 class _YPoly(_Prim):
-    """Region whose every row y in [y0, y1] is one interval [xl(y), xr(y)].
+    """Region whose every row y in [ys[0], ys[-1]] is one interval [xl(y), xr(y)].
 
-    xl and xr are piecewise linear through their own knots (knot ys non-decreasing, both
-    chains running from y0 to y1); rows are widened to their pixel footprint (see
-    `_footprint_extremes`).
+    xl and xr are piecewise linear through the knots (ys non-decreasing).
     """
 
     __slots__ = ("ys", "xl", "xr")
@@ -252,27 +341,34 @@ class _YPoly(_Prim):
         self.ys = np.asarray(ys, dtype=float)
         self.xl = np.asarray(xl, dtype=float)
         self.xr = np.asarray(xr, dtype=float)
-        self.ext = (float(self.xl.min()), float(self.ys[0]), float(self.xr.max()), float(self.ys[-1]))
+        self.ext = (
+            float(self.xl.min()), float(self.ys[0]), float(self.xr.max()), float(self.ys[-1])
+        )
 
-    def render(self, X: np.ndarray, Y: np.ndarray, pdx: float, pdy: float) -> _Render | None:
+    def render(self, g: _Grid, grow: bool) -> _Render | None:
         x0, y0, x1, y1 = self.ext
-        hmin = _MIN_HALF_PX * pdy
-        if (y1 - y0) / 2.0 < hmin:
-            c = (y0 + y1) / 2.0
-            y0, y1 = c - hmin, c + hmin
-        wmin = _MIN_HALF_PX * pdx
-        # Rows whose centre lies just beyond the ends still see the end knots in their footprint.
-        win = _window(X, Y, x0 - wmin, x1 + wmin, y0 - _END_PX * pdy, y1 + _END_PX * pdy)
-        if win is None:
+        wmin = _MIN_HALF_PX * g.dx if grow else 0.0
+        if grow:
+            hmin = _MIN_HALF_PX * g.dy
+            if (y1 - y0) / 2.0 < hmin:
+                c = (y0 + y1) / 2.0
+                y0, y1 = c - hmin, c + hmin
+            # Rows whose centre is just beyond the ends still see the end knots in their
+            # footprint (they get the end interval).
+            y0, y1 = y0 - _END_PX * g.dy, y1 + _END_PX * g.dy
+        i0, i1 = g.cols(x0 - wmin, x1 + wmin)
+        j0, j1 = g.rows(y0, y1)
+        if i0 >= i1 or j0 >= j1:
             return None
-        i0, i1, j0, j1 = win
-        left, right = _footprint_extremes(Y[j0:j1], pdy, self.ys, self.xl, self.xr)
-        if wmin > 0.0:
+        left, right = _footprint_extremes(
+            g.Y[j0:j1], g.dy if grow else 0.0, self.ys, self.xl, self.xr
+        )
+        if grow:
             mid = (left + right) * 0.5
             half = np.maximum((right - left) * 0.5, wmin)
             left, right = mid - half, mid + half
-        xs = X[i0:i1][None, :]
-        return win, (xs >= left[:, None]) & (xs <= right[:, None])
+        xs = g.X[i0:i1][None, :]
+        return i0, i1, j0, j1, (xs >= left[:, None]) & (xs <= right[:, None])
 
 
 class _XPoly(_Prim):
@@ -284,26 +380,32 @@ class _XPoly(_Prim):
         self.xs = np.asarray(xs, dtype=float)
         self.yt = np.asarray(yt, dtype=float)
         self.yb = np.asarray(yb, dtype=float)
-        self.ext = (float(self.xs[0]), float(self.yt.min()), float(self.xs[-1]), float(self.yb.max()))
+        self.ext = (
+            float(self.xs[0]), float(self.yt.min()), float(self.xs[-1]), float(self.yb.max())
+        )
 
-    def render(self, X: np.ndarray, Y: np.ndarray, pdx: float, pdy: float) -> _Render | None:
+    def render(self, g: _Grid, grow: bool) -> _Render | None:
         x0, y0, x1, y1 = self.ext
-        wmin = _MIN_HALF_PX * pdx
-        if (x1 - x0) / 2.0 < wmin:
-            c = (x0 + x1) / 2.0
-            x0, x1 = c - wmin, c + wmin
-        hmin = _MIN_HALF_PX * pdy
-        win = _window(X, Y, x0 - _END_PX * pdx, x1 + _END_PX * pdx, y0 - hmin, y1 + hmin)
-        if win is None:
+        hmin = _MIN_HALF_PX * g.dy if grow else 0.0
+        if grow:
+            wmin = _MIN_HALF_PX * g.dx
+            if (x1 - x0) / 2.0 < wmin:
+                c = (x0 + x1) / 2.0
+                x0, x1 = c - wmin, c + wmin
+            x0, x1 = x0 - _END_PX * g.dx, x1 + _END_PX * g.dx
+        i0, i1 = g.cols(x0, x1)
+        j0, j1 = g.rows(y0 - hmin, y1 + hmin)
+        if i0 >= i1 or j0 >= j1:
             return None
-        i0, i1, j0, j1 = win
-        top, bot = _footprint_extremes(X[i0:i1], pdx, self.xs, self.yt, self.yb)
-        if hmin > 0.0:
+        top, bot = _footprint_extremes(
+            g.X[i0:i1], g.dx if grow else 0.0, self.xs, self.yt, self.yb
+        )
+        if grow:
             mid = (top + bot) * 0.5
             half = np.maximum((bot - top) * 0.5, hmin)
             top, bot = mid - half, mid + half
-        ys = Y[j0:j1][:, None]
-        return win, (ys >= top[None, :]) & (ys <= bot[None, :])
+        ys = g.Y[j0:j1][:, None]
+        return i0, i1, j0, j1, (ys >= top[None, :]) & (ys <= bot[None, :])
 
 
 def _poly(points: Sequence[tuple[float, float]]) -> _YPoly:
@@ -386,19 +488,20 @@ def _egg(a: float, b: float, c: float, d: float) -> list[_Part]:
 def _box(a: float, b: float, c: float, d: float) -> list[_Part]:
     # A cuboid seen from above-right: front face + top face + side face (a hexagon).
     w, h = 1.1 + 0.4 * c, 1.0
-    dx, dy = 0.26 + 0.16 * a, 0.2 + 0.12 * b
+    dx, dy = 0.28 + 0.16 * a, 0.22 + 0.12 * b
     return [_add(_poly([(0, dy), (dx, 0), (w, 0), (w, h - dy), (w - dx, h), (0, h)]))]
 
 
 def _rounded_box(a: float, b: float, c: float, d: float) -> list[_Part]:
-    # A soft-cornered case: a rounded body under a slightly overhanging lid.
-    w = 1.2 + 0.3 * c
-    lid = 0.14 + 0.08 * b
-    ov = 0.03 + 0.03 * d  # lid overhang
+    # A lidded storage box: an overhanging lid on a body with well-rounded lower corners.
+    w = 1.25 + 0.3 * c
     r = 0.2 + 0.1 * a
+    lid = 0.2 + 0.08 * b
+    ov = 0.06 + 0.03 * d  # lid overhang
     return [
         _add(_Rect(0.0, 0.0, w, lid, r=0.05)),
-        _add(_Rect(ov, lid * 0.5, w - ov, 1.0, r=r)),
+        _add(_Rect(ov, lid - 0.02, w - ov, 0.6)),
+        _add(_Rect(ov, 0.3, w - ov, 1.0, r=r)),
     ]
 
 
@@ -495,17 +598,21 @@ def _boot(a: float, b: float, c: float, d: float) -> list[_Part]:
 
 
 def _shoe(a: float, b: float, c: float, d: float) -> list[_Part]:
+    # A low shoe in side view, heel left: collar, opening, tongue, laced slope, rounded toe.
     h = 0.4  # natural height (length 1)
-    dip = 0.2 + 0.14 * a  # depth of the opening behind the tongue
-    tongue = 0.36 + 0.1 * d
-    toe_top = 0.55 + 0.15 * b
-    heel = 0.05 + 0.05 * c
-    top = _eased([(0.0, 0.1), (0.04, 0.0), (0.1, 0.0), (0.24, dip), (tongue, dip * 0.45),
-                  (tongue + 0.07, dip * 0.5), (0.82, toe_top), (0.96, 0.8), (1.0, 0.9)], 6)
-    xs = np.array([p[0] for p in top])
-    yt = np.array([p[1] for p in top])
-    yb = np.interp(xs, [0.0, 0.03, 0.9, 1.0], [1.0 - heel, 1.0, 1.0, 0.96])
-    return [_add(_XPoly(xs, yt * h, yb * h))]
+    dip = 0.22 + 0.12 * a  # depth of the opening behind the tongue
+    tongue = 0.36 + 0.08 * d
+    toe_top = 0.5 + 0.12 * b
+    heel = 0.06 + 0.06 * c
+    ry = (1.0 - toe_top) / 2.0
+    xs = np.array([0.0, 0.03, 0.09, 0.15, 0.26, tongue, tongue + 0.04, 0.88])
+    yt = np.array([0.16, 0.02, 0.0, 0.06, dip, dip * 0.5, dip * 0.55, toe_top])
+    yb = np.array([1.0 - heel, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
+    return [
+        _add(_XPoly(xs, yt * h, yb * h)),
+        _add(_Ellipse(0.88, (toe_top + ry) * h, 0.12, ry * h)),
+        _add(_Rect(0.02, (1.0 - 0.06) * h, 0.9, h)),  # sole
+    ]
 
 
 def _bag(a: float, b: float, c: float, d: float) -> list[_Part]:
@@ -527,7 +634,8 @@ def _shirt(a: float, b: float, c: float, d: float) -> list[_Part]:
     length = 0.28 + 0.36 * a  # sleeve length
     sw = 0.17 + 0.05 * b  # sleeve width
     neck = 0.09 + 0.03 * d
-    torso = _poly([(0.5 - tw, 0.1), (0.5 - neck - 0.05, 0.0), (0.5 + neck + 0.05, 0.0), (0.5 + tw, 0.1),
+    torso = _poly([(0.5 - tw, 0.1), (0.5 - neck - 0.05, 0.0), (0.5 + neck + 0.05, 0.0),
+                   (0.5 + tw, 0.1),
                    (0.5 + tw, 1.0), (0.5 - tw, 1.0)])
     p1 = (0.5 + neck + 0.04, 0.005)
     p2 = (p1[0] + length * math.cos(theta), p1[1] + length * math.sin(theta))
@@ -596,7 +704,7 @@ def _hat(a: float, b: float, c: float, d: float) -> list[_Part]:
     cw = 0.28 + 0.05 * d  # crown half-width at the band
     return [
         _add(_poly([(-cw * 0.85, 0.0), (cw * 0.85, 0.0), (cw, ch), (-cw, ch)])),
-        _sub(_Ellipse(0.0, -0.02, cw * 0.38, 0.07)),
+        _sub(_Ellipse(0.0, -0.045, cw * 0.5, 0.08)),
         _add(_Ellipse(0.0, ch, brim, bh)),
     ]
 
@@ -654,18 +762,17 @@ def _blob(a: float, b: float, c: float, d: float) -> list[_Part]:
     ear = 0.05 + 0.04 * c
     spread = 0.04 * d
     el = 25.0 + 40.0 * d  # tail elevation, degrees
-    tx, ty = 0.2, cy - bh * 0.5
-    tl = 0.16
-    tip = (tx - tl * math.cos(math.radians(el)), ty - tl * math.sin(math.radians(el)))
+    tx, ty = 0.25, cy - bh * 0.45  # tail root, inside the body
+    tl = 0.22
+    ex, ey = tx - tl * math.cos(math.radians(el)), ty - tl * math.sin(math.radians(el))
     parts = [
         _add(_Ellipse(0.55, cy, 0.37, bh)),
-        _add(_Ellipse(0.86, (cy + hy) / 2.0, 0.09, abs(cy - hy) / 2.0 + 0.06, angle=-25.0)),  # neck
+        _add(_Ellipse(0.87, (cy + hy) / 2.0, 0.1, abs(cy - hy) / 2.0 + 0.07, angle=25.0)),  # neck
         _add(_Ellipse(0.95, hy, hr, hr * 0.92)),
-        _add(_Ellipse(1.09, hy + 0.04, 0.07, 0.05)),  # snout
+        _add(_Ellipse(1.08, hy + 0.04, 0.075, 0.055)),  # snout
         _add(_Ellipse(0.89, hy - hr * 0.85, ear * 0.5, ear, angle=-20.0)),
         _add(_Ellipse(0.99, hy - hr * 0.85, ear * 0.5, ear, angle=15.0)),
-        _add(_Ellipse((tx + tip[0]) / 2, (ty + tip[1]) / 2, tl / 2 + 0.01, 0.028, angle=el)),
-        _add(_Ellipse(tip[0], tip[1], 0.035, 0.035)),
+        _add(_Ellipse((tx + ex) / 2, (ty + ey) / 2, tl / 2, 0.03, angle=el)),
     ]
     for x in (0.26 - spread, 0.37 - spread, 0.7 + spread, 0.8 + spread):
         parts.append(_add(_Rect(x, cy, x + 0.075, 1.0, r=0.02)))
@@ -690,16 +797,20 @@ def _teddy(a: float, b: float, c: float, d: float) -> list[_Part]:
 
 
 def _mitten(a: float, b: float, c: float, d: float) -> list[_Part]:
+    # Palm with a rounded top narrowing to the wrist, a thumb sticking out, a cuff.
     tilt = -30.0 - 20.0 * a  # thumb angle
-    tl = 0.17 + 0.05 * b  # thumb half-length
+    tl = 0.16 + 0.05 * b  # thumb half-length
     cuff = 0.16 + 0.06 * c
     pw = 0.5 + 0.08 * d  # palm width
-    x0 = 0.22
+    x0, x1 = 0.22, 0.22 + pw
+    yw = 1.0 - cuff  # wrist
     return [
-        _add(_Rect(x0, 0.0, x0 + pw, 0.62, r=pw * 0.5)),
-        _add(_Rect(x0, 0.3, x0 + pw, 1.0 - cuff + 0.02, r=0.02)),
-        _add(_Ellipse(x0 + 0.03, 0.55, 0.085, tl, angle=tilt)),
-        _add(_Rect(x0 - 0.02, 1.0 - cuff, x0 + pw + 0.02, 1.0, r=0.02)),
+        _add(_Ellipse((x0 + x1) / 2.0, pw * 0.5, pw * 0.5, pw * 0.5)),
+        _add(_poly([(x0, pw * 0.5), (x1, pw * 0.5), (x1 - 0.02, yw + 0.02),
+                    (x0 + 0.05, yw + 0.02)])),
+        _add(_Ellipse(x0 + 0.02, 0.55, 0.095, tl, angle=tilt)),
+        _add(_poly([(x0, 0.5), (x0 - 0.02, 0.62), (x0 + 0.05, 0.78), (x0 + 0.1, 0.6)])),
+        _add(_Rect(x0 + 0.01, yw, x1 + 0.01, 1.0, r=0.02)),
     ]
 
 
@@ -792,11 +903,14 @@ def _builder(family: str) -> Callable[[float, float, float, float], list[_Part]]
 
 
 def _variant(variant: Sequence[float] | np.ndarray) -> tuple[float, float, float, float]:
-    v = np.asarray(variant, dtype=float).reshape(-1)
-    if v.shape != (4,) or not np.all(np.isfinite(v)):
+    try:
+        vals = [float(t) for t in np.asarray(variant, dtype=float).reshape(-1)]
+    except (TypeError, ValueError):
+        vals = []
+    if len(vals) != 4 or not all(math.isfinite(t) for t in vals):
         raise ValueError(f"variant must be 4 finite numbers in [0, 1], got {variant!r}")
-    v = np.clip(v, 0.0, 1.0)
-    return float(v[0]), float(v[1]), float(v[2]), float(v[3])
+    a, b, c, d = (min(1.0, max(0.0, t)) for t in vals)
+    return a, b, c, d
 
 
 def _parts_and_extent(
@@ -863,28 +977,28 @@ def silhouette_mask(
 
     parts, (ex0, ey0, ex1, ey1) = _parts_and_extent(family, vals)
     bw, bh = bx1 - bx0, by1 - by0
-    cols = np.arange(c0, c1, dtype=float) + 0.5
-    rows = np.arange(r0, r1, dtype=float) + 0.5
-    # Flip: sample the mirrored positions in increasing design x, then reverse the columns.
-    u = (bx1 - cols[::-1]) / bw if flip else (cols - bx0) / bw
-    X = ex0 + u * (ex1 - ex0)
-    Y = ey0 + (rows - by0) / bh * (ey1 - ey0)
-    pdx, pdy = (ex1 - ex0) / bw, (ey1 - ey0) / bh
+    dx, dy = (ex1 - ex0) / bw, (ey1 - ey0) / bh  # one pixel in design units
+    # Design coordinates of the first sampled pixel centre. With `flip` the columns are
+    # sampled at their mirrored positions, in increasing design x, and written back reversed.
+    u0 = (bx1 - (c1 - 0.5)) / bw if flip else (c0 + 0.5 - bx0) / bw
+    gx0 = ex0 + u0 * (ex1 - ex0)
+    gy0 = ey0 + (r0 + 0.5 - by0) / bh * (ey1 - ey0)
+    grid = _Grid(gx0, gy0, dx, dy, c1 - c0, r1 - r0)
 
     sub = out[r0:r1, c0:c1]
     if flip:
         sub = sub[:, ::-1]  # a view: writing into it writes the mirrored columns of `out`
     for additive, prim in parts:
         if additive:
-            res = prim.render(X, Y, pdx, pdy)
+            res = prim.render(grid, True)
         else:
             hx0, hy0, hx1, hy1 = prim.ext
-            if hx1 - hx0 < _MIN_HOLE_PX * pdx or hy1 - hy0 < _MIN_HOLE_PX * pdy:
-                continue
-            res = prim.render(X, Y, 0.0, 0.0)  # holes are never widened
+            if hx1 - hx0 < _MIN_HOLE_PX * dx or hy1 - hy0 < _MIN_HOLE_PX * dy:
+                continue  # holes this small would only eat the thin walls around them
+            res = prim.render(grid, False)
         if res is None:
             continue
-        (i0, i1, j0, j1), local = res
+        i0, i1, j0, j1, local = res
         view = sub[j0:j1, i0:i1]
         if local is True:
             view[...] = additive

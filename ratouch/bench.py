@@ -1,0 +1,57 @@
+"""Benchmark commands: figures measured in one run, printed (tests check behaviour, not time)."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import tempfile
+import time
+
+from ratouch.corpus.imagenet_t import build_corpus, load_corpus, parse_world_source, \
+    render_world_images
+from ratouch.world.config import WorldConfig
+from ratouch.world.dataset import write_split
+
+
+def bench_world(corpus_size: int = 10_000, workers: int = 2, seed: int = 0,
+                progress: bool = False) -> dict:
+    """Time generating the ImageNet-T corpus (plan + recaption, then rendering every image)
+    and writing the 402-sample test split in the TVL layout, in one run.
+
+    Returns:
+        Seconds and throughput per stage, the total, and a digest of the rendered corpus
+        images (the same seed must always give the same digest).
+    """
+    cfg = WorldConfig(seed=seed)
+    tmp = tempfile.mkdtemp(prefix="ratouch-bench-")
+    try:
+        t0 = time.perf_counter()
+        build_corpus(os.path.join(tmp, "corpus"), corpus_size, seed=seed, world_cfg=cfg,
+                     progress=progress)
+        t1 = time.perf_counter()
+        _, entries = load_corpus(os.path.join(tmp, "corpus"))
+        ids = [parse_world_source(e.source)[1:] for e in entries]
+        digest = hashlib.sha256()
+        n_img = 0
+        for batch in render_world_images(ids, cfg, workers=workers, progress=progress):
+            digest.update(batch.tobytes())
+            n_img += len(batch)
+        t2 = time.perf_counter()
+        write_split(cfg, os.path.join(tmp, "tvl"), "test", workers=workers, progress=progress)
+        t3 = time.perf_counter()
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    total = t3 - t0
+    return {
+        "corpus_size": corpus_size, "workers": workers, "cpu_count": os.cpu_count(),
+        "corpus_metadata_s": round(t1 - t0, 2),
+        "corpus_render_s": round(t2 - t1, 2),
+        "corpus_images_per_s": round(n_img / (t2 - t1), 1),
+        "test_split_s": round(t3 - t2, 2),
+        "test_pairs_per_s": round(402 / (t3 - t2), 1),
+        "total_s": round(total, 2),
+        "target_s": 60.0,
+        "meets_target": total < 60.0,
+        "corpus_images_sha256": digest.hexdigest()[:16],
+    }

@@ -1,0 +1,242 @@
+"""The `ratouch` command line: a thin client of the library.
+
+Every subcommand is `main(argv)`-callable. User errors print one line and exit with code 2,
+and leave nothing half-written behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from ratouch.errors import RATouchError
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (exit code 2), as the CLI promises."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from e
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be >= 0")
+    return v
+
+
+def _pos_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from e
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
+    return v
+
+
+def _add_world(sub) -> None:
+    world = sub.add_parser("world", help="the procedural visuo-tactile world")
+    wsub = world.add_subparsers(dest="world_cmd", required=True)
+
+    b = wsub.add_parser("build", help="write a split in the TVL data set layout")
+    b.add_argument("--out", required=True, help="data set root folder")
+    b.add_argument("--split", choices=("train", "test"), default="train")
+    b.add_argument("--n", type=_pos_int, default=None,
+                   help="number of pairs (train default 20000; test is always 402)")
+    b.add_argument("--seed", type=_nonneg_int, default=0)
+    b.add_argument("--workers", type=_pos_int, default=2)
+    _add_stress(b)
+
+    p = wsub.add_parser("preview", help="a contact sheet PNG a person can look at")
+    p.add_argument("--out", required=True, help="PNG file to write")
+    p.add_argument("--split", choices=("train", "test"), default="test")
+    p.add_argument("--n", type=_pos_int, default=24)
+    p.add_argument("--start", type=_nonneg_int, default=0, help="first sample index")
+    p.add_argument("--stride", type=_pos_int, default=17, help="index step between samples")
+    p.add_argument("--seed", type=_nonneg_int, default=0)
+    p.add_argument("--columns", type=_pos_int, default=4)
+    _add_stress(p)
+
+    pr = wsub.add_parser("probe", help="material probe: visual vs tactile vs both")
+    pr.add_argument("--n-train", type=_pos_int, default=2400)
+    pr.add_argument("--n-test", type=_pos_int, default=800)
+    pr.add_argument("--seed", type=_nonneg_int, default=0)
+    pr.add_argument("--workers", type=_pos_int, default=2)
+    pr.add_argument("--json", action="store_true", help="print JSON")
+
+
+def _add_stress(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("stress knobs")
+    g.add_argument("--object-scale", type=float, help="object side / frame side, 0.1..1")
+    g.add_argument("--clutter", type=int, help="number of distractors")
+    g.add_argument("--background-dominance", type=float, help="0..1")
+    g.add_argument("--tactile-noise", type=float, help="sensor noise std, 0..0.3")
+    g.add_argument("--tactile-blur", type=float, help="gel blur sigma, pixels")
+    g.add_argument("--tactile-rotation", type=float, help="texture rotation, degrees")
+    g.add_argument("--box-offset", type=float, default=0.0, help="box shift / box side")
+    g.add_argument("--missing", choices=("none", "visual", "tactile"), default="none")
+    g.add_argument("--no-contact", type=float, default=0.0, help="no-contact frame rate")
+
+
+def _world_cfg(args: argparse.Namespace):
+    from ratouch.world.config import StressConfig, WorldConfig
+
+    stress = StressConfig(
+        object_scale=args.object_scale, clutter=args.clutter,
+        background_dominance=args.background_dominance, tactile_noise=args.tactile_noise,
+        tactile_blur=args.tactile_blur, tactile_rotation=args.tactile_rotation,
+        box_offset=args.box_offset, missing=args.missing, no_contact=args.no_contact)
+    return WorldConfig(seed=args.seed, stress=stress)
+
+
+def _add_corpus(sub) -> None:
+    corpus = sub.add_parser("corpus", help="ImageNet-T, the tactile-recaptioned corpus")
+    csub = corpus.add_subparsers(dest="corpus_cmd", required=True)
+    b = csub.add_parser("build", help="recaption and sample a corpus")
+    b.add_argument("--size", default="10k", help="10k, 50k, 100k, 150k or a count")
+    b.add_argument("--out", required=True, help="corpus folder (must not hold a corpus)")
+    b.add_argument("--seed", type=_nonneg_int, default=0)
+    b.add_argument("--captioner", choices=("offline", "llm"), default="offline")
+    b.add_argument("--endpoint", help="OpenAI-compatible base URL for --captioner llm "
+                                      "(key from $RATOUCH_LLM_API_KEY)")
+    b.add_argument("--model", default="gpt-4o-mini")
+    b.add_argument("--from-list", help="CSV of (image path, class, caption) for a real corpus")
+
+
+def _add_bench(sub) -> None:
+    bench = sub.add_parser("bench", help="benchmarks that print measured figures")
+    bsub = bench.add_subparsers(dest="bench_cmd", required=True)
+    w = bsub.add_parser("world", help="corpus + test split generation throughput")
+    w.add_argument("--corpus-size", default="10k")
+    w.add_argument("--workers", type=_pos_int, default=2)
+    w.add_argument("--json", action="store_true")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="ratouch", description=__doc__.splitlines()[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="log more")
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    _add_world(sub)
+    _add_corpus(sub)
+    _add_bench(sub)
+    app = sub.add_parser("app", help="launch the Gradio app")
+    app.add_argument("--host", default="127.0.0.1")
+    app.add_argument("--port", type=_pos_int, default=7860)
+    return parser
+
+
+def _run_world(args: argparse.Namespace) -> int:
+    cfg = _world_cfg(args) if args.world_cmd != "probe" else None
+    if args.world_cmd == "build":
+        from ratouch.world.dataset import write_split
+
+        counts = write_split(cfg, args.out, args.split, args.n, workers=args.workers)
+        print(json.dumps({"out": str(args.out), "split": args.split, **counts}))
+    elif args.world_cmd == "preview":
+        from ratouch.world.dataset import check_writable
+        from ratouch.world.generator import TEST_SIZE, World
+        from ratouch.world.preview import contact_sheet
+
+        out = Path(args.out)
+        if out.suffix.lower() != ".png":
+            raise _usage(f"--out {out} must be a .png file")
+        check_writable(out.parent)
+        world = World(cfg)
+        limit = TEST_SIZE if args.split == "test" else None
+        idx = [args.start + k * args.stride for k in range(args.n)]
+        if limit is not None:
+            idx = [i % limit for i in idx]
+        sheet = contact_sheet([world.sample(args.split, i) for i in idx], columns=args.columns)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_suffix(".partial.png")
+        sheet.save(tmp)
+        os.replace(tmp, out)
+        print(f"wrote {out} ({len(idx)} samples, {sheet.size[0]}x{sheet.size[1]})")
+    else:
+        from ratouch.world.config import WorldConfig
+        from ratouch.world.probe import ProbeConfig, format_probe, run_probe
+
+        result = run_probe(WorldConfig(seed=args.seed),
+                           ProbeConfig(n_train=args.n_train, n_test=args.n_test,
+                                       workers=args.workers), progress=not args.json)
+        print(json.dumps(result, indent=2) if args.json else format_probe(result))
+    return 0
+
+
+def _run_corpus(args: argparse.Namespace) -> int:
+    from ratouch.corpus.imagenet_t import build_corpus
+    from ratouch.corpus.recaption import RecaptionConfig
+
+    rc = RecaptionConfig(backend=args.captioner, endpoint=args.endpoint, model=args.model)
+    manifest = build_corpus(args.out, args.size, seed=args.seed, recaption=rc,
+                            image_list=args.from_list)
+    print(json.dumps(manifest))
+    return 0
+
+
+def _run_bench(args: argparse.Namespace) -> int:
+    from ratouch.bench import bench_world
+    from ratouch.corpus.imagenet_t import parse_size
+
+    r = bench_world(parse_size(args.corpus_size), workers=args.workers)
+    if args.json:
+        print(json.dumps(r))
+    else:
+        print(f"world generation on {r['cpu_count']} cores, {r['workers']} workers:")
+        print(f"  ImageNet-T {r['corpus_size']} metadata (plan + recaption): "
+              f"{r['corpus_metadata_s']:.2f} s")
+        print(f"  ImageNet-T {r['corpus_size']} images rendered: {r['corpus_render_s']:.2f} s "
+              f"({r['corpus_images_per_s']:.0f} images/s)")
+        print(f"  test split, 402 pairs written in TVL layout: {r['test_split_s']:.2f} s "
+              f"({r['test_pairs_per_s']:.0f} pairs/s)")
+        print(f"  total: {r['total_s']:.2f} s (target < {r['target_s']:.0f} s: "
+              f"{'met' if r['meets_target'] else 'NOT met'})")
+    return 0
+
+
+def _run_app(args: argparse.Namespace) -> int:
+    app_file = Path(__file__).resolve().parents[1] / "app" / "app.py"
+    if not app_file.is_file():
+        raise _usage(f"the app is not found at {app_file} (run from a checkout of the repo)")
+    os.execv(sys.executable, [sys.executable, str(app_file), "--host", args.host,
+                              "--port", str(args.port)])
+    return 0  # not reached
+
+
+class _UsageError(RATouchError):
+    pass
+
+
+def _usage(msg: str) -> _UsageError:
+    return _UsageError(msg)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point. Returns the exit code (0 ok, 2 user error)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    runners = {"world": _run_world, "corpus": _run_corpus, "bench": _run_bench, "app": _run_app}
+    try:
+        return runners[args.cmd](args)
+    except (RATouchError, OSError) as e:
+        print(f"ratouch: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("ratouch: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,315 @@
+"""ImageNet-T: the tactile-recaptioned retrieval corpus, built by the paper's recipe.
+
+Recaption every entry (class name + appearance-only description -> exactly five tactile
+adjectives), then draw stratified subsets across classes (10k, 50k, 100k, 150k). The default
+source is the procedural world (a pool of 1300 entries per class, like ImageNet's ~1300 images
+per class, images rendered on demand from their ids); a real list of (image path, class,
+caption) rows goes through the same builder.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import logging
+import os
+import re
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+from ratouch.corpus.recaption import RecaptionConfig, create_recaptioner
+from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.world.config import WorldConfig
+from ratouch.world.dataset import check_writable
+from ratouch.world.generator import CORPUS_POOL_PER_CLASS, World
+from ratouch.world.material import MATERIALS
+from ratouch.world.objects import OBJECT_CLASSES
+
+log = logging.getLogger(__name__)
+
+SUBSET_SIZES = {"10k": 10_000, "50k": 50_000, "100k": 100_000, "150k": 150_000}
+METADATA = "metadata.jsonl"
+MANIFEST = "manifest.json"
+
+
+@dataclass(frozen=True)
+class CorpusEntry:
+    """One ImageNet-T row. `source` says how to get the image back: `world:<seed>:<class
+    index>:<instance>` for the procedural world, or an image path for a real corpus."""
+
+    id: int
+    class_name: str
+    description: str
+    caption: str  # exactly five tactile adjectives, comma separated
+    source: str
+    material: str = ""  # world ground truth (never shown to the recaptioner); "" if unknown
+
+
+def parse_size(text: str | int) -> int:
+    """Parse a corpus size such as 10k, 150k, 1m or 2500."""
+    if isinstance(text, int):
+        n = text
+    else:
+        m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([kKmM]?)\s*", str(text))
+        if not m:
+            raise ConfigError(f"size={text!r} is not a size like 10k, 150k or 2500")
+        n = int(float(m.group(1)) * {"": 1, "k": 1_000, "m": 1_000_000}[m.group(2).lower()])
+    if n <= 0:
+        raise ConfigError(f"size={text!r} must be positive")
+    return n
+
+
+def world_lexicon() -> dict[str, dict[str, float]]:
+    """Lexicon of the world's appearance words and class names for the offline recaptioner.
+
+    A look word ("glossy", "wooden", ...) maps to the mean profile of the materials that look
+    that way (so look-alikes stay ambiguous, as they are to a captioner that only sees them);
+    a class name maps to the profile expected from its material distribution.
+    """
+    def norm(p: dict[str, float]) -> dict[str, float]:
+        total = sum(p.values())
+        return {k: 3.0 * v / total for k, v in p.items()}
+
+    lex: dict[str, dict[str, float]] = {}
+    by_look: dict[str, list] = {}
+    for m in MATERIALS:
+        by_look.setdefault(m.look.word, []).append(m)
+    for word, mats in by_look.items():
+        acc: dict[str, float] = {}
+        for m in mats:
+            for adj, w in m.profile:
+                acc[adj] = acc.get(adj, 0.0) + w / len(mats)
+        lex[word.lower()] = norm(acc)
+    profiles = {m.name: dict(m.profile) for m in MATERIALS}
+    for c in OBJECT_CLASSES:
+        total = sum(w for _, w in c.materials)
+        acc = {}
+        for name, w in c.materials:
+            for adj, pw in profiles[name].items():
+                acc[adj] = acc.get(adj, 0.0) + pw * w / total
+        lex[c.name.lower()] = norm(acc)
+    return lex
+
+
+def stratified_world_ids(size: int, seed: int, n_classes: int = len(OBJECT_CLASSES)
+                         ) -> list[tuple[int, int]]:
+    """(class index, instance) pairs of a stratified sample of the world's pool.
+
+    Each class gets size // n_classes entries (the remainder goes to a seeded choice of
+    classes), taken as a prefix of a seeded permutation of the class's pool, so smaller
+    subsets are contained in larger ones.
+    """
+    pool = n_classes * CORPUS_POOL_PER_CLASS
+    if size > pool:
+        raise ConfigError(f"size={size} exceeds the world's pool of {pool} entries "
+                          f"({n_classes} classes x {CORPUS_POOL_PER_CLASS})")
+    rng = np.random.default_rng([seed, 31337])
+    quota = np.full(n_classes, size // n_classes)
+    quota[rng.permutation(n_classes)[: size % n_classes]] += 1
+    ids = []
+    for c in range(n_classes):
+        order = np.random.default_rng([seed, 4242, c]).permutation(CORPUS_POOL_PER_CLASS)
+        ids.extend((c, int(i)) for i in order[: quota[c]])
+    return ids
+
+
+def read_image_list(path: str | os.PathLike) -> list[tuple[str, str, str]]:
+    """Read a real corpus list: a CSV with columns path, class, caption (header optional).
+    Relative image paths are resolved against the list's folder."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataNotFoundError(f"image list {path} does not exist")
+    rows = []
+    with open(path, newline="") as f:
+        for n, row in enumerate(csv.reader(f), 1):
+            if n == 1 and [c.strip().lower() for c in row[:3]] == ["path", "class", "caption"]:
+                continue
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != 3:
+                raise DataError(f"{path}:{n}: expected 3 columns (path, class, caption), "
+                                f"got {len(row)}")
+            img, cls, cap = (c.strip() for c in row)
+            img_path = Path(img) if os.path.isabs(img) else path.parent / img
+            if not img_path.is_file():
+                raise DataNotFoundError(f"{path}:{n}: image {img_path} does not exist")
+            rows.append((str(img_path), cls, cap))
+    if not rows:
+        raise DataError(f"image list {path} has no rows")
+    return rows
+
+
+def stratified_rows(rows: Sequence[tuple[str, str, str]], size: int, seed: int
+                    ) -> list[tuple[str, str, str]]:
+    """A class-stratified sample of a real list (all rows if size >= len(rows))."""
+    if size >= len(rows):
+        return list(rows)
+    by_class: dict[str, list[int]] = {}
+    for i, (_, cls, _) in enumerate(rows):
+        by_class.setdefault(cls, []).append(i)
+    rng = np.random.default_rng([seed, 777])
+    classes = sorted(by_class)
+    picked: list[int] = []
+    # round-robin over shuffled classes keeps the class balance of a stratified sample
+    queues = {c: list(rng.permutation(by_class[c])) for c in classes}
+    while len(picked) < size:
+        for c in classes:
+            if queues[c] and len(picked) < size:
+                picked.append(int(queues[c].pop()))
+    return [rows[i] for i in sorted(picked)]
+
+
+def build_corpus(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
+                 recaption: RecaptionConfig | None = None, image_list: str | None = None,
+                 world_cfg: WorldConfig | None = None, progress: bool = True) -> dict:
+    """Build an ImageNet-T corpus folder: `metadata.jsonl` and `manifest.json`.
+
+    Written to a temporary folder first and moved into place at the end, so a failure leaves
+    nothing half-written. Refuses to overwrite an existing corpus.
+
+    Args:
+        out: corpus folder.
+        size: number of entries (10k, 50k, 100k, 150k or any count).
+        seed: sampling seed (the world's seed too, unless world_cfg is given).
+        recaption: recaptioner config (offline by default).
+        image_list: CSV of (path, class, caption) for a real corpus; None for the world.
+        world_cfg: world config for the default source.
+        progress: show progress bars.
+
+    Returns:
+        The manifest.
+    """
+    n = parse_size(size)
+    recaption = recaption or RecaptionConfig()
+    out = Path(out)
+    check_writable(out)
+    if (out / MANIFEST).exists():
+        raise ConfigError(f"{out} already holds a corpus; choose another folder")
+    t0 = time.perf_counter()
+    if image_list is None:
+        world = World(world_cfg or WorldConfig(seed=seed))
+        ids = stratified_world_ids(n, seed)
+        items = []
+        for c, i in tqdm(ids, desc="corpus plan", disable=not progress):
+            r = world.corpus_record(c, i)
+            items.append((r.class_name, r.description, f"world:{world.cfg.seed}:{c}:{i}",
+                          r.material))
+    else:
+        rows = stratified_rows(read_image_list(image_list), n, seed)
+        items = [(cls, cap, img, "") for img, cls, cap in rows]
+    recaptioner = create_recaptioner(recaption, world_lexicon())
+    pairs = [(cls, desc) for cls, desc, _, _ in items]
+    captions = []
+    for k in tqdm(range(0, len(pairs), 512), desc="recaption", disable=not progress):
+        captions.extend(recaptioner.recaption_many(pairs[k:k + 512]))
+    entries = [CorpusEntry(i, cls, desc, ", ".join(cap), src, mat)
+               for i, ((cls, desc, src, mat), cap) in enumerate(zip(items, captions))]
+    stats = recaptioner.stats() if hasattr(recaptioner, "stats") else {}
+    manifest = {
+        "kind": "imagenet-t", "size": len(entries), "seed": seed,
+        "source": "world" if image_list is None else str(image_list),
+        "n_classes": len({e.class_name for e in entries}),
+        "captioner": recaption.backend, "captioner_stats": stats,
+        "build_seconds": round(time.perf_counter() - t0, 2),
+    }
+    _write_atomic(out, entries, manifest)
+    return manifest
+
+
+def _write_atomic(out: Path, entries: list[CorpusEntry], manifest: dict) -> None:
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".partial-corpus-", dir=out))
+    try:
+        h = hashlib.sha256()
+        with open(tmp / METADATA, "w") as f:
+            for e in entries:
+                line = json.dumps(asdict(e)) + "\n"
+                h.update(line.encode())
+                f.write(line)
+        manifest = dict(manifest, metadata_sha256=h.hexdigest())
+        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2))
+        os.replace(tmp / METADATA, out / METADATA)
+        os.replace(tmp / MANIFEST, out / MANIFEST)  # the manifest last: it marks completion
+    except BaseException:
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def load_corpus(folder: str | os.PathLike) -> tuple[dict, list[CorpusEntry]]:
+    """Load and verify a corpus folder (manifest present, checksum and count match)."""
+    folder = Path(folder)
+    mpath = folder / MANIFEST
+    if not mpath.is_file():
+        raise DataNotFoundError(f"{folder} holds no corpus ({MANIFEST} missing)")
+    try:
+        manifest = json.loads(mpath.read_text())
+        data = (folder / METADATA).read_bytes()
+    except (OSError, json.JSONDecodeError) as e:
+        raise DataError(f"corpus {folder} is unreadable: {e}") from e
+    if hashlib.sha256(data).hexdigest() != manifest.get("metadata_sha256"):
+        raise DataError(f"corpus {folder}: {METADATA} does not match its manifest checksum")
+    entries = [CorpusEntry(**json.loads(line)) for line in data.decode().splitlines() if line]
+    if len(entries) != manifest.get("size"):
+        raise DataError(f"corpus {folder}: manifest says {manifest.get('size')} entries, "
+                        f"found {len(entries)}")
+    return manifest, entries
+
+
+def parse_world_source(source: str) -> tuple[int, int, int]:
+    """(seed, class index, instance) of a `world:<seed>:<class>:<instance>` source."""
+    parts = source.split(":")
+    if len(parts) != 4 or parts[0] != "world":
+        raise DataError(f"source {source!r} is not a world source")
+    return int(parts[1]), int(parts[2]), int(parts[3])
+
+
+def _render_chunk(args: tuple[WorldConfig, list[tuple[int, int]], int]) -> list[np.ndarray]:
+    from ratouch.world.dataset import world_for
+
+    cfg, ids, thumb = args
+    world = world_for(cfg)
+    out = []
+    for c, i in ids:
+        img = world.corpus_image(c, i)
+        if thumb and thumb != img.shape[0]:
+            from PIL import Image
+
+            img = np.asarray(Image.fromarray(img).resize((thumb, thumb), Image.BILINEAR))
+        out.append(img)
+    return out
+
+
+def render_world_images(ids: Sequence[tuple[int, int]], cfg: WorldConfig, workers: int = 2,
+                        chunk: int = 200, thumb: int = 0, progress: bool = True):
+    """Render world corpus images (class index, instance) in parallel, yielding them in order
+    in chunks of `chunk` images as (n, S, S, 3) uint8 arrays."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from ratouch.world.dataset import _fork_context, world_for
+
+    jobs = [(cfg, list(ids[k:k + chunk]), thumb) for k in range(0, len(ids), chunk)]
+    bar = tqdm(total=len(ids), desc="render corpus", unit="img", disable=not progress)
+    if workers == 1:
+        results = map(_render_chunk, jobs)
+        for imgs in results:
+            bar.update(len(imgs))
+            yield np.stack(imgs)
+    else:
+        world_for(cfg).warm()
+        with ProcessPoolExecutor(workers, mp_context=_fork_context()) as pool:
+            for imgs in pool.map(_render_chunk, jobs):
+                bar.update(len(imgs))
+                yield np.stack(imgs)
+    bar.close()

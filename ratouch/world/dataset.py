@@ -1,0 +1,262 @@
+"""Paired visuo-tactile data sets on disk in the TVL data set's own layout.
+
+TVL (public repository Max-Fu/tvl, `tvl_enc/tacvis.py`) keeps one folder per subset
+(`ssvtp/`, `hct/data1/`, ...), each with a `train.csv` and a `test.csv`: a header row, then
+rows of (vision path, tactile path, background path, caption), paths relative to that folder.
+`write_split` writes the world in that layout (plus a `meta_<split>.jsonl` sidecar with the
+world's ground truth, row for row); `read_tvl` reads both it and the real TVL data set.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import os
+import shutil
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+from PIL import Image
+from tqdm import tqdm
+
+from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.world.config import WorldConfig
+from ratouch.world.generator import TEST_SIZE, World
+
+log = logging.getLogger(__name__)
+
+CSV_HEADER = ("url", "tactile", "background", "caption")
+SUBSET_DIRS = {"structured": "ssvtp", "wild": os.path.join("hct", "data1")}
+WRITABLE_SPLITS = ("train", "test")
+
+
+@dataclass(frozen=True)
+class PairRecord:
+    """One row of a TVL-layout CSV, paths made absolute."""
+
+    vision: Path
+    tactile: Path
+    background: Path
+    caption: str
+    subset: str  # the subset folder, relative to the data set root
+    meta: dict | None = None  # world ground truth, when the sidecar exists
+
+
+# ---------------------------------------------------------------------------------------------
+# writing
+
+def _save_png(path: Path, array: np.ndarray) -> None:
+    Image.fromarray(array).save(path, compress_level=1)
+
+
+@lru_cache(maxsize=2)
+def world_for(cfg: WorldConfig) -> World:
+    """One World per config and process, so worker processes build texture tiles once."""
+    return World(cfg)
+
+
+def _write_chunk(args: tuple[WorldConfig, str, Sequence[int], str]) -> list[tuple[str, dict]]:
+    """Render and save a chunk of samples (runs in a worker process). Returns CSV rows."""
+    cfg, split, indices, root = args
+    world = world_for(cfg)
+    rows = []
+    for i in indices:
+        s = world.sample(split, i)
+        sub = SUBSET_DIRS[s.subset]
+        base = Path(root) / sub
+        name = f"{split}_{i:06d}.png"
+        _save_png(base / "vision" / name, s.visual)
+        _save_png(base / "tactile" / name, s.tactile)
+        meta = {
+            "index": i, "class_name": s.class_name, "material": s.material,
+            "label": s.label, "description": s.description, "box": list(s.box),
+            "box_true": list(s.box_true), "sensor": s.sensor, "contact": s.contact,
+            "object_scale": round(s.object_scale, 4),
+        }
+        row = (f"vision/{name}", f"tactile/{name}", f"backgrounds/sensor_{s.sensor}.png",
+               s.caption)
+        rows.append((s.subset, {"row": row, "meta": meta}))
+    return rows
+
+
+def _fork_context():
+    """Fork where the platform has it (workers inherit warmed tiles), else the default."""
+    import multiprocessing as mp
+
+    return mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
+
+
+def _chunks(n: int, size: int) -> Iterator[list[int]]:
+    for start in range(0, n, size):
+        yield list(range(start, min(n, start + size)))
+
+
+def check_writable(out: Path) -> None:
+    """Fail early, with the folder named, if `out` cannot be created or written."""
+    probe_dir = out
+    while not probe_dir.exists():
+        probe_dir = probe_dir.parent
+    if not probe_dir.is_dir():
+        raise ConfigError(f"output path {out} is inside {probe_dir}, which is not a folder")
+    if not os.access(probe_dir, os.W_OK | os.X_OK):
+        raise ConfigError(f"output folder {probe_dir} is not writable")
+
+
+def write_split(cfg: WorldConfig, out: str | os.PathLike, split: str, n: int | None = None,
+                workers: int = 2, progress: bool = True) -> dict[str, int]:
+    """Generate a split of the world and write it in the TVL layout under `out`.
+
+    Everything is first written to a temporary folder inside `out` and moved into place only
+    when the whole split succeeded, so a failure or an interrupt leaves nothing half-written.
+
+    Args:
+        cfg: world config.
+        out: data set root; `ssvtp/` and `hct/data1/` are created under it.
+        split: "train" or "test".
+        n: number of samples; the test split always has 402 (46 structured + 356 wild).
+        workers: processes rendering in parallel.
+        progress: show a progress bar.
+
+    Returns:
+        Number of samples written per subset.
+    """
+    if split not in WRITABLE_SPLITS:
+        raise ConfigError(f"split={split!r} must be one of {WRITABLE_SPLITS}")
+    if split == "test":
+        if n not in (None, TEST_SIZE):
+            raise ConfigError(f"the test split has exactly {TEST_SIZE} samples; got n={n}")
+        n = TEST_SIZE
+    if n is None:
+        n = 20000
+    if n <= 0:
+        raise ConfigError(f"n={n} must be a positive number of samples")
+    if workers < 1:
+        raise ConfigError(f"workers={workers} must be >= 1")
+    out = Path(out)
+    check_writable(out)
+    created_out = not out.exists()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".partial-{split}-", dir=out))
+    except OSError as e:
+        raise ConfigError(f"cannot write to output folder {out}: {e.strerror}") from e
+    try:
+        counts = _write_into(cfg, tmp, split, n, workers, progress)
+        _move_into(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if created_out and not any(out.iterdir()):
+            out.rmdir()
+        raise
+    shutil.rmtree(tmp, ignore_errors=True)
+    return counts
+
+
+def _write_into(cfg: WorldConfig, root: Path, split: str, n: int, workers: int,
+                progress: bool) -> dict[str, int]:
+    world = world_for(cfg).warm()  # forked workers inherit the texture tiles
+    for sub in SUBSET_DIRS.values():
+        for folder in ("vision", "tactile", "backgrounds"):
+            (root / sub / folder).mkdir(parents=True, exist_ok=True)
+    chunk = max(16, min(256, n // (4 * workers) + 1))
+    jobs = [(cfg, split, idx, str(root)) for idx in _chunks(n, chunk)]
+    results: list[tuple[str, dict]] = []
+    bar = tqdm(total=n, desc=f"world {split}", unit="pair", disable=not progress)
+    if workers == 1:
+        for job in jobs:
+            results.extend(_write_chunk(job))
+            bar.update(len(job[2]))
+    else:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=_fork_context()) as pool:
+            for rows in pool.map(_write_chunk, jobs):
+                results.extend(rows)
+                bar.update(len(rows))
+    bar.close()
+    counts = {}
+    for subset, sub in SUBSET_DIRS.items():
+        rows = [r for s, r in results if s == subset]
+        counts[subset] = len(rows)
+        if not rows:
+            shutil.rmtree(root / sub)
+            continue
+        used = sorted({r["meta"]["sensor"] for r in rows})
+        for k in used:
+            _save_png(root / sub / "backgrounds" / f"sensor_{k}.png", world.background_image(k))
+        with open(root / sub / f"{split}.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(CSV_HEADER)
+            w.writerows(r["row"] for r in rows)
+        with open(root / sub / f"meta_{split}.jsonl", "w") as f:
+            for r in rows:
+                f.write(json.dumps(r["meta"]) + "\n")
+    return counts
+
+
+def _move_into(tmp: Path, out: Path) -> None:
+    for src in sorted(tmp.rglob("*")):
+        if src.is_dir():
+            continue
+        dst = out / src.relative_to(tmp)
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(src, dst)
+
+
+# ---------------------------------------------------------------------------------------------
+# reading
+
+def subset_dirs(root: Path, split: str) -> list[Path]:
+    """Folders under `root` (root included) that hold the split's CSV, sorted."""
+    name = "test.csv" if split == "test" else "train.csv"
+    return sorted(p.parent for p in root.rglob(name) if not p.parent.name.startswith(".partial"))
+
+
+def read_tvl(root: str | os.PathLike, split: str = "test") -> list[PairRecord]:
+    """Read a TVL-layout data set: the world's output or the real TVL data set.
+
+    Args:
+        root: the data set root (e.g. `tvl_dataset/`), or one subset folder.
+        split: "train" (reads train.csv) or "test" (reads test.csv).
+
+    Returns:
+        One record per CSV row, subsets in sorted folder order.
+    """
+    if split not in WRITABLE_SPLITS:
+        raise ConfigError(f"split={split!r} must be one of {WRITABLE_SPLITS}")
+    root = Path(root)
+    if not root.is_dir():
+        raise DataNotFoundError(f"data set folder {root} does not exist")
+    dirs = subset_dirs(root, split)
+    if not dirs:
+        raise DataNotFoundError(f"no {split}.csv under {root}: not a TVL-layout data set")
+    records = []
+    for d in dirs:
+        records.extend(_read_subset(root, d, split))
+    return records
+
+
+def _read_subset(root: Path, d: Path, split: str) -> list[PairRecord]:
+    csv_path = d / ("test.csv" if split == "test" else "train.csv")
+    with open(csv_path, newline="") as f:
+        rows = list(csv.reader(f))[1:]  # TVL's reader skips the header row too
+    meta_path = d / f"meta_{split}.jsonl"
+    metas: list[dict | None] = [None] * len(rows)
+    if meta_path.exists():
+        with open(meta_path) as f:
+            metas = [json.loads(line) for line in f if line.strip()]
+        if len(metas) != len(rows):
+            raise DataError(f"{meta_path} has {len(metas)} rows but {csv_path} has {len(rows)}")
+    out = []
+    for n, (row, meta) in enumerate(zip(rows, metas), start=2):
+        if len(row) != 4:
+            raise DataError(f"{csv_path}:{n}: expected 4 columns (vision, tactile, background, "
+                            f"caption), got {len(row)}")
+        vision, tactile, background, caption = row
+        out.append(PairRecord(d / vision, d / tactile, d / background, caption,
+                              str(d.relative_to(root)), meta))
+    return out
