@@ -26,7 +26,8 @@ class StressConfig:
         background_dominance: 0 muted background .. 1 loud, high-contrast background texture.
         tactile_noise: std of sensor noise added to the tactile frame (0 .. 0.3).
         tactile_blur: gel blur sigma in tactile pixels (0 .. 6).
-        tactile_rotation: rotation of the pressed texture, degrees.
+        tactile_rotation: rotation of the pressed texture, degrees counter-clockwise as seen
+            in the frame.
         box_offset: shift of the reported contact box, as a fraction of its side (0 .. 3).
         missing: "none", "visual" (blank image) or "tactile" (a no-contact frame).
         no_contact: probability of a no-contact tactile frame.

@@ -295,15 +295,25 @@ class _Ellipse(_Prim):
         return i0, i1, j0, j1, (ax >= left[:, None]) & (ax <= right[:, None])
 
 
+def _local_extremes(v: np.ndarray, lower: bool) -> np.ndarray:
+    """Indices of the knots where the piecewise-linear v has a local minimum (or maximum)."""
+    w = v if lower else -v
+    prev = np.concatenate(([_INF], w[:-1]))
+    nxt = np.concatenate((w[1:], [_INF]))
+    return np.flatnonzero((w <= prev) & (w <= nxt))
+
+
 def _footprint_extremes(
-    t: np.ndarray, step: float, kt: np.ndarray, lo: np.ndarray, hi: np.ndarray
+    t: np.ndarray, step: float, kt: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+    lo_knots: np.ndarray, hi_knots: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Min of the piecewise-linear `lo` and max of `hi` over each sample's pixel footprint.
 
     Sampling a polygon's edge only at pixel centres can miss a sharp vertex by up to half a
     pixel times the edge slope (several pixels for a squashed shape); taking the extremes over
     the footprint [t - step/2, t + step/2] instead never misses a vertex, so polygon extremes
-    land on the bbox sides and sub-pixel-thin polygons stay visible.
+    land on the bbox sides and sub-pixel-thin polygons stay visible. Over an interval, a
+    piecewise-linear function peaks at an end or at a local-extreme knot.
 
     Args:
         t: sample positions, uniformly spaced by `step`, increasing.
@@ -311,6 +321,8 @@ def _footprint_extremes(
         kt: knot positions (non-decreasing).
         lo: knot values whose footprint minimum is wanted.
         hi: knot values whose footprint maximum is wanted.
+        lo_knots: indices of the local minima of `lo`.
+        hi_knots: indices of the local maxima of `hi`.
 
     Returns:
         (lo_min, hi_max), one value per sample.
@@ -321,11 +333,15 @@ def _footprint_extremes(
     a, b = t - h, t + h
     lo_min = np.minimum(np.interp(a, kt, lo), np.interp(b, kt, lo))
     hi_max = np.maximum(np.interp(a, kt, hi), np.interp(b, kt, hi))
-    j = np.rint((kt - t[0]) / step).astype(np.intp)
-    ok = (j >= 0) & (j < t.size)
-    if ok.any():
-        np.minimum.at(lo_min, j[ok], lo[ok])
-        np.maximum.at(hi_max, j[ok], hi[ok])
+    t0, n = float(t[0]), t.size
+    for k in lo_knots.tolist():
+        j = round((float(kt[k]) - t0) / step)
+        if 0 <= j < n and lo[k] < lo_min[j]:
+            lo_min[j] = lo[k]
+    for k in hi_knots.tolist():
+        j = round((float(kt[k]) - t0) / step)
+        if 0 <= j < n and hi[k] > hi_max[j]:
+            hi_max[j] = hi[k]
     return lo_min, hi_max
 
 
@@ -335,12 +351,14 @@ class _YPoly(_Prim):
     xl and xr are piecewise linear through the knots (ys non-decreasing).
     """
 
-    __slots__ = ("ys", "xl", "xr")
+    __slots__ = ("ys", "xl", "xr", "kl", "kr")
 
     def __init__(self, ys: np.ndarray, xl: np.ndarray, xr: np.ndarray) -> None:
         self.ys = np.asarray(ys, dtype=float)
         self.xl = np.asarray(xl, dtype=float)
         self.xr = np.asarray(xr, dtype=float)
+        self.kl = _local_extremes(self.xl, lower=True)
+        self.kr = _local_extremes(self.xr, lower=False)
         self.ext = (
             float(self.xl.min()), float(self.ys[0]), float(self.xr.max()), float(self.ys[-1])
         )
@@ -361,7 +379,7 @@ class _YPoly(_Prim):
         if i0 >= i1 or j0 >= j1:
             return None
         left, right = _footprint_extremes(
-            g.Y[j0:j1], g.dy if grow else 0.0, self.ys, self.xl, self.xr
+            g.Y[j0:j1], g.dy if grow else 0.0, self.ys, self.xl, self.xr, self.kl, self.kr
         )
         if grow:
             mid = (left + right) * 0.5
@@ -374,12 +392,14 @@ class _YPoly(_Prim):
 class _XPoly(_Prim):
     """Region whose every column x in [xs[0], xs[-1]] is one interval [yt(x), yb(x)]."""
 
-    __slots__ = ("xs", "yt", "yb")
+    __slots__ = ("xs", "yt", "yb", "kt", "kb")
 
     def __init__(self, xs: np.ndarray, yt: np.ndarray, yb: np.ndarray) -> None:
         self.xs = np.asarray(xs, dtype=float)
         self.yt = np.asarray(yt, dtype=float)
         self.yb = np.asarray(yb, dtype=float)
+        self.kt = _local_extremes(self.yt, lower=True)
+        self.kb = _local_extremes(self.yb, lower=False)
         self.ext = (
             float(self.xs[0]), float(self.yt.min()), float(self.xs[-1]), float(self.yb.max())
         )
@@ -398,7 +418,7 @@ class _XPoly(_Prim):
         if i0 >= i1 or j0 >= j1:
             return None
         top, bot = _footprint_extremes(
-            g.X[i0:i1], g.dx if grow else 0.0, self.xs, self.yt, self.yb
+            g.X[i0:i1], g.dx if grow else 0.0, self.xs, self.yt, self.yb, self.kt, self.kb
         )
         if grow:
             mid = (top + bot) * 0.5
@@ -651,11 +671,11 @@ def _shirt(a: float, b: float, c: float, d: float) -> list[_Part]:
 
 
 def _trousers(a: float, b: float, c: float, d: float) -> list[_Part]:
-    gap = 0.03 + 0.08 * a  # half gap between the hems
+    gap = 0.05 + 0.09 * a  # half gap between the hems
     crotch = 0.28 + 0.12 * b
     flare = 0.06 * c
     wb = 0.06 + 0.03 * d  # waistband height
-    leg = [(0.07, crotch - 0.01), (0.5, crotch - 0.01), (0.5 - gap, 1.1), (0.05 - flare, 1.1)]
+    leg = [(0.07, crotch - 0.01), (0.5, crotch - 0.01), (0.5 - gap, 1.45), (0.06 - flare, 1.45)]
     return [
         _add(_Rect(0.1, 0.0, 0.9, wb)),
         _add(_poly([(0.1, wb * 0.5), (0.9, wb * 0.5), (0.93, crotch), (0.07, crotch)])),
