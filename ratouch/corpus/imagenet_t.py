@@ -220,11 +220,11 @@ def build_corpus(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
         "captioner": recaption.backend, "captioner_stats": stats,
         "build_seconds": round(time.perf_counter() - t0, 2),
     }
-    _write_atomic(out, entries, manifest)
-    return manifest
+    return _write_atomic(out, entries, manifest)
 
 
-def _write_atomic(out: Path, entries: list[CorpusEntry], manifest: dict) -> None:
+def _write_atomic(out: Path, entries: list[CorpusEntry], manifest: dict) -> dict:
+    """Write metadata and manifest (with the metadata checksum); returns the manifest."""
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".partial-corpus-", dir=out))
@@ -239,6 +239,7 @@ def _write_atomic(out: Path, entries: list[CorpusEntry], manifest: dict) -> None
         (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2))
         os.replace(tmp / METADATA, out / METADATA)
         os.replace(tmp / MANIFEST, out / MANIFEST)  # the manifest last: it marks completion
+        return manifest
     except BaseException:
         if created:
             shutil.rmtree(out, ignore_errors=True)

@@ -1,0 +1,75 @@
+"""The ratouch CLI, called as a user would (main(argv))."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from PIL import Image
+
+from ratouch.cli import main
+
+
+def test_world_preview_writes_a_contact_sheet(tmp_path, capsys):
+    out = tmp_path / "sheet.png"
+    assert main(["world", "preview", "--out", str(out), "--n", "6", "--columns", "3"]) == 0
+    im = Image.open(out)
+    assert im.size[0] > 600 and im.size[1] > 300
+    assert "6 samples" in capsys.readouterr().out
+
+
+def test_world_build_small_train_split(tmp_path, capsys):
+    assert main(["world", "build", "--out", str(tmp_path / "d"), "--n", "12", "--workers", "1",
+                 "--seed", "2"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["structured"] + summary["wild"] == 12
+
+
+@pytest.mark.parametrize("argv", [
+    ["world", "build", "--out", "{tmp}/x", "--n", "-3"],
+    ["world", "build", "--out", "{tmp}/x", "--n", "0"],
+    ["world", "build", "--out", "{tmp}/x", "--split", "val"],
+    ["world", "build", "--out", "{tmp}/x", "--split", "test", "--n", "10"],
+    ["world", "build", "--out", "{tmp}/x", "--object-scale", "5"],
+    ["world", "preview", "--out", "{tmp}/x.jpg"],
+    ["corpus", "build", "--size", "-5", "--out", "{tmp}/x"],
+    ["corpus", "build", "--size", "10k", "--out", "{tmp}/x", "--captioner", "llm"],
+])
+def test_bad_arguments_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, argv):
+    argv = [a.format(tmp=tmp_path) for a in argv]
+    with pytest.raises(SystemExit) as e:
+        code = main(argv)
+        raise SystemExit(code)
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "error" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_unwritable_output_folder(tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        import os
+
+        if os.access(ro, os.W_OK):
+            pytest.skip("running as a user that can write anywhere")
+        assert main(["world", "build", "--out", str(ro / "x"), "--n", "5"]) == 2
+        assert "not writable" in capsys.readouterr().err
+    finally:
+        ro.chmod(0o700)
+
+
+def test_file_in_the_way_of_the_output_folder(tmp_path, capsys):
+    f = tmp_path / "file"
+    f.write_text("x")
+    assert main(["world", "build", "--out", str(f / "sub"), "--n", "5"]) == 2
+    assert "not a folder" in capsys.readouterr().err
+    assert f.read_text() == "x"
+
+
+def test_corpus_build_prints_manifest(tmp_path, capsys):
+    assert main(["corpus", "build", "--size", "300", "--out", str(tmp_path / "c")]) == 0
+    manifest = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert manifest["size"] == 300 and manifest["captioner"] == "offline"
