@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import gradio as gr
+from PIL import Image
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 
@@ -40,7 +41,8 @@ def show_sample(split: str, index: float, seed: float, scale: float, clutter: fl
             f"Contact box {s.box} (ground truth {s.box_true}) · object scale "
             f"{s.object_scale:.2f} · sensor {s.sensor} · contact {s.contact}")
     visual = draw_box(s.visual, s.box).resize((384, 384))
-    return visual, s.tactile, info
+    tactile = Image.fromarray(s.tactile).resize((288, 384))
+    return visual, tactile, info
 
 
 def build_demo() -> gr.Blocks:
