@@ -111,11 +111,47 @@ def _add_corpus(sub) -> None:
                                       "(key from $RATOUCH_LLM_API_KEY)")
     b.add_argument("--model", default="gpt-4o-mini")
     b.add_argument("--from-list", help="CSV of (image path, class, caption) for a real corpus")
+    b.add_argument("--encoder", default="default-s", help="encoder to embed with")
+    b.add_argument("--index", choices=("flat", "hnsw", "ivfpq"), default="flat")
+    b.add_argument("--no-embed", action="store_true", help="only recaption and sample")
+    b.add_argument("--workers", type=_pos_int, default=2)
+
+
+def _add_train(sub) -> None:
+    train = sub.add_parser("train", help="train the default models")
+    tsub = train.add_subparsers(dest="train_cmd", required=True)
+    e = tsub.add_parser("encoders", help="train the default vision/tactile/text encoders")
+    e.add_argument("--model", action="append", choices=("default-tiny", "default-s", "default-b",
+                                                         "debug"),
+                   help="encoder(s) to train (repeatable; default: tiny, s and b)")
+    e.add_argument("--out", default=None, help="folder for the weights (default: assets/encoders)")
+    e.add_argument("--seed", type=_nonneg_int, default=0)
+    e.add_argument("--steps", type=_pos_int, default=None, help="override the step count")
+    e.add_argument("--n-pairs", type=_pos_int, default=12_000)
+    e.add_argument("--n-corpus", type=_pos_int, default=8_000)
+
+
+def _add_eval(sub) -> None:
+    ev = sub.add_parser("eval", help="evaluations that print measured figures")
+    esub = ev.add_subparsers(dest="eval_cmd", required=True)
+    r = esub.add_parser("retrieval", help="material precision@K and adjective overlap@K")
+    r.add_argument("--corpus", default=None, help="corpus folder (default: the cached 10k)")
+    r.add_argument("--encoder", default="default-s")
+    r.add_argument("--index", choices=("flat", "hnsw", "ivfpq"), default="flat")
+    r.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
+    r.add_argument("--json", action="store_true")
 
 
 def _add_bench(sub) -> None:
     bench = sub.add_parser("bench", help="benchmarks that print measured figures")
     bsub = bench.add_subparsers(dest="bench_cmd", required=True)
+    r = bsub.add_parser("retrieval", help="index latency / recall against the upstream method")
+    r.add_argument("--n", type=_pos_int, default=150_000)
+    r.add_argument("--dim", type=_pos_int, default=768)
+    r.add_argument("--queries", type=_pos_int, default=200)
+    r.add_argument("--scale", type=_nonneg_int, default=0,
+                   help="also build/load/query an index of this many vectors (e.g. 1000000)")
+    r.add_argument("--json", action="store_true")
     w = bsub.add_parser("world", help="corpus + test split generation throughput")
     w.add_argument("--corpus-size", default="10k")
     w.add_argument("--workers", type=_pos_int, default=2)
@@ -128,6 +164,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="cmd", required=True)
     _add_world(sub)
     _add_corpus(sub)
+    _add_train(sub)
+    _add_eval(sub)
     _add_bench(sub)
     app = sub.add_parser("app", help="launch the Gradio app")
     app.add_argument("--host", default="127.0.0.1")
@@ -180,13 +218,54 @@ def _run_corpus(args: argparse.Namespace) -> int:
     rc = RecaptionConfig(backend=args.captioner, endpoint=args.endpoint, model=args.model)
     manifest = build_corpus(args.out, args.size, seed=args.seed, recaption=rc,
                             image_list=args.from_list)
+    if not args.no_embed:
+        from ratouch.pipeline import embed_and_index
+
+        manifest = {**manifest, **embed_and_index(args.out, args.encoder, args.index,
+                                                  workers=args.workers)}
     print(json.dumps(manifest))
+    return 0
+
+
+def _run_train(args: argparse.Namespace) -> int:
+    from ratouch.encoders.factory import shipped_weights
+    from ratouch.training import STEPS, TrainConfig, train_encoders
+
+    models = args.model or ["default-tiny", "default-s", "default-b"]
+    shared: dict = {}  # rendered data, shared by models with the same input sizes
+    for name in models:
+        out = Path(args.out) / name if args.out else shipped_weights(name)
+        tc = TrainConfig(model=name, seed=args.seed, steps=args.steps or STEPS.get(name, 300),
+                         n_pairs=args.n_pairs, n_corpus=args.n_corpus)
+        _, report = train_encoders(tc, out=str(out), cache=shared)
+        print(json.dumps({"out": str(out), **report}))
+    return 0
+
+
+def _run_eval(args: argparse.Namespace) -> int:
+    from ratouch.pipeline import default_corpus, open_retriever
+    from ratouch.retrieval_eval import evaluate_retrieval, format_retrieval_eval
+    from ratouch.world.config import WorldConfig
+
+    corpus = args.corpus or default_corpus(args.encoder)
+    retriever = open_retriever(corpus, args.encoder, args.index)
+    r = evaluate_retrieval(retriever, WorldConfig(seed=args.seed))
+    print(json.dumps(r, indent=1) if args.json else format_retrieval_eval(r))
     return 0
 
 
 def _run_bench(args: argparse.Namespace) -> int:
     from ratouch.bench import bench_world
     from ratouch.corpus.imagenet_t import parse_size
+
+    if args.bench_cmd == "retrieval":
+        from ratouch.retrieval_bench import bench_retrieval, bench_scale, format_bench
+
+        r = bench_retrieval(n=args.n, dim=args.dim, n_queries=args.queries)
+        if args.scale:
+            r["scale"] = bench_scale(n=args.scale, dim=args.dim)
+        print(json.dumps(r) if args.json else format_bench(r))
+        return 0
 
     r = bench_world(parse_size(args.corpus_size), workers=args.workers)
     if args.json:
@@ -227,7 +306,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
-    runners = {"world": _run_world, "corpus": _run_corpus, "bench": _run_bench, "app": _run_app}
+    runners = {"world": _run_world, "corpus": _run_corpus, "train": _run_train,
+               "eval": _run_eval, "bench": _run_bench, "app": _run_app}
     try:
         return runners[args.cmd](args)
     except (RATouchError, OSError) as e:

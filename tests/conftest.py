@@ -19,3 +19,26 @@ def test_split_dir(tmp_path_factory):
     root = tmp_path_factory.mktemp("tvl_world")
     counts = write_split(WorldConfig(seed=0), root, "test", workers=2, progress=False)
     return root, counts
+
+
+@pytest.fixture(scope="session")
+def debug_encoders():
+    """The tiny `debug` encoder set with fixed random weights (MiniLM is real)."""
+    import torch
+
+    from ratouch.encoders.factory import create_model
+
+    torch.manual_seed(0)
+    return create_model("debug", pretrained=None).eval()
+
+
+@pytest.fixture(scope="session")
+def small_corpus(tmp_path_factory, debug_encoders):
+    """A 240-entry world corpus embedded with the debug encoders."""
+    from ratouch.corpus.imagenet_t import build_corpus
+    from ratouch.embed import embed_corpus
+
+    folder = tmp_path_factory.mktemp("corpus") / "c"
+    build_corpus(folder, 240, seed=0, progress=False)
+    embed_corpus(folder, debug_encoders, batch=100, workers=1, progress=False)
+    return folder

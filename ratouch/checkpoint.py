@@ -1,0 +1,99 @@
+"""Checkpoints that describe themselves: safetensors weights, the config JSON beside them, and a
+sha256 manifest. Loading verifies the checksums and loads strictly, reporting missing and
+unexpected keys; nothing pickled is ever executed."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+from ratouch.errors import DataError, DataNotFoundError
+
+WEIGHTS = "model.safetensors"
+CONFIG = "config.json"
+MANIFEST = "manifest.json"
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def save_checkpoint(folder: str | os.PathLike, state: dict[str, torch.Tensor], config: dict,
+                    meta: dict | None = None, half: bool = False) -> Path:
+    """Write weights, config and manifest into `folder` atomically (manifest last).
+
+    Args:
+        folder: destination folder (created).
+        state: tensors to save (contiguous copies are made).
+        config: the architecture config; travels beside the weights.
+        meta: anything else worth keeping (training figures, seed, ...).
+        half: store floating tensors as float16 (halves the size; loading casts back).
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    tensors = {}
+    for k, v in state.items():
+        v = v.detach().cpu()
+        if half and v.is_floating_point():
+            v = v.half()
+        tensors[k] = v.contiguous()
+    with tempfile.TemporaryDirectory(dir=folder) as tmp:
+        tmp = Path(tmp)
+        save_file(tensors, tmp / WEIGHTS)
+        (tmp / CONFIG).write_text(json.dumps(config, indent=2))
+        manifest = {"files": {WEIGHTS: sha256_file(tmp / WEIGHTS), CONFIG: sha256_file(tmp / CONFIG)},
+                    "dtype": "float16" if half else "float32", "meta": meta or {}}
+        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2))
+        for name in (WEIGHTS, CONFIG, MANIFEST):
+            os.replace(tmp / name, folder / name)
+    return folder
+
+
+def read_checkpoint(folder: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict, dict]:
+    """Verify and read a checkpoint folder: (state, config, manifest)."""
+    folder = Path(folder)
+    if not (folder / MANIFEST).is_file():
+        raise DataNotFoundError(f"no checkpoint in {folder} ({MANIFEST} missing)")
+    try:
+        manifest = json.loads((folder / MANIFEST).read_text())
+        files = manifest["files"]
+    except (json.JSONDecodeError, KeyError, TypeError) as e:
+        raise DataError(f"checkpoint {folder}: {MANIFEST} is unreadable: {e}") from e
+    for name, digest in files.items():
+        path = folder / name
+        if not path.is_file():
+            raise DataNotFoundError(f"checkpoint {folder}: {name} is missing")
+        if sha256_file(path) != digest:
+            raise DataError(f"checkpoint {folder}: {name} is corrupt (sha256 mismatch)")
+    try:
+        state = load_file(folder / WEIGHTS)
+        config = json.loads((folder / CONFIG).read_text())
+    except (SafetensorError, OSError, json.JSONDecodeError) as e:
+        raise DataError(f"checkpoint {folder} is unreadable: {e}") from e
+    return state, config, manifest
+
+
+def load_into(module: torch.nn.Module, state: dict[str, torch.Tensor], source: str) -> None:
+    """Strictly load `state` into `module`, casting dtypes, with a clear error on mismatch."""
+    own = module.state_dict()
+    missing = sorted(set(own) - set(state))
+    unexpected = sorted(set(state) - set(own))
+    if missing or unexpected:
+        raise DataError(f"{source} does not fit the model: missing keys {missing[:5]}, "
+                        f"unexpected keys {unexpected[:5]}")
+    for k, v in state.items():
+        if tuple(v.shape) != tuple(own[k].shape):
+            raise DataError(f"{source} does not fit the model: {k} has shape {tuple(v.shape)}, "
+                            f"the model expects {tuple(own[k].shape)}")
+    module.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()}, strict=True)

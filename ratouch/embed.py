@@ -1,0 +1,150 @@
+"""Embedding a corpus: image and text embeddings per entry, batched, resumable, memory-mapped.
+
+Outputs live in `<corpus>/embeddings/<encoder>/`: `image.npy` and `text.npy` (float32, (N, D),
+memory-mapped while written), `progress.json` (entries done; an interrupted run resumes there)
+and, when complete, `manifest.json` (encoder id, dimension, count, checksums).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+from PIL import Image
+from tqdm import tqdm
+
+from ratouch.corpus.imagenet_t import CorpusEntry, load_corpus, parse_world_source
+from ratouch.errors import DataError, DataNotFoundError
+from ratouch.world.config import WorldConfig
+
+log = logging.getLogger(__name__)
+
+EMBED_MANIFEST = "manifest.json"
+
+
+def embeddings_dir(corpus: str | os.PathLike, encoder_name: str) -> Path:
+    return Path(corpus) / "embeddings" / encoder_name
+
+
+def _sha256_array(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 22), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def corpus_images(entries: Sequence[CorpusEntry], start: int, batch: int, workers: int,
+                  progress: bool) -> Iterator[np.ndarray | list[np.ndarray]]:
+    """Yield the images of entries[start:] in batches: world entries are re-rendered from
+    their ids (in parallel), real entries read from their paths."""
+    rest = entries[start:]
+    if rest and rest[0].source.startswith("world:"):
+        from ratouch.corpus.imagenet_t import render_world_images
+
+        seeds = {parse_world_source(e.source)[0] for e in rest}
+        if len(seeds) != 1:
+            raise DataError(f"corpus mixes world seeds {sorted(seeds)}")
+        ids = [parse_world_source(e.source)[1:] for e in rest]
+        yield from render_world_images(ids, WorldConfig(seed=seeds.pop()), workers=workers,
+                                       chunk=batch, progress=progress)
+        return
+    from ratouch.encoders.preprocess import to_rgb_array
+
+    for k in tqdm(range(0, len(rest), batch), desc="read corpus images", disable=not progress):
+        out = []
+        for e in rest[k:k + batch]:
+            try:
+                with Image.open(e.source) as im:
+                    out.append(to_rgb_array(im))
+            except OSError as err:
+                raise DataError(f"corpus image {e.source} is unreadable: {err}") from err
+        yield out
+
+
+def embed_corpus(corpus: str | os.PathLike, encoders, batch: int = 500, workers: int = 2,
+                 progress: bool = True) -> dict:
+    """Embed every entry's image and tactile caption; resume an interrupted run.
+
+    Args:
+        corpus: corpus folder (see `ratouch.corpus.imagenet_t`).
+        encoders: an encoder set (`create_model(...)`) with `name`, `dim`, encode_image/text.
+        batch: entries per batch (one checkpoint of progress per batch).
+        workers: processes rendering world images.
+        progress: show progress bars.
+
+    Returns:
+        The embeddings manifest.
+    """
+    manifest, entries = load_corpus(corpus)
+    out = embeddings_dir(corpus, encoders.name)
+    done_manifest = out / EMBED_MANIFEST
+    if done_manifest.is_file():
+        return load_embeddings(corpus, encoders.name, encoders.dim)[2]
+    out.mkdir(parents=True, exist_ok=True)
+    n, d = len(entries), encoders.dim
+    state_path = out / "progress.json"
+    state = json.loads(state_path.read_text()) if state_path.is_file() else {}
+    if state and (state.get("count") != n or state.get("dim") != d
+                  or state.get("corpus_sha256") != manifest["metadata_sha256"]):
+        raise DataError(f"{out} holds a partial run for another corpus or encoder; delete it")
+    start = int(state.get("done", 0))
+    mode = "r+" if start > 0 else "w+"
+    img = np.lib.format.open_memmap(out / "image.npy", mode=mode, dtype=np.float32, shape=(n, d))
+    txt = np.lib.format.open_memmap(out / "text.npy", mode=mode, dtype=np.float32, shape=(n, d))
+    if start:
+        log.info("resuming embedding of %s at %d / %d", corpus, start, n)
+    pos = start
+    for images in corpus_images(entries, start, batch, workers, progress):
+        m = len(images)
+        img[pos:pos + m] = encoders.encode_image(list(images))
+        txt[pos:pos + m] = encoders.encode_text([e.caption for e in entries[pos:pos + m]])
+        pos += m
+        img.flush()
+        txt.flush()
+        state = {"done": pos, "count": n, "dim": d, "corpus_sha256": manifest["metadata_sha256"]}
+        tmp = state_path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(state))
+        os.replace(tmp, state_path)
+    del img, txt
+    emb_manifest = {"encoder": encoders.name, "dim": d, "count": n,
+                    "corpus_sha256": manifest["metadata_sha256"],
+                    "image_sha256": _sha256_array(out / "image.npy"),
+                    "text_sha256": _sha256_array(out / "text.npy")}
+    tmp = done_manifest.with_suffix(".tmp")
+    tmp.write_text(json.dumps(emb_manifest, indent=2))
+    os.replace(tmp, done_manifest)
+    state_path.unlink(missing_ok=True)
+    return emb_manifest
+
+
+def load_embeddings(corpus: str | os.PathLike, encoder_name: str, dim: int | None = None,
+                    verify: bool = True) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Memory-map a corpus's finished embeddings, refusing mismatched or corrupt ones."""
+    out = embeddings_dir(corpus, encoder_name)
+    mpath = out / EMBED_MANIFEST
+    if not mpath.is_file():
+        raise DataNotFoundError(f"no finished embeddings of {corpus} for encoder "
+                                f"{encoder_name!r} (run `ratouch corpus build` or embed_corpus)")
+    try:
+        manifest = json.loads(mpath.read_text())
+    except json.JSONDecodeError as e:
+        raise DataError(f"{mpath} is unreadable: {e}") from e
+    if dim is not None and manifest["dim"] != dim:
+        raise DataError(f"embeddings in {out} have dimension {manifest['dim']}, the encoder "
+                        f"gives {dim}")
+    if verify:
+        for key in ("image", "text"):
+            if _sha256_array(out / f"{key}.npy") != manifest[f"{key}_sha256"]:
+                raise DataError(f"{out / (key + '.npy')} is corrupt: checksum mismatch")
+    img = np.load(out / "image.npy", mmap_mode="r")
+    txt = np.load(out / "text.npy", mmap_mode="r")
+    if img.shape != (manifest["count"], manifest["dim"]) or txt.shape != img.shape:
+        raise DataError(f"embeddings in {out} have shapes {img.shape} / {txt.shape}, the "
+                        f"manifest says ({manifest['count']}, {manifest['dim']})")
+    return img, txt, manifest

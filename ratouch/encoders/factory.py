@@ -1,0 +1,111 @@
+"""One factory turns encoder names into models: `create_model(name, pretrained=...)`.
+
+Named architectures are JSON files in `ratouch/configs/` (a read-only registry, with a tiny
+`debug` one for tests). Default-backend weights that ship with the project live in
+`assets/encoders/<name>/`; the TVL backend loads local OpenCLIP and TVL checkpoints.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from importlib import resources
+from pathlib import Path
+from types import MappingProxyType
+from typing import Mapping
+
+from ratouch.checkpoint import load_into, read_checkpoint
+from ratouch.encoders.default import DefaultConfig, DefaultEncoders
+from ratouch.errors import ConfigError, DataNotFoundError
+
+DEFAULT_ENCODER = "default-s"
+ASSETS = Path(__file__).resolve().parents[2] / "assets"
+
+
+def _scan() -> Mapping[str, dict]:
+    out = {}
+    for f in resources.files("ratouch.configs").iterdir():
+        if f.name.endswith(".json"):
+            cfg = json.loads(f.read_text())
+            out[cfg["name"]] = cfg
+    return MappingProxyType(out)
+
+
+MODEL_CONFIGS: Mapping[str, dict] = _scan()
+
+
+def list_models() -> list[str]:
+    return sorted(MODEL_CONFIGS)
+
+
+def model_config(name: str) -> dict:
+    if name not in MODEL_CONFIGS:
+        raise ConfigError(f"unknown encoder {name!r}; known: {list_models()}")
+    return dict(MODEL_CONFIGS[name])
+
+
+def shipped_weights(name: str) -> Path:
+    """Folder of the shipped weights of a default-backend encoder."""
+    return ASSETS / "encoders" / name
+
+
+def default_config(cfg: dict) -> DefaultConfig:
+    return DefaultConfig(name=cfg["name"], dim=cfg["dim"], width=cfg["width"],
+                         vision_size=tuple(cfg["vision_size"]),
+                         tactile_size=tuple(cfg["tactile_size"]), text_hidden=cfg["text_hidden"])
+
+
+def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | dict | None = "shipped"):
+    """Create an encoder set by name.
+
+    Args:
+        name: a registered config name (`list_models()`).
+        pretrained: for the default backend: "shipped" (the weights in assets/), None (random
+            init, for training), or a checkpoint folder. For the TVL backend: a dict
+            {"clip": path, "tactile": path} of local checkpoint files, or a folder holding
+            `open_clip_model.safetensors`/`.bin`/`.pt` and `tvl_enc_vit*.pth`.
+
+    Returns:
+        An object with encode_image / encode_tactile / encode_text, `name` and `dim`.
+    """
+    cfg = model_config(name)
+    if cfg["backend"] == "default":
+        model = DefaultEncoders(default_config(cfg))
+        if pretrained is None:
+            return model
+        folder = shipped_weights(name) if pretrained == "shipped" else Path(pretrained)
+        if not folder.exists():
+            raise DataNotFoundError(f"no weights for encoder {name!r} at {folder}; train them "
+                                    f"with `ratouch train encoders --model {name}`")
+        state, saved_cfg, _ = read_checkpoint(folder)
+        if saved_cfg.get("name") != name:
+            raise ConfigError(f"checkpoint {folder} is for encoder {saved_cfg.get('name')!r}, "
+                              f"not {name!r}")
+        load_into(model, state, str(folder))
+        return model.eval()
+    return _create_tvl(cfg, pretrained)
+
+
+def _create_tvl(cfg: dict, pretrained):
+    from ratouch.encoders.tvl import TVLConfig, load_tvl
+
+    if pretrained in (None, "shipped"):
+        raise ConfigError(f"encoder {cfg['name']!r} needs local TVL weights: pass "
+                          f"pretrained={{'clip': PATH, 'tactile': PATH}} or a folder")
+    if isinstance(pretrained, dict):
+        clip, tactile = pretrained.get("clip"), pretrained.get("tactile")
+    else:
+        folder = Path(pretrained)
+        if not folder.is_dir():
+            raise DataNotFoundError(f"TVL weights folder {folder} does not exist")
+        clips = sorted(p for p in folder.iterdir() if p.name.startswith("open_clip"))
+        tactiles = sorted(folder.glob("tvl_enc_vit*.pth"))
+        if not clips or not tactiles:
+            raise DataNotFoundError(f"{folder} must hold an open_clip_* checkpoint and a "
+                                    f"tvl_enc_vit*.pth file")
+        clip, tactile = clips[0], tactiles[0]
+    if not clip or not tactile:
+        raise ConfigError("TVL weights need both 'clip' and 'tactile' paths")
+    return load_tvl(str(clip), str(tactile),
+                    TVLConfig(clip_arch=cfg["clip_arch"], tactile_arch=cfg["tactile_arch"],
+                              dim=cfg["dim"]))

@@ -1,0 +1,418 @@
+"""The retrieval index: exact or approximate cosine search behind one class.
+
+Vectors are L2-normalised on the way in, so cosine similarity is the inner product.
+Three kinds share one interface: ``flat`` (exact inner product), ``hnsw`` (a graph,
+approximate) and ``ivfpq`` (inverted lists over product-quantised codes, approximate and
+compact). An index is saved with a manifest that records its shape, configuration, a
+checksum of the faiss file and caller metadata (e.g. the encoder id); loading checks all
+of it and refuses a mismatch rather than silently rebuilding.
+
+This is the only module in the project that imports faiss.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import os
+import tempfile
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import faiss
+import numpy as np
+
+from ratouch.errors import ConfigError, DataError, DataNotFoundError
+
+logger = logging.getLogger(__name__)
+
+KINDS = ("flat", "hnsw", "ivfpq")
+INDEX_FILE = "index.faiss"
+MANIFEST_FILE = "manifest.json"
+MAX_TRAIN = 100_000
+_CHUNK = 65_536
+SEARCH_FIELDS = frozenset({"ef_search", "nprobe", "threads", "blas_threshold"})
+
+
+@dataclass(frozen=True)
+class IndexConfig:
+    """How the index is built and searched.
+
+    Attributes:
+        kind: "flat" (exact inner product), "hnsw" or "ivfpq".
+        hnsw_m: HNSW neighbours per node (M).
+        ef_construction: HNSW candidate list size while building.
+        ef_search: HNSW candidate list size while searching (recall vs latency).
+        nlist: IVF inverted lists; None picks about 4*sqrt(n), clipped to
+            [1, n_train // 39] so every centroid gets 39 training points.
+        pq_m: PQ sub-quantisers (must divide the dimension); None picks a divisor
+            giving about 8-16 dimensions per sub-vector.
+        nprobe: IVF lists visited per query.
+        threads: faiss OpenMP threads used for search. Single-query search was
+            measured faster on 1 thread than on 2 on a 2-core machine, and degraded when
+            another process held a core.
+        blas_threshold: value for ``faiss.cvar.distance_compute_blas_threshold``, so
+            that batched exact search of at least this many queries takes the BLAS path;
+            None leaves faiss's default.
+    """
+
+    kind: str = "flat"
+    hnsw_m: int = 32
+    ef_construction: int = 80
+    ef_search: int = 128
+    nlist: int | None = None
+    pq_m: int | None = None
+    nprobe: int = 16
+    threads: int = 1
+    blas_threshold: int | None = 16
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ConfigError(f"kind={self.kind!r} must be one of {KINDS}")
+        for name in ("hnsw_m", "ef_construction", "ef_search", "nprobe", "threads"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ConfigError(f"{name}={value!r} must be a positive integer")
+        for name in ("nlist", "pq_m", "blas_threshold"):
+            value = getattr(self, name)
+            if value is not None and (not isinstance(value, int) or isinstance(value, bool)
+                                      or value < 1):
+                raise ConfigError(f"{name}={value!r} must be a positive integer or None")
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 22), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _as_matrix(vectors: np.ndarray, what: str) -> np.ndarray:
+    """Check a (N, D) array of finite real numbers; return it as C-contiguous float32."""
+    try:
+        x = np.asarray(vectors)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"{what} cannot be read as an array: {exc}") from exc
+    if x.ndim != 2:
+        raise DataError(f"{what} must be 2-D (N, D), got shape {x.shape}")
+    if x.shape[0] < 1 or x.shape[1] < 1:
+        raise DataError(f"{what} is empty: shape {x.shape}")
+    if not np.issubdtype(x.dtype, np.number) or np.iscomplexobj(x):
+        raise DataError(f"{what} must be real numbers, got dtype {x.dtype}")
+    for start in range(0, len(x), _CHUNK):
+        finite = np.isfinite(x[start:start + _CHUNK])
+        if not finite.all():
+            bad = start + int(np.flatnonzero(~finite.all(axis=1))[0])
+            raise DataError(f"{what} has a non-finite value in row {bad}")
+    with np.errstate(over="ignore"):
+        out = np.ascontiguousarray(x, dtype=np.float32)
+    if x.dtype.itemsize > 4 and not np.isfinite(out).all():
+        raise DataError(f"{what} has values too large for float32 (max |x| "
+                        f"{float(np.abs(x).max()):.3g})")
+    return out
+
+
+def _normalised(x: np.ndarray, what: str, warn: bool) -> np.ndarray:
+    """Rows of a finite (N, D) float32 array scaled to unit L2 norm (x itself when they
+    already are). Norms that overflow float32 are redone in float64."""
+    norms = np.empty(len(x), dtype=np.float64)
+    for start in range(0, len(x), _CHUNK):
+        block = x[start:start + _CHUNK]
+        norms[start:start + len(block)] = np.sqrt(np.einsum("ij,ij->i", block, block))
+    big = ~np.isfinite(norms)
+    if big.any():
+        norms[big] = np.linalg.norm(x[big].astype(np.float64), axis=1)
+    if (norms == 0).any():
+        raise DataError(f"{what} has a zero vector in row {int(np.flatnonzero(norms == 0)[0])}")
+    if np.abs(norms - 1.0).max() <= 1e-3:
+        return x
+    if warn:
+        logger.warning("%s were not unit norm (norms %.3g .. %.3g); normalising them",
+                       what, float(norms.min()), float(norms.max()))
+    out = np.empty(x.shape, dtype=np.float32)
+    for start in range(0, len(x), _CHUNK):
+        stop = start + _CHUNK
+        out[start:stop] = x[start:stop] / norms[start:stop, None]
+    return out
+
+
+def _default_nlist(n: int) -> int:
+    n_train = min(n, MAX_TRAIN)
+    return max(1, min(round(4 * math.sqrt(n)), n_train // 39))
+
+
+def _default_pq_m(dim: int) -> int:
+    """A divisor of dim giving 8-16 dimensions per sub-vector (else the closest to 8)."""
+    divisors = [m for m in range(1, dim + 1) if dim % m == 0]
+    fitting = [m for m in divisors if 8 <= dim // m <= 16]
+    if fitting:
+        return max(fitting)
+    return min(divisors, key=lambda m: abs(dim / m - 8))
+
+
+class VectorIndex:
+    """A cosine-similarity index over L2-normalised float32 vectors.
+
+    Build one with :meth:`build` or :meth:`load`, never with the constructor.
+    """
+
+    def __init__(self, index: faiss.Index, cfg: IndexConfig) -> None:
+        self._index = index
+        self._cfg = cfg
+        self._kind, self._dim, self._count = cfg.kind, int(index.d), int(index.ntotal)
+        self._xb: np.ndarray | None = None  # in-place view of a flat index's vectors
+        self._params: faiss.SearchParameters | None = None
+        if cfg.kind == "hnsw":
+            self._params = faiss.SearchParametersHNSW(efSearch=cfg.ef_search)
+        elif cfg.kind == "ivfpq":
+            nprobe = min(cfg.nprobe, faiss.extract_index_ivf(index).nlist)
+            self._params = faiss.SearchParametersIVF(nprobe=nprobe)
+
+    @property
+    def dim(self) -> int:
+        """Vector dimension."""
+        return self._dim
+
+    @property
+    def count(self) -> int:
+        """Number of indexed vectors."""
+        return self._count
+
+    @property
+    def kind(self) -> str:
+        """"flat", "hnsw" or "ivfpq"."""
+        return self._cfg.kind
+
+    @property
+    def config(self) -> IndexConfig:
+        """The configuration the index was built with."""
+        return self._cfg
+
+    def with_search(self, **changes: int | None) -> VectorIndex:
+        """A view of the same index searched with other search-time settings.
+
+        Args:
+            changes: any of ``ef_search``, ``nprobe``, ``threads``, ``blas_threshold``.
+
+        Raises:
+            ConfigError: a field that is fixed at build time, or an invalid value.
+        """
+        fixed = sorted(set(changes) - SEARCH_FIELDS)
+        if fixed:
+            raise ConfigError(f"{fixed[0]}={changes[fixed[0]]!r} cannot change after "
+                              f"building; only {sorted(SEARCH_FIELDS)} can")
+        view = VectorIndex(self._index, replace(self._cfg, **changes))
+        view._xb = self._xb
+        return view
+
+    @classmethod
+    def build(cls, vectors: np.ndarray, cfg: IndexConfig | None = None,
+              seed: int = 0) -> VectorIndex:
+        """Index (N, D) vectors; rows are normalised (with a log warning if they were not).
+
+        Args:
+            vectors: (N, D) finite numbers, N >= 1.
+            cfg: the index configuration (default: exact flat search).
+            seed: seeds the IVF-PQ training subset and k-means.
+
+        Raises:
+            DataError: vectors are not 2-D, empty, non-finite or contain a zero row.
+            ConfigError: the configuration does not fit the data (e.g. pq_m does not
+                divide the dimension, or IVF-PQ over fewer vectors than it needs to train).
+        """
+        cfg = cfg or IndexConfig()
+        x = _normalised(_as_matrix(vectors, "index vectors"), "index vectors", warn=True)
+        n, dim = x.shape
+        if cfg.kind == "flat":
+            index = faiss.IndexFlatIP(dim)
+        elif cfg.kind == "hnsw":
+            index = faiss.IndexHNSWFlat(dim, cfg.hnsw_m, faiss.METRIC_INNER_PRODUCT)
+            index.hnsw.efConstruction = cfg.ef_construction
+            index.hnsw.efSearch = cfg.ef_search
+        else:
+            index = cls._trained_ivfpq(x, cfg, seed)
+        for start in range(0, n, _CHUNK * 4):
+            index.add(x[start:start + _CHUNK * 4])
+        logger.info("built a %s index of %d x %d", cfg.kind, n, dim)
+        return cls(index, cfg)
+
+    @staticmethod
+    def _trained_ivfpq(x: np.ndarray, cfg: IndexConfig, seed: int) -> faiss.Index:
+        n, dim = x.shape
+        pq_m = cfg.pq_m or _default_pq_m(dim)
+        if dim % pq_m:
+            raise ConfigError(f"pq_m={pq_m!r} must divide the dimension {dim}")
+        if n < 256:
+            raise ConfigError(f"kind='ivfpq' needs at least 256 vectors to train, got {n}")
+        nlist = cfg.nlist or _default_nlist(n)
+        if nlist > n:
+            raise ConfigError(f"nlist={nlist!r} is larger than the corpus of {n} entries")
+        quantizer = faiss.IndexFlatIP(dim)
+        index = faiss.IndexIVFPQ(quantizer, dim, nlist, pq_m, 8, faiss.METRIC_INNER_PRODUCT)
+        index.cp.seed = seed
+        index.pq.cp.seed = seed
+        rng = np.random.default_rng(seed)
+        train = x if n <= MAX_TRAIN else x[np.sort(rng.choice(n, MAX_TRAIN, replace=False))]
+        index.train(train)
+        return index
+
+    def search(self, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The k most similar indexed vectors for each query.
+
+        Args:
+            queries: (Q, D) or (D,) vectors (normalised here).
+            k: neighbours per query, 1 <= k <= count.
+
+        Returns:
+            (scores, ids): (Q, k) float32 cosine similarities, best first, and (Q, k) int64
+            row numbers of the indexed vectors.
+
+        Raises:
+            ConfigError: k < 1 or k larger than the corpus.
+            DataError: queries are malformed or of the wrong dimension.
+        """
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+            raise ConfigError(f"K={k!r} must be a positive integer")
+        if k > self.count:
+            raise ConfigError(f"K={k} larger than the corpus of {self.count} entries")
+        q = self._prepare_queries(queries)
+        if self._kind == "flat":
+            threshold = self._cfg.blas_threshold
+            if threshold is None:
+                threshold = faiss.cvar.distance_compute_blas_threshold
+            else:
+                faiss.cvar.distance_compute_blas_threshold = threshold
+            if len(q) < threshold:
+                return self._flat_scan(q, int(k))
+        threads = self._cfg.threads
+        before = faiss.omp_get_max_threads()
+        if before != threads:
+            faiss.omp_set_num_threads(threads)
+        try:
+            scores, ids = self._index.search(q, int(k), params=self._params)
+        finally:
+            if before != threads:
+                faiss.omp_set_num_threads(before)
+        return scores, ids.astype(np.int64, copy=False)
+
+    def _prepare_queries(self, queries: np.ndarray) -> np.ndarray:
+        """Queries as a (Q, D) C-contiguous float32 array of unit rows. The common case (a
+        few finite float32 rows) takes a short path: single-query latency is a target."""
+        q = np.asarray(queries)
+        if q.ndim == 1:
+            q = q[None, :]
+        if q.ndim == 2 and q.shape[1] != self.dim:
+            raise DataError(f"query dimension {q.shape[1]} does not match the index "
+                            f"dimension {self.dim}")
+        if q.dtype != np.float32 or not q.flags.c_contiguous or q.ndim != 2 or not len(q):
+            q = _as_matrix(q, "queries")
+        sq = np.einsum("ij,ij->i", q, q)
+        if not np.isfinite(sq).all() or not sq.all():
+            # non-finite values, zero rows or float32 overflow: the careful path decides
+            return _normalised(_as_matrix(q, "queries"), "queries", warn=False)
+        if np.abs(sq - 1.0).max() > 2e-3:
+            q = q / np.sqrt(sq)[:, None]
+        return q
+
+    def _flat_scan(self, q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Exact search of a few queries: one BLAS matrix product over the stored vectors
+        (read in place, no copy) and a partial sort. faiss's per-row scan for small batches
+        was measured about 2x slower than the memory-bandwidth bound; this runs near it."""
+        if self._xb is None:
+            n, d = self.count, self.dim
+            self._xb = faiss.rev_swig_ptr(self._index.get_xb(), n * d).reshape(n, d)
+        sims = self._xb @ q.T if len(q) > 1 else (self._xb @ q[0])[:, None]
+        n = len(sims)
+        top = np.argpartition(sims, n - k, axis=0)[n - k:].T if k < n else \
+            np.broadcast_to(np.arange(n), (len(q), n))
+        top_scores = np.take_along_axis(sims.T, top, axis=1)
+        order = np.argsort(-top_scores, axis=1, kind="stable")
+        ids = np.take_along_axis(top, order, axis=1).astype(np.int64)
+        return np.take_along_axis(top_scores, order, axis=1).astype(np.float32), ids
+
+    def save(self, folder: str | os.PathLike, meta: dict | None = None) -> Path:
+        """Write ``index.faiss`` and then, atomically, ``manifest.json`` into folder.
+
+        Args:
+            folder: created if missing.
+            meta: JSON-serialisable caller metadata, e.g. ``{"encoder": "minilm-l6"}``.
+
+        Returns:
+            The folder.
+        """
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        index_path = folder / INDEX_FILE
+        faiss.write_index(self._index, str(index_path))
+        manifest = {"kind": self.kind, "dim": self.dim, "count": self.count,
+                    "config": asdict(self._cfg), "index_sha256": _sha256(index_path),
+                    "meta": dict(meta or {})}
+        fd, tmp = tempfile.mkstemp(prefix=".manifest-", suffix=".json", dir=folder)
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                json.dump(manifest, fh, indent=2, sort_keys=True)
+            os.replace(tmp, folder / MANIFEST_FILE)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        logger.info("saved a %s index of %d x %d to %s", self.kind, self.count, self.dim,
+                    folder)
+        return folder
+
+    @classmethod
+    def load(cls, folder: str | os.PathLike, expected_dim: int | None = None,
+             expected_encoder: str | None = None) -> tuple[VectorIndex, dict]:
+        """Load an index written by :meth:`save`, checking it before use; never rebuilds.
+
+        Args:
+            folder: the folder holding ``index.faiss`` and ``manifest.json``.
+            expected_dim: refuse an index built for another dimension.
+            expected_encoder: refuse an index whose ``meta["encoder"]`` differs.
+
+        Returns:
+            (index, meta) with meta as saved.
+
+        Raises:
+            DataNotFoundError: the folder does not exist.
+            DataError: the manifest is missing or unreadable, the checksum does not match,
+                the manifest disagrees with the faiss file, or an expectation fails.
+        """
+        folder = Path(folder)
+        if not folder.is_dir():
+            raise DataNotFoundError(f"index folder {str(folder)!r} does not exist")
+        manifest_path, index_path = folder / MANIFEST_FILE, folder / INDEX_FILE
+        if not manifest_path.is_file():
+            raise DataError(f"index {str(folder)!r} has no {MANIFEST_FILE}; it is incomplete "
+                            "or not an index folder (rebuild it explicitly)")
+        try:
+            manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
+            kind, dim, count = manifest["kind"], int(manifest["dim"]), int(manifest["count"])
+            cfg = IndexConfig(**manifest["config"])
+            checksum, meta = str(manifest["index_sha256"]), dict(manifest.get("meta") or {})
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise DataError(f"index {str(folder)!r} has an unreadable {MANIFEST_FILE}: "
+                            f"{exc}") from exc
+        if not index_path.is_file():
+            raise DataError(f"index {str(folder)!r} has no {INDEX_FILE}")
+        if _sha256(index_path) != checksum:
+            raise DataError(f"index {str(folder)!r} is corrupt: checksum mismatch of "
+                            f"{INDEX_FILE} (rebuild it explicitly)")
+        if expected_dim is not None and dim != expected_dim:
+            raise DataError(f"index {str(folder)!r} was built for dimension {dim}, the "
+                            f"encoder gives {expected_dim}")
+        if expected_encoder is not None and meta.get("encoder") != expected_encoder:
+            raise DataError(f"index {str(folder)!r} was built with encoder "
+                            f"{meta.get('encoder')!r}, expected {expected_encoder!r}")
+        try:
+            index = faiss.read_index(str(index_path))
+        except RuntimeError as exc:
+            raise DataError(f"index {str(folder)!r}: faiss cannot read {INDEX_FILE}: "
+                            f"{exc}") from exc
+        if int(index.d) != dim or int(index.ntotal) != count or cfg.kind != kind:
+            raise DataError(f"index {str(folder)!r}: manifest says {kind} {count} x {dim}, "
+                            f"{INDEX_FILE} holds {index.ntotal} x {index.d}")
+        logger.info("loaded a %s index of %d x %d from %s", kind, count, dim, folder)
+        return cls(index, cfg), meta

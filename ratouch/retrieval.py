@@ -1,0 +1,155 @@
+"""Retrieval from ImageNet-T in the paper's five settings (Table 4).
+
+Query modality -> key modality: image->image, image->text, tactile->image, tactile->text, and
+joint->text (the Tactile-Guided Retriever's query, supplied by the caller once it exists).
+Cosine top-K through the index; results carry ids, scores, class names, captions and sources
+(from which thumbnails are made).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from PIL import Image
+
+from ratouch.corpus.imagenet_t import CorpusEntry, load_corpus, parse_world_source
+from ratouch.embed import load_embeddings
+from ratouch.errors import ConfigError, DataError
+from ratouch.index import IndexConfig, VectorIndex
+
+SETTINGS: dict[str, tuple[str, str]] = {
+    "image_image": ("image", "image"),
+    "image_text": ("image", "text"),
+    "tactile_image": ("tactile", "image"),
+    "tactile_text": ("tactile", "text"),
+    "joint_text": ("joint", "text"),
+}
+
+
+@dataclass(frozen=True)
+class Neighbour:
+    id: int
+    score: float
+    class_name: str
+    caption: str
+    description: str
+    source: str
+    material: str
+
+
+class CorpusIndex:
+    """A corpus with its embeddings and one index per key modality (image, text).
+
+    Indexes are built on first use and saved under `<corpus>/index/<encoder>/`; later loads
+    check them against the embeddings' encoder and dimension and refuse a mismatch.
+    """
+
+    def __init__(self, corpus: str | os.PathLike, encoder_name: str, dim: int,
+                 index_cfg: IndexConfig | None = None):
+        self.folder = Path(corpus)
+        self.manifest, self.entries = load_corpus(self.folder)
+        img, txt, emb_manifest = load_embeddings(self.folder, encoder_name, dim)
+        if emb_manifest["corpus_sha256"] != self.manifest["metadata_sha256"]:
+            raise DataError(f"embeddings of {corpus} were made for another version of it")
+        self.encoder_name, self.dim = encoder_name, dim
+        self.cfg = index_cfg or IndexConfig()
+        self.indexes = {key: self._index(key, emb) for key, emb in (("image", img), ("text", txt))}
+
+    def _index(self, key: str, emb: np.ndarray) -> VectorIndex:
+        folder = self.folder / "index" / self.encoder_name / f"{key}-{self.cfg.kind}"
+        if (folder / "manifest.json").is_file():
+            index, meta = VectorIndex.load(folder, expected_dim=self.dim,
+                                           expected_encoder=self.encoder_name)
+            if meta.get("corpus_sha256") != self.manifest["metadata_sha256"]:
+                raise DataError(f"index {folder} was built for another version of the corpus")
+            return index
+        index = VectorIndex.build(np.asarray(emb), self.cfg)
+        index.save(folder, {"encoder": self.encoder_name, "key": key,
+                            "corpus_sha256": self.manifest["metadata_sha256"]})
+        return index
+
+    def __len__(self) -> int:
+        return len(self.entries)
+
+    def search(self, key: str, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        if key not in self.indexes:
+            raise ConfigError(f"key modality {key!r} must be 'image' or 'text'")
+        return self.indexes[key].search(queries, k)
+
+    def entry(self, i: int) -> CorpusEntry:
+        return self.entries[i]
+
+    def thumbnail(self, i: int, size: int = 96) -> np.ndarray:
+        """The entry's image, re-rendered (world) or read (real corpus), as a thumbnail."""
+        e = self.entries[i]
+        if e.source.startswith("world:"):
+            from ratouch.world.dataset import world_for
+            from ratouch.world.config import WorldConfig
+
+            seed, c, inst = parse_world_source(e.source)
+            img = Image.fromarray(world_for(WorldConfig(seed=seed)).corpus_image(c, inst))
+        else:
+            with Image.open(e.source) as im:
+                img = im.convert("RGB")
+        img.thumbnail((size, size))
+        return np.asarray(img)
+
+
+class Retriever:
+    """Encoders + a corpus index: queries in, neighbours per setting out."""
+
+    def __init__(self, encoders, corpus_index: CorpusIndex):
+        if encoders.dim != corpus_index.dim or encoders.name != corpus_index.encoder_name:
+            raise DataError(f"corpus was embedded with {corpus_index.encoder_name!r} "
+                            f"(dimension {corpus_index.dim}); the encoder is {encoders.name!r} "
+                            f"(dimension {encoders.dim})")
+        self.encoders = encoders
+        self.corpus = corpus_index
+
+    def embed_queries(self, images: Sequence[np.ndarray] | None = None,
+                      tactiles: Sequence[np.ndarray] | None = None,
+                      backgrounds: Sequence[np.ndarray | None] | None = None
+                      ) -> dict[str, np.ndarray]:
+        """Query embeddings: images are visual crops (the contact box), tactiles frames."""
+        out = {}
+        if images is not None:
+            out["image"] = self.encoders.encode_image(list(images))
+        if tactiles is not None:
+            out["tactile"] = self.encoders.encode_tactile(list(tactiles), backgrounds)
+        return out
+
+    def retrieve(self, queries: dict[str, np.ndarray], k: int = 5,
+                 settings: Sequence[str] | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Top-k (scores, ids) per setting, batched over queries.
+
+        Args:
+            queries: {"image": (Q, D), "tactile": (Q, D), "joint": (Q, D)}, any subset.
+            k: neighbours per query.
+            settings: names from SETTINGS; default every setting whose query is given.
+        """
+        if k < 1 or k > len(self.corpus):
+            raise ConfigError(f"K={k} must lie in [1, {len(self.corpus)}] (the corpus size)")
+        names = list(settings) if settings else [s for s, (q, _) in SETTINGS.items()
+                                                if q in queries]
+        out = {}
+        for name in names:
+            if name not in SETTINGS:
+                raise ConfigError(f"unknown retrieval setting {name!r}; known: {list(SETTINGS)}")
+            q, key = SETTINGS[name]
+            if q not in queries:
+                raise ConfigError(f"setting {name!r} needs a {q} query")
+            out[name] = self.corpus.search(key, queries[q], k)
+        return out
+
+    def neighbours(self, scores: np.ndarray, ids: np.ndarray) -> list[Neighbour]:
+        """Describe one query's top-k (1-D scores and ids)."""
+        out = []
+        for s, i in zip(scores, ids):
+            e = self.corpus.entry(int(i))
+            out.append(Neighbour(int(i), float(s), e.class_name, e.caption, e.description,
+                                 e.source, e.material))
+        return out

@@ -1,0 +1,104 @@
+"""Retrieval quality on the world's test split, per setting: material precision@K (retrieved
+entries made of the query's material) and label-adjective overlap@K (share of the query's
+ground-truth adjectives found in a retrieved tactile caption), with chance levels, overall and
+on the look-alike / feel-alike groups."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ratouch.retrieval import Retriever
+from ratouch.vocabulary import parse_adjectives
+from ratouch.world.config import WorldConfig
+from ratouch.world.generator import TEST_SIZE, World
+from ratouch.world.material import material
+
+
+def split_queries(world_cfg: WorldConfig, n: int = TEST_SIZE) -> dict:
+    """Visual crops (contact box), tactile frames, backgrounds and ground truth of the test
+    split."""
+    world = World(world_cfg)
+    crops, tacs, bgs, mats, labels = [], [], [], [], []
+    for i in range(n):
+        s = world.sample("test", i)
+        x0, y0, x1, y1 = s.box
+        crops.append(s.visual[y0:y1, x0:x1])
+        tacs.append(s.tactile)
+        bgs.append(world.background_image(s.sensor))
+        mats.append(s.material)
+        labels.append(set(s.label))
+    return {"crops": crops, "tactiles": tacs, "backgrounds": bgs, "materials": mats,
+            "labels": labels}
+
+
+def _metrics(ids: np.ndarray, mats: Sequence[str], labels: Sequence[set], entry_mats: np.ndarray,
+             entry_words: list[set], k: int, sel: np.ndarray) -> dict:
+    top = ids[sel, :k]
+    qm = np.asarray(mats)[sel]
+    prec = float((entry_mats[top] == qm[:, None]).mean())
+    lab = [labels[i] for i in np.nonzero(sel)[0]]
+    overlap = float(np.mean([np.mean([len(l & entry_words[j]) / len(l) for j in row])
+                             for l, row in zip(lab, top)]))
+    return {"material_precision": round(prec, 4), "adjective_overlap": round(overlap, 4)}
+
+
+def evaluate_retrieval(retriever: Retriever, world_cfg: WorldConfig | None = None,
+                       ks: Sequence[int] = (1, 5, 7), queries: dict | None = None,
+                       joint: np.ndarray | None = None) -> dict:
+    """Quality of every available setting at each K.
+
+    Args:
+        retriever: encoders + corpus index (a world corpus, whose entries know their material).
+        world_cfg: the world whose test split is queried.
+        ks: values of K.
+        queries: precomputed `split_queries(...)` (optional).
+        joint: (N, D) joint queries from the Tactile-Guided Retriever, if available.
+
+    Returns:
+        {"settings": {name: {"all"|"look_alike"|"feel_alike": {K: metrics}}}, "chance": ...}
+    """
+    world_cfg = world_cfg or WorldConfig()
+    q = queries or split_queries(world_cfg)
+    emb = retriever.embed_queries(q["crops"], q["tactiles"], q["backgrounds"])
+    if joint is not None:
+        emb["joint"] = joint
+    kmax = max(ks)
+    results = retriever.retrieve(emb, kmax)
+    entries = retriever.corpus.entries
+    entry_mats = np.array([e.material for e in entries])
+    entry_words = [set(parse_adjectives(e.caption)) for e in entries]
+    mats = q["materials"]
+    subsets = {
+        "all": np.ones(len(mats), bool),
+        "look_alike": np.array([material(m).look_group is not None for m in mats]),
+        "feel_alike": np.array([material(m).feel_group is not None for m in mats]),
+    }
+    out: dict = {"n_queries": len(mats), "corpus_size": len(entries), "settings": {}}
+    for name, (_, ids) in results.items():
+        out["settings"][name] = {
+            sub: {str(k): _metrics(ids, mats, q["labels"], entry_mats, entry_words, k, sel)
+                  for k in ks}
+            for sub, sel in subsets.items() if sel.any()}
+    # chance: K random corpus entries
+    rng = np.random.default_rng(0)
+    rand = rng.integers(len(entries), size=(len(mats), kmax))
+    out["chance"] = {str(k): _metrics(rand, mats, q["labels"], entry_mats, entry_words, k,
+                                      subsets["all"]) for k in ks}
+    return out
+
+
+def format_retrieval_eval(r: dict) -> str:
+    ks = list(r["chance"])
+    lines = [f"retrieval quality: {r['n_queries']} test queries, corpus of {r['corpus_size']}",
+             f"{'setting':<15}{'subset':<12}" + "".join(f"  P@{k:<3} ovl@{k:<3}" for k in ks)]
+    for name, subs in r["settings"].items():
+        for sub, per_k in subs.items():
+            cells = "".join(f"  {per_k[k]['material_precision']:.3f} {per_k[k]['adjective_overlap']:.3f} "
+                            for k in ks)
+            lines.append(f"{name:<15}{sub:<12}{cells}")
+    cells = "".join(f"  {r['chance'][k]['material_precision']:.3f} {r['chance'][k]['adjective_overlap']:.3f} "
+                    for k in ks)
+    lines.append(f"{'chance':<15}{'all':<12}{cells}")
+    return "\n".join(lines)

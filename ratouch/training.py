@@ -1,0 +1,241 @@
+"""Training of the default encoders with the TVL recipe, seeded and CPU-sized.
+
+Tactile and vision are aligned contrastively (InfoNCE) to the text space, and to each other, on
+the world's paired train split; vision is also aligned to the recaptioned ImageNet-T corpus.
+The text side is the frozen MiniLM plus a trained residual projection. Texts that are equal
+count as positives of each other (labels repeat), so the targets are soft.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from PIL import Image
+from tqdm import tqdm
+
+from ratouch.checkpoint import save_checkpoint
+from ratouch.corpus.imagenet_t import stratified_world_ids
+from ratouch.corpus.recaption import OfflineRecaptioner
+from ratouch.encoders.default import DefaultEncoders, tactile_tensor
+from ratouch.encoders.factory import create_model, model_config
+from ratouch.errors import ConfigError
+from ratouch.world.config import WorldConfig
+
+log = logging.getLogger(__name__)
+
+ANTONYM_PROBE = ("soft, fuzzy, deformable", "hard, rigid, smooth", "squishy, plush")
+
+# Steps per shipped size, chosen so that the three train in under 15 minutes on 2 cores.
+STEPS = {"default-tiny": 700, "default-s": 900, "default-b": 700, "debug": 20}
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    model: str = "default-s"
+    n_pairs: int = 12_000
+    n_corpus: int = 8_000
+    steps: int = 900
+    batch: int = 128
+    lr: float = 2e-3
+    weight_decay: float = 0.02
+    seed: int = 0
+    workers: int = 2
+    threads: int = 2
+
+    def __post_init__(self) -> None:
+        for name in ("n_pairs", "n_corpus", "steps", "batch", "workers", "threads"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
+        if not self.lr > 0:
+            raise ConfigError(f"lr={self.lr} must be > 0")
+
+
+# ---------------------------------------------------------------------------------------------
+# data: rendered once, in parallel, kept in memory
+
+def _pair_chunk(args):
+    from ratouch.world.dataset import world_for
+
+    wcfg, indices, vsize, tsize = args
+    world = world_for(wcfg)
+    crops, tacs, labels, mats = [], [], [], []
+    for i in indices:
+        s = world.sample("train", i)
+        x0, y0, x1, y1 = s.box
+        crop = Image.fromarray(s.visual[y0:y1, x0:x1]).resize(vsize[::-1], Image.BILINEAR)
+        crops.append(np.asarray(crop))
+        tacs.append(tactile_tensor([s.tactile], [world.background_image(s.sensor)], tsize)[0]
+                    .numpy().astype(np.float16))
+        labels.append(s.caption)
+        mats.append(s.material)
+    return crops, tacs, labels, mats
+
+
+def _corpus_chunk(args):
+    from ratouch.world.dataset import world_for
+
+    wcfg, ids, vsize = args
+    world = world_for(wcfg)
+    out = []
+    for c, i in ids:
+        img = Image.fromarray(world.corpus_image(c, i)).resize(vsize[::-1], Image.BILINEAR)
+        out.append((np.asarray(img), world.corpus_record(c, i)))
+    return out
+
+
+def render_training_data(tc: TrainConfig, vsize, tsize, progress: bool = True) -> dict:
+    """Render the paired crops / tactile tensors and the corpus images used for training."""
+    from ratouch.corpus.imagenet_t import world_lexicon
+    from ratouch.world.dataset import _fork_context, world_for
+
+    wcfg = WorldConfig(seed=tc.seed)
+    world_for(wcfg).warm()
+    pair_jobs = [(wcfg, list(range(k, min(tc.n_pairs, k + 250))), vsize, tsize)
+                 for k in range(0, tc.n_pairs, 250)]
+    ids = stratified_world_ids(tc.n_corpus, tc.seed)
+    corpus_jobs = [(wcfg, ids[k:k + 250], vsize) for k in range(0, len(ids), 250)]
+    crops, tacs, labels, mats, cimgs, crecs = [], [], [], [], [], []
+    with ProcessPoolExecutor(tc.workers, mp_context=_fork_context()) as pool:
+        bar = tqdm(total=tc.n_pairs + len(ids), desc="render training data", disable=not progress)
+        for c, t, l, m in pool.map(_pair_chunk, pair_jobs):
+            crops += c
+            tacs += t
+            labels += l
+            mats += m
+            bar.update(len(c))
+        for part in pool.map(_corpus_chunk, corpus_jobs):
+            cimgs += [p[0] for p in part]
+            crecs += [p[1] for p in part]
+            bar.update(len(part))
+        bar.close()
+    recap = OfflineRecaptioner(world_lexicon())
+    captions = [", ".join(recap.recaption(r.class_name, r.description)) for r in crecs]
+    return {"crops": np.stack(crops), "tactile": np.stack(tacs), "labels": labels,
+            "materials": mats, "corpus_images": np.stack(cimgs), "corpus_captions": captions}
+
+
+# ---------------------------------------------------------------------------------------------
+# losses and the loop
+
+def soft_info_nce(a: torch.Tensor, b: torch.Tensor, same: torch.Tensor,
+                  scale: torch.Tensor) -> torch.Tensor:
+    """Symmetric InfoNCE where `same[i, j]` marks b_j as a positive of a_i (equal texts)."""
+    logits = scale * a @ b.T  # (B, B)
+    target = same / same.sum(1, keepdim=True)
+    loss_ab = -(target * F.log_softmax(logits, 1)).sum(1).mean()
+    target_t = same.T / same.T.sum(1, keepdim=True)
+    loss_ba = -(target_t * F.log_softmax(logits.T, 1)).sum(1).mean()
+    return 0.5 * (loss_ab + loss_ba)
+
+
+def _norm_images(u8: np.ndarray) -> torch.Tensor:
+    x = torch.from_numpy(u8).float().div_(255).sub_(0.5).div_(0.25)
+    return x.permute(0, 3, 1, 2)
+
+
+def _augment(x: torch.Tensor, gen: torch.Generator, vertical: bool) -> torch.Tensor:
+    if torch.rand(1, generator=gen).item() < 0.5:
+        x = x.flip(3)
+    if vertical and torch.rand(1, generator=gen).item() < 0.5:
+        x = x.flip(2)
+    return x
+
+
+def antonym_report(model: DefaultEncoders) -> dict:
+    """Cosines of the antonym probe in MiniLM's raw space and in the trained space."""
+    raw = torch.from_numpy(model.minilm_features(list(ANTONYM_PROBE)))
+    with torch.no_grad():
+        proj = model.embed_text_features(raw)
+    r = raw @ raw.T
+    p = proj @ proj.T
+    return {"minilm": {"soft_vs_hard": round(float(r[0, 1]), 3),
+                       "soft_vs_squishy": round(float(r[0, 2]), 3)},
+            "projected": {"soft_vs_hard": round(float(p[0, 1]), 3),
+                          "soft_vs_squishy": round(float(p[0, 2]), 3)}}
+
+
+def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None = None,
+                   progress: bool = True) -> tuple[DefaultEncoders, dict]:
+    """Train one default encoder set; save it to `out` (safetensors + config + manifest).
+
+    Args:
+        tc: training config.
+        out: checkpoint folder (None: do not save).
+        cache: a dict in which rendered training data is kept, keyed by input sizes and data
+            config, so that several sizes trained in one run render it once.
+        progress: show progress bars.
+
+    Returns:
+        The trained model and a report (timings, final losses, antonym probe).
+    """
+    cfg = model_config(tc.model)
+    if cfg["backend"] != "default":
+        raise ConfigError(f"only default-backend encoders are trained here, not {tc.model!r}")
+    torch.manual_seed(tc.seed)
+    torch.set_num_threads(tc.threads)
+    t0 = time.perf_counter()
+    model = create_model(tc.model, pretrained=None)
+    key = (model.cfg.vision_size, model.cfg.tactile_size, tc.n_pairs, tc.n_corpus, tc.seed)
+    cache = {} if cache is None else cache
+    if key not in cache:
+        cache[key] = render_training_data(tc, model.cfg.vision_size, model.cfg.tactile_size,
+                                          progress)
+    data = cache[key]
+    t_data = time.perf_counter() - t0
+    texts = sorted(set(data["labels"]) | set(data["corpus_captions"]))
+    text_id = {t: i for i, t in enumerate(texts)}
+    minilm = torch.from_numpy(model.minilm_features(texts))  # (T, 384), frozen
+    before = antonym_report(model)
+    lab = torch.tensor([text_id[t] for t in data["labels"]])
+    cap = torch.tensor([text_id[t] for t in data["corpus_captions"]])
+    n_pairs, n_corpus = len(lab), len(cap)
+    gen = torch.Generator().manual_seed(tc.seed)
+    opt = torch.optim.AdamW(model.parameters(), lr=tc.lr, weight_decay=tc.weight_decay)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=tc.lr, total_steps=tc.steps,
+                                                pct_start=0.1)
+    model.train()
+    history = []
+    for step in tqdm(range(tc.steps), desc=f"train {tc.model}", disable=not progress):
+        ip = torch.randint(n_pairs, (tc.batch,), generator=gen)
+        ic = torch.randint(n_corpus, (tc.batch,), generator=gen)
+        v = model.embed_vision(_augment(_norm_images(data["crops"][ip.numpy()]), gen, False))
+        t = model.embed_tactile(_augment(torch.from_numpy(
+            data["tactile"][ip.numpy()].astype(np.float32)), gen, True))
+        lp = model.embed_text_features(minilm[lab[ip]])
+        vc = model.embed_vision(_augment(_norm_images(data["corpus_images"][ic.numpy()]), gen,
+                                         False))
+        lc = model.embed_text_features(minilm[cap[ic]])
+        same_p = (lab[ip][:, None] == lab[ip][None, :]).float()
+        same_c = (cap[ic][:, None] == cap[ic][None, :]).float()
+        eye = torch.eye(tc.batch)
+        scale = model.logit_scale.exp().clamp(max=100)
+        losses = {
+            "tactile_text": soft_info_nce(t, lp, same_p, scale),
+            "vision_text": soft_info_nce(v, lp, same_p, scale),
+            "tactile_vision": soft_info_nce(t, v, eye, scale),
+            "corpus_vision_text": soft_info_nce(vc, lc, same_c, scale),
+        }
+        loss = sum(losses.values())
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        sched.step()
+        if step % 50 == 0 or step == tc.steps - 1:
+            history.append({"step": step, **{k: round(x.item(), 4) for k, x in losses.items()}})
+    model.eval()
+    report = {
+        "model": tc.model, "steps": tc.steps, "batch": tc.batch, "seed": tc.seed,
+        "n_pairs": n_pairs, "n_corpus": n_corpus, "data_seconds": round(t_data, 1),
+        "train_seconds": round(time.perf_counter() - t0 - t_data, 1),
+        "final": history[-1], "antonyms_before": before, "antonyms_after": antonym_report(model),
+    }
+    if out is not None:
+        save_checkpoint(out, model.state_dict(), cfg, meta={"train": report, "history": history},
+                        half=True)
+    return model, report

@@ -1,0 +1,110 @@
+"""Encoders: the factory, the default backend, checkpoints that describe themselves."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from ratouch.checkpoint import read_checkpoint, save_checkpoint
+from ratouch.encoders.factory import create_model, list_models, shipped_weights
+from ratouch.errors import ConfigError, DataError, DataNotFoundError
+
+
+def _unit(x: np.ndarray) -> bool:
+    return np.allclose(np.linalg.norm(x, axis=1), 1.0, atol=1e-4)
+
+
+def test_registry_has_three_default_sizes_tvl_and_debug():
+    names = list_models()
+    for n in ("default-tiny", "default-s", "default-b", "debug", "tvl-vitb", "tvl-vits",
+              "tvl-vittiny"):
+        assert n in names
+    with pytest.raises(ConfigError, match="unknown encoder"):
+        create_model("resnet-9000")
+
+
+def test_debug_encoders_embed_every_modality(debug_encoders, world):
+    s = [world.sample("test", i) for i in (50, 60, 70)]
+    img = debug_encoders.encode_image([x.visual[x.box[1]:x.box[3], x.box[0]:x.box[2]] for x in s])
+    tac = debug_encoders.encode_tactile([x.tactile for x in s],
+                                        [world.background_image(x.sensor) for x in s])
+    tac_nobg = debug_encoders.encode_tactile([x.tactile for x in s])
+    txt = debug_encoders.encode_text([x.caption for x in s])
+    for e in (img, tac, tac_nobg, txt):
+        assert e.shape == (3, 384) and e.dtype == np.float32 and _unit(e)
+    assert debug_encoders.encode_image([]).shape == (0, 384)
+
+
+def test_untrained_projection_keeps_minilm_geometry(debug_encoders):
+    e = debug_encoders.encode_text(["soft, fuzzy, deformable", "hard, rigid, smooth",
+                                    "squishy, plush"])
+    # the measured MiniLM weakness the trained projection must fix
+    assert e[0] @ e[1] == pytest.approx(0.574, abs=0.01)
+    assert e[0] @ e[2] == pytest.approx(0.515, abs=0.01)
+
+
+def test_checkpoint_round_trip_and_integrity(tmp_path, debug_encoders):
+    folder = tmp_path / "ck"
+    cfg = {"name": "debug"}
+    from ratouch.encoders.factory import model_config
+
+    save_checkpoint(folder, debug_encoders.state_dict(), model_config("debug"))
+    loaded = create_model("debug", pretrained=folder)
+    texts = ["soft, plush", "hard, metallic"]
+    assert np.allclose(loaded.encode_text(texts), debug_encoders.encode_text(texts), atol=1e-6)
+    state, config, manifest = read_checkpoint(folder)
+    assert config["name"] == "debug" and set(manifest["files"]) == {"model.safetensors",
+                                                                    "config.json"}
+    # another model's checkpoint is refused
+    with pytest.raises(ConfigError, match="debug"):
+        create_model("default-tiny", pretrained=folder)
+    # a corrupt byte is refused and the file is left as it was
+    w = folder / "model.safetensors"
+    data = bytearray(w.read_bytes())
+    data[-10] ^= 0xFF
+    w.write_bytes(bytes(data))
+    with pytest.raises(DataError, match="corrupt"):
+        create_model("debug", pretrained=folder)
+    assert w.read_bytes() == bytes(data)
+    with pytest.raises(DataNotFoundError):
+        create_model("debug", pretrained=tmp_path / "nowhere")
+    del cfg
+
+
+def test_checkpoint_that_does_not_fit_is_reported(tmp_path, debug_encoders):
+    from ratouch.encoders.factory import model_config
+
+    state = dict(debug_encoders.state_dict())
+    state["vision.head.weight"] = torch.zeros(5, 5)
+    save_checkpoint(tmp_path / "bad", state, model_config("debug"))
+    with pytest.raises(DataError, match="vision.head.weight"):
+        create_model("debug", pretrained=tmp_path / "bad")
+
+
+@pytest.mark.parametrize("name", ["default-tiny", "default-s", "default-b"])
+def test_shipped_weights_load_and_are_small(name):
+    folder = shipped_weights(name)
+    if not (folder / "manifest.json").is_file():
+        pytest.fail(f"shipped weights missing for {name}: run `ratouch train encoders`")
+    model = create_model(name)
+    size = (folder / "model.safetensors").stat().st_size
+    assert size < 8 * 2**20
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["meta"]["train"]["model"] == name
+    e = model.encode_text(["soft, fuzzy, deformable", "hard, rigid, smooth", "squishy, plush"])
+    assert e[0] @ e[2] > e[0] @ e[1]  # the trained space separates tactile antonyms
+
+
+def test_training_reduces_the_loss(tmp_path):
+    from ratouch.training import TrainConfig, train_encoders
+
+    model, report = train_encoders(TrainConfig(model="debug", n_pairs=120, n_corpus=120,
+                                               steps=25, batch=32, workers=1),
+                                   out=str(tmp_path / "dbg"), progress=False)
+    assert (tmp_path / "dbg" / "model.safetensors").is_file()
+    meta = json.loads((tmp_path / "dbg" / "manifest.json").read_text())["meta"]
+    first, last = meta["history"][0], meta["history"][-1]
+    assert last["tactile_text"] < first["tactile_text"]

@@ -1,0 +1,91 @@
+"""Embedding, indexing and retrieval in the paper's settings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ratouch.embed import embed_corpus, load_embeddings
+from ratouch.errors import ConfigError, DataError
+from ratouch.retrieval import CorpusIndex, Retriever
+from ratouch.retrieval_eval import evaluate_retrieval, split_queries
+from ratouch.world.config import WorldConfig
+
+
+def test_embeddings_are_complete_and_checked(small_corpus, debug_encoders):
+    img, txt, manifest = load_embeddings(small_corpus, "debug", 384)
+    assert img.shape == txt.shape == (240, 384)
+    assert np.allclose(np.linalg.norm(img, axis=1), 1, atol=1e-4)
+    with pytest.raises(DataError, match="dimension"):
+        load_embeddings(small_corpus, "debug", 768)
+
+
+def test_interrupted_embedding_resumes_to_the_same_result(tmp_path, small_corpus, debug_encoders,
+                                                          monkeypatch):
+    import shutil
+
+    from ratouch import embed as emb
+
+    folder = tmp_path / "c"
+    shutil.copytree(small_corpus, folder, ignore=shutil.ignore_patterns("embeddings", "index"))
+    real = emb.corpus_images
+    calls = {"n": 0}
+
+    def flaky(entries, start, batch, workers, progress):
+        for b in real(entries, start, batch, workers, progress):
+            calls["n"] += 1
+            if calls["n"] == 2:
+                raise KeyboardInterrupt
+            yield b
+
+    monkeypatch.setattr(emb, "corpus_images", flaky)
+    with pytest.raises(KeyboardInterrupt):
+        embed_corpus(folder, debug_encoders, batch=100, workers=1, progress=False)
+    assert (folder / "embeddings" / "debug" / "progress.json").is_file()
+    monkeypatch.setattr(emb, "corpus_images", real)
+    embed_corpus(folder, debug_encoders, batch=100, workers=1, progress=False)
+    a = load_embeddings(folder, "debug")[0]
+    b = load_embeddings(small_corpus, "debug")[0]
+    assert np.allclose(a, b, atol=1e-5)
+
+
+def test_retrieval_in_all_four_encoder_settings(small_corpus, debug_encoders, world):
+    r = Retriever(debug_encoders, CorpusIndex(small_corpus, "debug", 384))
+    s = world.sample("test", 80)
+    q = r.embed_queries([s.visual[s.box[1]:s.box[3], s.box[0]:s.box[2]]], [s.tactile],
+                        [world.background_image(s.sensor)])
+    res = r.retrieve(q, k=5)
+    assert set(res) == {"image_image", "image_text", "tactile_image", "tactile_text"}
+    for scores, ids in res.values():
+        assert scores.shape == ids.shape == (1, 5)
+        assert np.all(np.diff(scores[0]) <= 1e-6)
+    nb = r.neighbours(*[x[0] for x in res["tactile_text"]])
+    assert nb[0].caption.count(",") == 4 and nb[0].class_name
+    assert r.corpus.thumbnail(nb[0].id, 64).shape[2] == 3
+    with pytest.raises(ConfigError, match="K=241"):
+        r.retrieve(q, k=241)
+    with pytest.raises(ConfigError, match="joint"):
+        r.retrieve(q, k=3, settings=["joint_text"])
+
+
+def test_index_is_reused_and_a_mismatched_encoder_refused(small_corpus, debug_encoders):
+    CorpusIndex(small_corpus, "debug", 384)
+    idx_dir = small_corpus / "index" / "debug" / "text-flat"
+    before = (idx_dir / "index.faiss").read_bytes()
+    CorpusIndex(small_corpus, "debug", 384)  # loads, does not rebuild
+    assert (idx_dir / "index.faiss").read_bytes() == before
+
+    class Other:
+        name, dim = "default-s", 384
+
+    with pytest.raises(DataError, match="embedded with"):
+        Retriever(Other(), CorpusIndex(small_corpus, "debug", 384))
+
+
+def test_retrieval_eval_reports_every_setting(small_corpus, debug_encoders):
+    r = Retriever(debug_encoders, CorpusIndex(small_corpus, "debug", 384))
+    q = split_queries(WorldConfig(), n=60)
+    out = evaluate_retrieval(r, queries=q, ks=(1, 5))
+    assert set(out["settings"]) == {"image_image", "image_text", "tactile_image", "tactile_text"}
+    m = out["settings"]["tactile_text"]["all"]["5"]
+    assert 0 <= m["material_precision"] <= 1 and 0 <= m["adjective_overlap"] <= 1

@@ -1,0 +1,82 @@
+"""The retrieval benchmark: shape of the result and agreement of the methods (not speed)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from ratouch.errors import ConfigError
+from ratouch.index import IndexConfig, VectorIndex
+from ratouch.retrieval_bench import bench_retrieval, bench_scale, clustered_vectors, \
+    exact_topk, format_bench, upstream_retrieve
+
+
+@pytest.fixture(scope="module")
+def result() -> dict:
+    return bench_retrieval(n=3000, dim=32, n_queries=20, batch=8, seed=1)
+
+
+def test_result_has_every_key(result):
+    for key in ("n", "dim", "k", "bandwidth_gb_s", "bound_ms", "methods",
+                "speedup_vs_upstream", "peak_rss_mb", "flat_vs_bound"):
+        assert key in result, key
+    assert set(result["methods"]) == {"upstream", "flat", "hnsw", "ivfpq"}
+    for name, row in result["methods"].items():
+        for key in ("p50_ms", "p95_ms", "recall_at_5", "build_s"):
+            assert key in row, (name, key)
+        assert 0 < row["p50_ms"] <= row["p95_ms"]
+        assert 0.0 <= row["recall_at_5"] <= 1.0
+    assert set(result["speedup_vs_upstream"]) == {"flat", "hnsw", "ivfpq"}
+    assert result["bandwidth_gb_s"] > 0 and result["bound_ms"] > 0
+    assert result["methods"]["flat"]["batch_ms_per_query"] > 0
+    assert set(result["methods"]["hnsw"]["ef_search_sweep"]) == {"32", "64", "128"}
+    json.dumps(result)  # a CLI prints it as JSON
+
+
+def test_exact_methods_have_full_recall(result):
+    assert result["methods"]["flat"]["recall_at_5"] == 1.0
+    assert result["methods"]["upstream"]["recall_at_5"] == 1.0
+
+
+def test_upstream_and_flat_agree_on_top1():
+    x = clustered_vectors(3020, 32, seed=2)
+    corpus, queries = x[:3000], x[3000:]
+    index = VectorIndex.build(corpus, IndexConfig())
+    _, ids = index.search(queries, 5)
+    up = torch.stack([upstream_retrieve(torch.from_numpy(corpus), torch.from_numpy(q), 5)
+                      for q in queries]).numpy()
+    np.testing.assert_array_equal(up[:, 0], ids[:, 0])
+    np.testing.assert_array_equal(exact_topk(corpus, queries, 5)[:, 0], ids[:, 0])
+
+
+def test_clustered_vectors_are_unit_and_reproducible():
+    a = clustered_vectors(100, 16, seed=5)
+    assert a.dtype == np.float32 and a.shape == (100, 16)
+    np.testing.assert_allclose(np.linalg.norm(a, axis=1), 1.0, atol=1e-5)
+    np.testing.assert_array_equal(a, clustered_vectors(100, 16, seed=5))
+
+
+def test_format_bench_names_every_method(result):
+    text = format_bench(result)
+    for name in result["methods"]:
+        assert name in text
+    assert "bandwidth" in text
+
+
+def test_bad_arguments_raise_config_error():
+    with pytest.raises(ConfigError, match="methods="):
+        bench_retrieval(n=500, dim=8, methods=("flat", "annoy"))
+    with pytest.raises(ConfigError, match="K="):
+        bench_retrieval(n=500, dim=8, k=0)
+
+
+def test_bench_scale_small(tmp_path):
+    out = bench_scale(n=2000, dim=16, kind="hnsw", folder=tmp_path, n_queries=10)
+    for key in ("build_s", "save_s", "load_s", "p50_ms", "recall_at_5", "peak_rss_mb"):
+        assert key in out
+    assert out["recall_at_5"] >= 0.9
+    assert (tmp_path / "manifest.json").is_file()
+    assert "load_s" in format_bench(out)
