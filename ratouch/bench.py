@@ -55,3 +55,33 @@ def bench_world(corpus_size: int = 10_000, workers: int = 2, seed: int = 0,
         "meets_target": total < 60.0,
         "corpus_images_sha256": digest.hexdigest()[:16],
     }
+
+
+def bench_query(encoder: str = "default-s", corpus: str | None = None, n: int = 60,
+                k: int = 5, seed: int = 0) -> dict:
+    """Cold start and warm latency of the whole RA-Touch query (both encoders, three
+    retrievals, retriever, integrator, both generations, PCA) on world test pairs."""
+    import numpy as np
+
+    from ratouch.pipeline import RATouchPipeline, default_corpus
+    from ratouch.world.generator import World
+
+    corpus = corpus or str(default_corpus(encoder, progress=False))  # built outside the timing
+    t0 = time.perf_counter()
+    pipe = RATouchPipeline.load(encoder, corpus=corpus)
+    cold = time.perf_counter() - t0
+    world = World(WorldConfig(seed=seed))
+    samples = [world.sample("test", 46 + (7 * i) % 356) for i in range(n)]
+    pipe.query(samples[0].visual, samples[0].tactile, box=samples[0].box, k=k)  # warm-up
+    totals, stages = [], {}
+    for s in samples:
+        r = pipe.query(s.visual, s.tactile, box=s.box, k=k)
+        totals.append(r["timings_ms"]["total"])
+        for name, ms in r["timings_ms"].items():
+            stages.setdefault(name, []).append(ms)
+    return {"encoder": encoder, "corpus_size": len(pipe.corpus), "n_queries": n, "k": k,
+            "cold_start_s": round(cold, 2),
+            "p50_ms": round(float(np.percentile(totals, 50)), 1),
+            "p95_ms": round(float(np.percentile(totals, 95)), 1),
+            "stages_p50_ms": {k_: round(float(np.median(v)), 2) for k_, v in stages.items()},
+            "target": {"p50_ms": 150, "p95_ms": 300, "cold_start_s": 10}}

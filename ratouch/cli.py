@@ -129,6 +129,22 @@ def _add_train(sub) -> None:
     e.add_argument("--steps", type=_pos_int, default=None, help="override the step count")
     e.add_argument("--n-pairs", type=_pos_int, default=12_000)
     e.add_argument("--n-corpus", type=_pos_int, default=8_000)
+    e.add_argument("--threads", type=_pos_int, default=2, help="torch threads for training")
+    r = tsub.add_parser("retriever", help="train the Tactile-Guided Retriever (then frozen)")
+    r.add_argument("--encoder", default="default-s")
+    r.add_argument("--seed", type=_nonneg_int, default=0)
+    r.add_argument("--strategy", choices=("align", "align_mse", "align_div_nce", "full"),
+                   default="full", help="loss strategy (the paper's Fig. 5 compares them)")
+    r.add_argument("--paper-exact", action="store_true",
+                   help="no residual around the cross-attention (eq. 2 as printed)")
+    r.add_argument("--epochs", type=_pos_int, default=None)
+    g = tsub.add_parser("generator", help="train the baseline and RA-Touch generators")
+    g.add_argument("--encoder", default="default-s")
+    g.add_argument("--seed", type=_nonneg_int, default=0)
+    g.add_argument("--stage1-steps", type=_pos_int, default=None)
+    g.add_argument("--stage2-steps", type=_pos_int, default=None)
+    a = tsub.add_parser("all", help="encoders, retriever and generators, in order")
+    a.add_argument("--seed", type=_nonneg_int, default=0)
 
 
 def _add_eval(sub) -> None:
@@ -142,6 +158,29 @@ def _add_eval(sub) -> None:
     r.add_argument("--json", action="store_true")
 
 
+def _box(text: str) -> tuple[int, int, int, int]:
+    parts = text.split(",")
+    try:
+        box = tuple(int(round(float(v))) for v in parts)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not x0,y0,x1,y1") from e
+    if len(box) != 4:
+        raise argparse.ArgumentTypeError(f"{text!r} must have 4 numbers: x0,y0,x1,y1")
+    return box
+
+
+def _add_query(sub) -> None:
+    q = sub.add_parser("query", help="one RA-Touch query: neighbours, description, PCA, timings")
+    q.add_argument("--vision", required=True, help="visual image file")
+    q.add_argument("--tactile", default=None, help="tactile image file (optional)")
+    q.add_argument("--box", type=_box, default=None, help="contact box x0,y0,x1,y1 in pixels")
+    q.add_argument("--k", type=_pos_int, default=5)
+    q.add_argument("--label", default=None, help="ground-truth caption, if known (for the PCA)")
+    q.add_argument("--encoder", default="default-s")
+    q.add_argument("--corpus", default=None, help="corpus folder (default: the cached 10k)")
+    q.add_argument("--json", action="store_true", help="print JSON (the default output)")
+
+
 def _add_bench(sub) -> None:
     bench = sub.add_parser("bench", help="benchmarks that print measured figures")
     bsub = bench.add_subparsers(dest="bench_cmd", required=True)
@@ -152,6 +191,11 @@ def _add_bench(sub) -> None:
     r.add_argument("--scale", type=_nonneg_int, default=0,
                    help="also build/load/query an index of this many vectors (e.g. 1000000)")
     r.add_argument("--json", action="store_true")
+    qb = bsub.add_parser("query", help="latency of the whole RA-Touch query, cold and warm")
+    qb.add_argument("--encoder", default="default-s")
+    qb.add_argument("--corpus", default=None)
+    qb.add_argument("--n", type=_pos_int, default=60)
+    qb.add_argument("--json", action="store_true")
     w = bsub.add_parser("world", help="corpus + test split generation throughput")
     w.add_argument("--corpus-size", default="10k")
     w.add_argument("--workers", type=_pos_int, default=2)
@@ -165,6 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_world(sub)
     _add_corpus(sub)
     _add_train(sub)
+    _add_query(sub)
     _add_eval(sub)
     _add_bench(sub)
     app = sub.add_parser("app", help="launch the Gradio app")
@@ -228,17 +273,52 @@ def _run_corpus(args: argparse.Namespace) -> int:
 
 
 def _run_train(args: argparse.Namespace) -> int:
+    from ratouch import recipes
+
+    if args.train_cmd == "retriever":
+        report = recipes.retriever_recipe(args.encoder, args.seed, args.strategy,
+                                          cross_residual=not args.paper_exact, epochs=args.epochs)
+        print(json.dumps(report))
+        return 0
+    if args.train_cmd == "generator":
+        overrides = {k: v for k, v in (("stage1_steps", args.stage1_steps),
+                                       ("stage2_steps", args.stage2_steps)) if v}
+        print(json.dumps(recipes.generator_recipe(args.encoder, args.seed, **overrides)))
+        return 0
+    if args.train_cmd == "all":
+        args.model, args.out, args.steps, args.threads = None, None, None, 2
+        args.n_pairs, args.n_corpus = 12_000, 8_000
+        _train_encoders(args)
+        print(json.dumps(recipes.retriever_recipe(seed=args.seed)))
+        print(json.dumps(recipes.generator_recipe(seed=args.seed)))
+        return 0
+    return _train_encoders(args)
+
+
+def _train_encoders(args: argparse.Namespace) -> int:
     from ratouch.encoders.factory import shipped_weights
-    from ratouch.training import STEPS, TrainConfig, train_encoders
+    from ratouch.train_encoders import STEPS, TrainConfig, train_encoders
 
     models = args.model or ["default-tiny", "default-s", "default-b"]
     shared: dict = {}  # rendered data, shared by models with the same input sizes
     for name in models:
         out = Path(args.out) / name if args.out else shipped_weights(name)
         tc = TrainConfig(model=name, seed=args.seed, steps=args.steps or STEPS.get(name, 300),
-                         n_pairs=args.n_pairs, n_corpus=args.n_corpus)
+                         n_pairs=args.n_pairs, n_corpus=args.n_corpus, threads=args.threads)
         _, report = train_encoders(tc, out=str(out), cache=shared)
         print(json.dumps({"out": str(out), **report}))
+    return 0
+
+
+def _run_query(args: argparse.Namespace) -> int:
+    from ratouch.pipeline import RATouchPipeline
+
+    for path in (args.vision, args.tactile):
+        if path is not None and not Path(path).is_file():
+            raise _usage(f"image file {path} does not exist")
+    pipe = RATouchPipeline.load(args.encoder, corpus=args.corpus)
+    result = pipe.query(args.vision, args.tactile, box=args.box, k=args.k, label=args.label)
+    print(json.dumps(result, indent=1))
     return 0
 
 
@@ -258,6 +338,12 @@ def _run_bench(args: argparse.Namespace) -> int:
     from ratouch.bench import bench_world
     from ratouch.corpus.imagenet_t import parse_size
 
+    if args.bench_cmd == "query":
+        from ratouch.bench import bench_query
+
+        r = bench_query(args.encoder, args.corpus, n=args.n)
+        print(json.dumps(r, indent=None if args.json else 1))
+        return 0
     if args.bench_cmd == "retrieval":
         from ratouch.retrieval_bench import bench_retrieval, bench_scale, format_bench
 
@@ -307,7 +393,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     runners = {"world": _run_world, "corpus": _run_corpus, "train": _run_train,
-               "eval": _run_eval, "bench": _run_bench, "app": _run_app}
+               "query": _run_query, "eval": _run_eval, "bench": _run_bench, "app": _run_app}
     try:
         return runners[args.cmd](args)
     except (RATouchError, OSError) as e:

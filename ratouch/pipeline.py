@@ -1,23 +1,33 @@
-"""The library's high-level entry points shared by the CLI and the app: build, embed and index
-a corpus; open a retriever on it; the cached default corpus."""
+"""The library's high-level entry points shared by the CLI and the app: build, embed and index a
+corpus; open a retriever on it; the cached default corpus; and the RA-Touch query pipeline
+(`RATouchPipeline.query`), whose JSON-ready output `ratouch query` prints and the app shows."""
 
 from __future__ import annotations
 
 import logging
 import os
+import time
 from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
 
 from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
-from ratouch.embed import embed_corpus
-from ratouch.encoders.factory import create_model
+from ratouch.embed import embed_corpus, load_embeddings
+from ratouch.encoders.factory import ASSETS, create_model
+from ratouch.errors import DataError, DataNotFoundError
 from ratouch.index import IndexConfig
+from ratouch.pca import PCA2D
 from ratouch.retrieval import CorpusIndex, Retriever
 
 log = logging.getLogger(__name__)
 
+MODES = {"image": ("image", "text"), "tactile": ("tactile", "text"), "joint": ("joint", "text")}
+
 
 def cache_dir() -> Path:
-    """Where cached corpora live: $RATOUCH_CACHE, else ~/.cache/ratouch."""
+    """Where cached corpora and training data live: $RATOUCH_CACHE, else ~/.cache/ratouch."""
     return Path(os.environ.get("RATOUCH_CACHE", Path.home() / ".cache" / "ratouch"))
 
 
@@ -27,8 +37,7 @@ def embed_and_index(corpus: str | os.PathLike, encoder: str = "default-s",
     model = create_model(encoder)
     emb = embed_corpus(corpus, model, workers=workers, progress=progress)
     CorpusIndex(corpus, model.name, model.dim, IndexConfig(kind=index))
-    return {"encoder": model.name, "dim": model.dim, "index": index,
-            "embedded": emb["count"]}
+    return {"encoder": model.name, "dim": model.dim, "index": index, "embedded": emb["count"]}
 
 
 def default_corpus(encoder: str = "default-s", size: str = "10k", seed: int = 0,
@@ -48,3 +57,179 @@ def open_retriever(corpus: str | os.PathLike, encoder: str = "default-s",
     """Encoders + the corpus's index, checked against each other."""
     model = create_model(encoder, pretrained=pretrained)
     return Retriever(model, CorpusIndex(corpus, model.name, model.dim, IndexConfig(kind=index)))
+
+
+# ---------------------------------------------------------------------------------------------
+# the query pipeline
+
+def retriever_weights(encoder: str) -> Path:
+    return ASSETS / "retriever" / encoder
+
+
+def generator_weights(encoder: str, kind: str) -> Path:
+    return ASSETS / "generator" / encoder / kind
+
+
+def integrator_factory(cfg: dict):
+    """Rebuild a saved Texture-Aware Integrator from its config."""
+    from ratouch.integrator import IntegratorConfig, TextureAwareIntegrator
+
+    return TextureAwareIntegrator(IntegratorConfig(**cfg))
+
+
+def load_tgr(encoder: str):
+    """The frozen Tactile-Guided Retriever trained for an encoder."""
+    from ratouch.checkpoint import load_into, read_checkpoint
+    from ratouch.retriever import RetrieverConfig, TactileGuidedRetriever
+
+    folder = retriever_weights(encoder)
+    state, cfg, _ = read_checkpoint(folder)
+    cfg = {k: v for k, v in cfg.items() if k != "kind"}
+    model = TactileGuidedRetriever(RetrieverConfig(**cfg))
+    load_into(model, state, str(folder))
+    return model.eval()
+
+
+class RATouchPipeline:
+    """Encoders, corpus index, Tactile-Guided Retriever, the two generators and the PCA frame.
+
+    Read-only once loaded; `query` may be called from several threads.
+    """
+
+    def __init__(self, retriever: Retriever, tgr, generator_ra, generator_base, pca: PCA2D):
+        self.retriever = retriever
+        self.encoders = retriever.encoders
+        self.corpus = retriever.corpus
+        self.tgr = tgr
+        self.generator_ra = generator_ra
+        self.generator_base = generator_base
+        self.pca = pca
+        txt = load_embeddings(self.corpus.folder, self.encoders.name, self.encoders.dim,
+                              verify=False)
+        self._image_emb, self._text_emb = txt[0], txt[1]
+
+    @classmethod
+    def load(cls, encoder: str = "default-s", corpus: str | os.PathLike | None = None,
+             index: str = "flat", progress: bool = False) -> "RATouchPipeline":
+        """Load everything for an encoder; the default corpus is built on first use."""
+        from ratouch.generator import load_generator
+
+        corpus = corpus or default_corpus(encoder, progress=progress)
+        retriever = open_retriever(corpus, encoder, index)
+        tgr = load_tgr(encoder)
+        gen_ra = load_generator(generator_weights(encoder, "ra"), integrator_factory)
+        gen_base = load_generator(generator_weights(encoder, "baseline"))
+        img, txt, _ = load_embeddings(corpus, encoder, verify=False)
+        ref = np.concatenate([np.asarray(img[:2000]), np.asarray(txt[:2000])])
+        return cls(retriever, tgr, gen_ra, gen_base, PCA2D.fit(ref))
+
+    def joint_query(self, V: np.ndarray, T: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.tgr(torch.from_numpy(V), torch.from_numpy(T)).query.numpy()
+
+    def neighbour_embeddings(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(Rv, Rl): image and text embeddings of retrieved entries, (B, K, D) each."""
+        flat = ids.reshape(-1)
+        order = np.argsort(flat)  # memory-mapped arrays read fastest in index order
+        rv = np.empty((len(flat), self.encoders.dim), np.float32)
+        rl = np.empty_like(rv)
+        rv[order] = self._image_emb[flat[order]]
+        rl[order] = self._text_emb[flat[order]]
+        return rv.reshape(*ids.shape, -1), rl.reshape(*ids.shape, -1)
+
+    def describe(self, V: np.ndarray, T: np.ndarray, ids: np.ndarray | None) -> list[str]:
+        """RA-Touch descriptions (with the neighbours `ids`) or baseline ones (ids None)."""
+        v, t = torch.from_numpy(V), torch.from_numpy(T)
+        with torch.no_grad():
+            if ids is None:
+                return self.generator_base.describe(v, t)
+            rv, rl = self.neighbour_embeddings(ids)
+            return self.generator_ra.describe(v, t, torch.from_numpy(rv), torch.from_numpy(rl))
+
+    def query(self, visual: Any, tactile: Any = None, box=None, k: int = 5,
+              label: str | None = None) -> dict:
+        """Run the whole RA-Touch query for one visuo-tactile pair.
+
+        Args:
+            visual: the visual image (array, PIL image or path).
+            tactile: the tactile image, or None (image-only retrieval, said in `warnings`).
+            box: contact box (x0, y0, x1, y1) in pixels of the visual image; None uses TVL's
+                centred crop and says so in `warnings`.
+            k: neighbours per mode.
+            label: the ground-truth tactile caption, when known (plotted in the PCA).
+
+        Returns:
+            {"neighbours": {"image"|"tactile"|"joint": [{"id", "score", "class_name",
+            "caption", "description", "source"}]}, "description": {"ra_touch", "baseline"},
+            "pca": {"points": [{"role", "x", "y", "id"?}], "explained": [..]},
+            "timings_ms": {stage: ms, ..., "total": ms}, "warnings": [...], "box": [...]}
+        """
+        from ratouch.encoders.preprocess import crop_box, to_rgb_array, tvl_contact_box
+
+        t_start = time.perf_counter()
+        timings: dict[str, float] = {}
+        warnings: list[str] = []
+
+        def lap(stage: str, t0: float) -> float:
+            now = time.perf_counter()
+            timings[stage] = round((now - t0) * 1000, 2)
+            return now
+
+        t = time.perf_counter()
+        image = to_rgb_array(visual, name="visual image")
+        if box is None:
+            box = tvl_contact_box(image.shape[1], image.shape[0])
+            warnings.append(f"no contact box given: used TVL's centred crop {list(box)}")
+        crop = crop_box(image, box)
+        frame = to_rgb_array(tactile, name="tactile image") if tactile is not None else None
+        if frame is None:
+            warnings.append("no tactile image: image-only retrieval; the tactile and joint "
+                            "queries and the RA-Touch description are not available")
+        t = lap("preprocess", t)
+        V = self.encoders.encode_image([crop])
+        t = lap("encode_image", t)
+        queries = {"image": V}
+        if frame is not None:
+            T = self.encoders.encode_tactile([frame])
+            t = lap("encode_tactile", t)
+            queries["tactile"] = T
+            queries["joint"] = self.joint_query(V, T)
+            t = lap("retriever", t)
+        results = {mode: self.corpus.search(key, queries[q], k)
+                   for mode, (q, key) in MODES.items() if q in queries}
+        t = lap("search", t)
+        if frame is not None:
+            ra = self.describe(V, T, results["joint"][1])[0]
+            t = lap("generate_ra", t)
+            base = self.describe(V, T, None)[0]
+            t = lap("generate_baseline", t)
+        else:
+            ra, base = "", ""
+        points = self._pca_points(queries, results, label)
+        t = lap("pca", t)
+        neighbours = {mode: [self._neighbour(i, s) for s, i in zip(sc[0], ids[0])]
+                      for mode, (sc, ids) in results.items()}
+        timings["total"] = round((time.perf_counter() - t_start) * 1000, 2)
+        return {"neighbours": neighbours, "description": {"ra_touch": ra, "baseline": base},
+                "pca": {"points": points, "explained": list(self.pca.explained)},
+                "timings_ms": timings, "warnings": warnings, "box": [int(v) for v in box]}
+
+    def _neighbour(self, i: int, score: float) -> dict:
+        e = self.corpus.entry(int(i))
+        return {"id": int(i), "score": round(float(score), 4), "class_name": e.class_name,
+                "caption": e.caption, "description": e.description, "source": e.source}
+
+    def _pca_points(self, queries: dict, results: dict, label: str | None) -> list[dict]:
+        pts = []
+        for mode, q in queries.items():
+            x, y = self.pca.project(q)[0]
+            pts.append({"role": f"query_{mode}", "x": float(x), "y": float(y)})
+        for mode, (_, ids) in results.items():
+            xy = self.pca.project(self._text_emb[np.sort(ids[0])])
+            for i, (x, y) in zip(np.sort(ids[0]), xy):
+                pts.append({"role": f"neighbour_{mode}", "x": float(x), "y": float(y),
+                            "id": int(i)})
+        if label:
+            x, y = self.pca.project(self.encoders.encode_text([label]))[0]
+            pts.append({"role": "ground_truth", "x": float(x), "y": float(y)})
+        return pts

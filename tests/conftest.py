@@ -42,3 +42,17 @@ def small_corpus(tmp_path_factory, debug_encoders):
     build_corpus(folder, 240, seed=0, progress=False)
     embed_corpus(folder, debug_encoders, batch=100, workers=1, progress=False)
     return folder
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _isolated_cache(tmp_path_factory):
+    """Tests never read or write the user's cache of corpora and training data."""
+    import os
+
+    old = os.environ.get("RATOUCH_CACHE")
+    os.environ["RATOUCH_CACHE"] = str(tmp_path_factory.mktemp("ratouch-cache"))
+    yield
+    if old is None:
+        os.environ.pop("RATOUCH_CACHE", None)
+    else:
+        os.environ["RATOUCH_CACHE"] = old

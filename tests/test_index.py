@@ -131,10 +131,11 @@ def test_non_finite_row_is_named():
         VectorIndex.build(x, IndexConfig())
 
 
-@pytest.mark.parametrize("kind", ["flat", "hnsw", "ivfpq"])
-def test_save_load_round_trip(tmp_path, data, kind):
+@pytest.mark.parametrize("kind, refine", [("flat", 0), ("hnsw", 0), ("ivfpq", 0),
+                                          ("ivfpq", 4)])
+def test_save_load_round_trip(tmp_path, data, kind, refine):
     corpus, queries = data
-    cfg = IndexConfig(kind=kind, hnsw_m=8, ef_construction=20, nlist=8)
+    cfg = IndexConfig(kind=kind, hnsw_m=8, ef_construction=20, nlist=8, refine_factor=refine)
     index = VectorIndex.build(corpus, cfg)
     index.save(tmp_path, {"encoder": "enc-a"})
     manifest = json.loads((tmp_path / "manifest.json").read_text())
@@ -143,6 +144,8 @@ def test_save_load_round_trip(tmp_path, data, kind):
     loaded, meta = VectorIndex.load(tmp_path, expected_dim=DIM, expected_encoder="enc-a")
     assert meta == {"encoder": "enc-a"} and loaded.config == cfg
     for a, b in zip(index.search(queries, 5), loaded.search(queries, 5)):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(index.search(queries[0], 5), loaded.search(queries[0], 5)):
         np.testing.assert_array_equal(a, b)
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
@@ -208,6 +211,18 @@ def test_manifest_disagreeing_with_index_refuses(saved):
     assert snapshot(saved) == before
 
 
+def test_index_of_another_kind_refuses(saved, data):
+    VectorIndex.build(data[0][:300], IndexConfig(kind="hnsw", hnsw_m=8)).save(saved / "h")
+    manifest = json.loads((saved / "manifest.json").read_text())
+    manifest["index_sha256"] = json.loads((saved / "h" / "manifest.json").read_text())[
+        "index_sha256"]
+    (saved / "index.faiss").write_bytes((saved / "h" / "index.faiss").read_bytes())
+    (saved / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(DataError, match="manifest says flat 300 x 64, index.faiss holds "
+                                        "IndexHNSWFlat"):
+        VectorIndex.load(saved)
+
+
 def test_missing_folder_raises_not_found(tmp_path):
     with pytest.raises(DataNotFoundError, match="does not exist"):
         VectorIndex.load(tmp_path / "nope")
@@ -216,10 +231,29 @@ def test_missing_folder_raises_not_found(tmp_path):
 @pytest.mark.parametrize("field, value", [
     ("kind", "annoy"), ("hnsw_m", 0), ("ef_construction", -1), ("ef_search", 0),
     ("nlist", 0), ("pq_m", -2), ("nprobe", 0), ("threads", 0), ("blas_threshold", 0),
-    ("threads", 1.5), ("nprobe", True)])
+    ("threads", 1.5), ("nprobe", True), ("refine_factor", -1)])
 def test_index_config_validation(field, value):
     with pytest.raises(ConfigError, match=f"{field}={value!r}"):
         IndexConfig(**{field: value})
+
+
+def test_refine_factor_only_for_ivfpq():
+    with pytest.raises(ConfigError, match="refine_factor=4 applies to kind='ivfpq' only"):
+        IndexConfig(kind="hnsw", refine_factor=4)
+
+
+def test_ivfpq_refinement_reranks_exactly(data):
+    corpus, queries = data
+    index = VectorIndex.build(corpus, IndexConfig(kind="ivfpq", nlist=16, refine_factor=20))
+    truth = brute_force(corpus, queries, 5)
+    scores, ids = index.search(queries, 5)
+    np.testing.assert_allclose(scores, np.take_along_axis(queries @ corpus.T, ids, axis=1),
+                               atol=1e-5)  # exact scores of the re-ranked candidates
+    assert recall(ids, truth) >= recall(index.with_search(refine_factor=1).search(
+        queries, 5)[1], truth)
+    assert recall(ids, truth) >= 0.8
+    with pytest.raises(ConfigError, match="refine_factor=0"):
+        index.with_search(refine_factor=0)
 
 
 def test_ivfpq_config_must_fit_the_data(data):

@@ -32,7 +32,8 @@ def test_result_has_every_key(result):
     assert set(result["speedup_vs_upstream"]) == {"flat", "hnsw", "ivfpq"}
     assert result["bandwidth_gb_s"] > 0 and result["bound_ms"] > 0
     assert result["methods"]["flat"]["batch_ms_per_query"] > 0
-    assert set(result["methods"]["hnsw"]["ef_search_sweep"]) == {"32", "64", "128"}
+    assert set(result["methods"]["hnsw"]["ef_search_sweep"]) == {"32", "48", "64", "128"}
+    assert set(result["methods"]["ivfpq"]["refine_sweep"]) == {"1", "5", "20"}
     json.dumps(result)  # a CLI prints it as JSON
 
 
@@ -71,6 +72,8 @@ def test_bad_arguments_raise_config_error():
         bench_retrieval(n=500, dim=8, methods=("flat", "annoy"))
     with pytest.raises(ConfigError, match="K="):
         bench_retrieval(n=500, dim=8, k=0)
+    with pytest.raises(ConfigError, match="kind='upstream'"):
+        bench_scale(n=500, dim=8, kind="upstream")
 
 
 def test_bench_scale_small(tmp_path):
@@ -78,5 +81,7 @@ def test_bench_scale_small(tmp_path):
     for key in ("build_s", "save_s", "load_s", "p50_ms", "recall_at_5", "peak_rss_mb"):
         assert key in out
     assert out["recall_at_5"] >= 0.9
+    assert out["config"]["ef_construction"] == 40
+    assert set(out["ef_search_sweep"]) == {"128", "256", "512"}
     assert (tmp_path / "manifest.json").is_file()
     assert "load_s" in format_bench(out)

@@ -90,26 +90,21 @@ def vision_tensor(images: Sequence[np.ndarray], size: tuple[int, int]) -> torch.
     return torch.from_numpy((arr - 0.5) / 0.25).permute(0, 3, 1, 2).contiguous()
 
 
-def tactile_difference(frame: np.ndarray, background: np.ndarray | None) -> np.ndarray:
-    """Frame minus the sensor's no-contact image (float, about -1..1). Without a background the
-    smooth illumination field is estimated by a heavy blur of the frame itself."""
+def tactile_difference(frame: np.ndarray) -> np.ndarray:
+    """Frame minus the sensor's smooth illumination field, estimated by a heavy blur of the
+    frame itself (float, about -1..1). Uploads rarely come with the sensor's no-contact image,
+    so the default backend never needs one: training and queries see the same input."""
     f = frame.astype(np.float32) / 255.0
-    if background is None:
-        bg = gaussian_filter(f, sigma=(12, 12, 0))
-    else:
-        bg = np.asarray(Image.fromarray(background).resize(frame.shape[1::-1], Image.BILINEAR),
-                        np.float32) / 255.0
-    return f - bg
+    scale = max(frame.shape[:2]) / 128
+    return f - gaussian_filter(f, sigma=(10 * scale, 10 * scale, 0))
 
 
-def tactile_tensor(frames: Sequence[np.ndarray], backgrounds: Sequence[np.ndarray | None] | None,
-                   size: tuple[int, int]) -> torch.Tensor:
-    """uint8 tactile frames (+ optional backgrounds) -> (N, 3, H, W) float tensor."""
+def tactile_tensor(frames: Sequence[np.ndarray], size: tuple[int, int]) -> torch.Tensor:
+    """uint8 tactile frames -> (N, 3, H, W) float tensor."""
     h, w = size
-    backgrounds = backgrounds if backgrounds is not None else [None] * len(frames)
     out = []
-    for frame, bg in zip(frames, backgrounds):
-        d = tactile_difference(frame, bg)
+    for frame in frames:
+        d = tactile_difference(frame)
         chans = [np.asarray(Image.fromarray(d[..., c]).resize((w, h), Image.BILINEAR))
                  for c in range(3)]
         out.append(np.stack(chans) * 4.0)
@@ -167,14 +162,11 @@ class DefaultEncoders(nn.Module):
     def encode_tactile(self, frames: Sequence[np.ndarray],
                        backgrounds: Sequence[np.ndarray | None] | None = None,
                        batch_size: int = 256) -> np.ndarray:
+        """uint8 tactile frames -> (N, D) unit vectors. `backgrounds` is accepted for the
+        shared API but not needed: the illumination field is estimated from each frame."""
         self.eval()
-        frames = list(frames)
-        bgs = list(backgrounds) if backgrounds is not None else [None] * len(frames)
-        pairs = list(zip(frames, bgs))
-        return self._batched(
-            lambda b: self.embed_tactile(tactile_tensor([f for f, _ in b], [g for _, g in b],
-                                                        self.cfg.tactile_size)),
-            pairs, batch_size)
+        return self._batched(lambda b: self.embed_tactile(tactile_tensor(b, self.cfg.tactile_size)),
+                             list(frames), batch_size)
 
     @torch.no_grad()
     def encode_text(self, texts: Sequence[str]) -> np.ndarray:

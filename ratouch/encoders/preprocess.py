@@ -47,8 +47,12 @@ CLIP_MEAN: tuple[float, float, float] = (0.48145466, 0.4578275, 0.40821073)
 CLIP_STD: tuple[float, float, float] = (0.26862954, 0.26130258, 0.27577711)
 
 #: TVL tactile statistics for raw (not background-subtracted) frames.
-TAC_MEAN: tuple[float, float, float] = (0.29174602047139075, 0.2971325588927249, 0.2910404549605639)
-TAC_STD: tuple[float, float, float] = (0.18764469044810236, 0.19467651810273057, 0.21871583397361818)
+TAC_MEAN: tuple[float, float, float] = (
+    0.29174602047139075, 0.2971325588927249, 0.2910404549605639,
+)
+TAC_STD: tuple[float, float, float] = (
+    0.18764469044810236, 0.19467651810273057, 0.21871583397361818,
+)
 
 #: TVL tactile statistics for background-subtracted frames (frame - background, in [−1, 1]).
 TAC_MEAN_BG: tuple[float, float, float] = (

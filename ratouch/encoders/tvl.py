@@ -24,7 +24,8 @@ weights and then filled from a local checkpoint file; the tactile ViT is built w
 ``torch.load(..., weights_only=True)`` (or safetensors), so no pickled code is executed.
 
 Example:
-    >>> enc = load_tvl("open_clip_model.safetensors", "tvl_enc_vittiny.pth", TVLConfig("ViT-L-14", "tiny"))
+    >>> cfg = TVLConfig(clip_arch="ViT-L-14", tactile_arch="tiny")
+    >>> enc = load_tvl("open_clip_model.safetensors", "tvl_enc_vittiny.pth", cfg)
     >>> enc.encode_tactile([frame]).shape
     (1, 768)
 """
@@ -444,6 +445,15 @@ def read_clip_state(path: Path) -> dict[str, torch.Tensor]:
     obj = read_checkpoint(path, what)
     if isinstance(obj, Mapping) and isinstance(obj.get("state_dict"), Mapping):
         obj = obj["state_dict"]
+    elif isinstance(obj, Mapping) and isinstance(obj.get("model"), Mapping):
+        inner = [str(k) for k in obj["model"]]
+        swapped = any(k.startswith(TACTILE_PREFIX) for k in inner)
+        raise DataError(
+            f"{what} {path} is a {{'model': ...}} training checkpoint (keys "
+            f"{_describe_keys(obj.keys())}), not an OpenCLIP state dict"
+            + ("; it looks like a TVL tactile checkpoint - were clip_weights and "
+               "tactile_weights swapped?" if swapped else "")
+        )
     state = _tensor_dict(obj, path, what)
     if not state:
         raise DataError(f"{what} {path} is an empty state dict")

@@ -9,6 +9,7 @@ count as positives of each other (labels repeat), so the targets are soft.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -70,8 +71,7 @@ def _pair_chunk(args):
         x0, y0, x1, y1 = s.box
         crop = Image.fromarray(s.visual[y0:y1, x0:x1]).resize(vsize[::-1], Image.BILINEAR)
         crops.append(np.asarray(crop))
-        tacs.append(tactile_tensor([s.tactile], [world.background_image(s.sensor)], tsize)[0]
-                    .numpy().astype(np.float16))
+        tacs.append(tactile_tensor([s.tactile], tsize)[0].numpy().astype(np.float16))
         labels.append(s.caption)
         mats.append(s.material)
     return crops, tacs, labels, mats
@@ -87,6 +87,27 @@ def _corpus_chunk(args):
         img = Image.fromarray(world.corpus_image(c, i)).resize(vsize[::-1], Image.BILINEAR)
         out.append((np.asarray(img), world.corpus_record(c, i)))
     return out
+
+
+def training_data(tc: TrainConfig, vsize, tsize, progress: bool = True) -> dict:
+    """The rendered training data, cached on disk (`$RATOUCH_CACHE/train-data-*.npz`) so that
+    later stages (retriever, generator) and re-runs reuse it instead of re-rendering."""
+    from ratouch.pipeline import cache_dir
+
+    tag = f"s{tc.seed}-p{tc.n_pairs}-c{tc.n_corpus}-v{vsize[0]}x{vsize[1]}-t{tsize[0]}x{tsize[1]}"
+    path = cache_dir() / f"train-data-{tag}.npz"
+    if path.is_file():
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+        for k in ("labels", "materials", "corpus_captions"):
+            data[k] = [str(x) for x in data[k]]
+        return data
+    data = render_training_data(tc, vsize, tsize, progress)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".partial.npz")
+    np.savez(tmp, **{k: np.asarray(v) for k, v in data.items()})
+    os.replace(tmp, path)
+    return data
 
 
 def render_training_data(tc: TrainConfig, vsize, tsize, progress: bool = True) -> dict:
@@ -184,8 +205,7 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
     key = (model.cfg.vision_size, model.cfg.tactile_size, tc.n_pairs, tc.n_corpus, tc.seed)
     cache = {} if cache is None else cache
     if key not in cache:
-        cache[key] = render_training_data(tc, model.cfg.vision_size, model.cfg.tactile_size,
-                                          progress)
+        cache[key] = training_data(tc, model.cfg.vision_size, model.cfg.tactile_size, progress)
     data = cache[key]
     t_data = time.perf_counter() - t0
     texts = sorted(set(data["labels"]) | set(data["corpus_captions"]))
