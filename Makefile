@@ -5,7 +5,7 @@ install:
 	bash scripts/install.sh
 
 app: install
-	.venv/bin/python app/app.py
+	.venv/bin/python -m app
 
 test: install
 	.venv/bin/python -m pytest

@@ -327,9 +327,20 @@ def _run_eval(args: argparse.Namespace) -> int:
     from ratouch.retrieval_eval import evaluate_retrieval, format_retrieval_eval
     from ratouch.world.config import WorldConfig
 
+    from ratouch.pipeline import load_tgr, retriever_weights
+
     corpus = args.corpus or default_corpus(args.encoder)
     retriever = open_retriever(corpus, args.encoder, args.index)
-    r = evaluate_retrieval(retriever, WorldConfig(seed=args.seed))
+    joint_fn = None
+    if (retriever_weights(args.encoder) / "manifest.json").is_file():
+        import torch
+
+        tgr = load_tgr(args.encoder)
+
+        def joint_fn(V, T):
+            with torch.no_grad():
+                return tgr(torch.from_numpy(V), torch.from_numpy(T)).query.numpy()
+    r = evaluate_retrieval(retriever, WorldConfig(seed=args.seed), joint_fn=joint_fn)
     print(json.dumps(r, indent=1) if args.json else format_retrieval_eval(r))
     return 0
 

@@ -46,7 +46,7 @@ def _metrics(ids: np.ndarray, mats: Sequence[str], labels: Sequence[set], entry_
 
 def evaluate_retrieval(retriever: Retriever, world_cfg: WorldConfig | None = None,
                        ks: Sequence[int] = (1, 5, 7), queries: dict | None = None,
-                       joint: np.ndarray | None = None) -> dict:
+                       joint_fn=None) -> dict:
     """Quality of every available setting at each K.
 
     Args:
@@ -54,7 +54,7 @@ def evaluate_retrieval(retriever: Retriever, world_cfg: WorldConfig | None = Non
         world_cfg: the world whose test split is queried.
         ks: values of K.
         queries: precomputed `split_queries(...)` (optional).
-        joint: (N, D) joint queries from the Tactile-Guided Retriever, if available.
+        joint_fn: (V, T) -> joint queries (the Tactile-Guided Retriever), if available.
 
     Returns:
         {"settings": {name: {"all"|"look_alike"|"feel_alike": {K: metrics}}}, "chance": ...}
@@ -62,8 +62,8 @@ def evaluate_retrieval(retriever: Retriever, world_cfg: WorldConfig | None = Non
     world_cfg = world_cfg or WorldConfig()
     q = queries or split_queries(world_cfg)
     emb = retriever.embed_queries(q["crops"], q["tactiles"], q["backgrounds"])
-    if joint is not None:
-        emb["joint"] = joint
+    if joint_fn is not None:
+        emb["joint"] = joint_fn(emb["image"], emb["tactile"])
     kmax = max(ks)
     results = retriever.retrieve(emb, kmax)
     entries = retriever.corpus.entries

@@ -81,7 +81,14 @@ def test_bench_scale_small(tmp_path):
     for key in ("build_s", "save_s", "load_s", "p50_ms", "recall_at_5", "peak_rss_mb"):
         assert key in out
     assert out["recall_at_5"] >= 0.9
-    assert out["config"]["ef_construction"] == 40
+    assert out["config"]["ef_construction"] == 80
     assert set(out["ef_search_sweep"]) == {"128", "256", "512"}
     assert (tmp_path / "manifest.json").is_file()
     assert "load_s" in format_bench(out)
+
+
+def test_bench_scale_default_kind_uses_a_temporary_folder():
+    out = bench_scale(n=2000, dim=16, n_queries=10)
+    assert out["kind"] == "ivfpq" and out["config"]["refine_factor"] == 20
+    assert out["index_file_mb"] > 0 and "ef_search_sweep" not in out
+    assert 0.0 <= out["recall_at_5"] <= 1.0

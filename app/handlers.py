@@ -1,0 +1,225 @@
+"""The app's event handlers: convert what the browser sends, call the library, format.
+
+Each takes the loaded pipeline (read-only, shared) and the user's `Visual` state explicitly.
+Anything a user can cause (a bad file, a bad box, no image) becomes a message; only a bug
+reaches the server log, and even then the browser gets a message, not a stack trace.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Any, Callable, NamedTuple
+
+import gradio as gr
+import numpy as np
+from PIL import Image
+
+from app import box as boxes
+from app import view
+from app.plot import pca_figure
+from ratouch.errors import DataError, RATouchError
+
+log = logging.getLogger(__name__)
+
+# What a user can cause: the library's errors, and PIL's for files it cannot even open.
+USER_ERRORS = (RATouchError, OSError, Image.DecompressionBombError)
+
+Fields = tuple[Any, Any, Any, Any]
+NO_BOX: Fields = (None, None, None, None)
+
+
+def user_message(e: BaseException, files: dict[str, Any] | None = None) -> str:
+    """The message a user sees for an exception raised while handling their input.
+
+    Args:
+        e: the exception.
+        files: {"visual image": path, ...}: uploaded files named in the message are shown by
+            their own name and role, not by their path in the server's upload cache.
+    """
+    if isinstance(e, RATouchError):
+        msg = str(e)
+    elif isinstance(e, Image.DecompressionBombError):
+        msg = f"the image is too large to decode safely: {e}"
+    elif isinstance(e, OSError):
+        msg = f"the file could not be read as an image ({type(e).__name__}: {e})"
+    else:
+        log.error("unexpected error in an app handler", exc_info=e)
+        return f"internal error ({type(e).__name__}); it has been logged on the server"
+    for role, path in (files or {}).items():
+        if isinstance(path, str) and path:
+            msg = msg.replace(path, f"{Path(path).name} ({role})")
+    return msg
+
+
+def _fail(e: BaseException, files: dict[str, Any] | None = None) -> str:
+    msg = user_message(e, files)
+    gr.Warning(msg)
+    return msg
+
+
+def _box_note(visual: boxes.Visual | None, box) -> str:
+    if visual is None:
+        return ""
+    if visual.corner is not None:
+        x, y = (round(v) for v in visual.corner)
+        return f"First corner at ({x}, {y}): click the opposite corner."
+    if box is None:
+        return (f"No box marked: the query uses TVL's centred crop {list(boxes.default_box(visual))}"
+                " (dashed). Click two opposite corners on the image, or type x0, y0, x1, y1.")
+    problem = boxes.box_problem(box, visual.size)
+    return f"⚠️ {problem}" if problem else f"Contact box {[round(v) for v in box]}."
+
+
+# ---------------------------------------------------------------------- loading the images
+
+def upload_visual(path: str | None) -> tuple:
+    """A visual image was uploaded: check it, preview it, clear the box.
+
+    Returns:
+        (visual state, preview, x0, y0, x1, y1, box note)
+    """
+    if path is None:
+        return (None, None, *NO_BOX, "")
+    try:
+        visual = boxes.load_visual(path, f"uploaded image {Path(path).name}")
+    except USER_ERRORS as e:
+        return (None, None, *NO_BOX, f"⛔ {_fail(e, {'visual image': path})}")
+    return (visual, boxes.draw(visual, None), *NO_BOX, _box_note(visual, None))
+
+
+def example_gallery(world, indices: list[int]) -> list[tuple[np.ndarray, str]]:
+    """Visual thumbnails of test-split examples, captioned with their ground-truth label."""
+    out = []
+    for i in indices:
+        s = world.sample("test", i)
+        out.append((s.visual, f"#{i}: {s.caption}"))
+    return out
+
+
+def load_example(world, index: Any) -> tuple:
+    """Load test-split pair `index` (visual, tactile, its contact box and label).
+
+    Returns:
+        (visual state, preview, tactile image, x0, y0, x1, y1, box note)
+    """
+    try:
+        i = int(index)
+        s = world.sample("test", i)
+        what = s.class_name or "close-up"
+        visual = boxes.load_visual(s.visual, f"test example #{i} ({s.subset}: {what}, "
+                                   f"{s.material.replace('_', ' ')})", label=s.caption)
+    except (TypeError, ValueError, IndexError, *USER_ERRORS) as e:
+        msg = _fail(e if isinstance(e, USER_ERRORS) else
+                    DataError(f"no test example {index!r}: {e}"))
+        return (None, None, None, *NO_BOX, f"⛔ {msg}")
+    box = tuple(int(v) for v in s.box)
+    return (visual, boxes.draw(visual, box), s.tactile, *box,
+            f"Ground-truth label: **{s.caption}** · {_box_note(visual, box)}")
+
+
+# ---------------------------------------------------------------------- the contact box
+
+def click_box(visual: boxes.Visual | None, x: float, y: float, fields: Fields) -> tuple:
+    """A click on the preview at (x, y) preview pixels.
+
+    Returns:
+        (visual state, preview, x0, y0, x1, y1, box note)
+    """
+    if visual is None:
+        return (None, None, *fields, "Upload a visual image or pick an example first.")
+    visual, box = boxes.click(visual, x, y)
+    if box is None:  # first corner: keep the fields, show the corner over the old box
+        return (visual, boxes.draw(visual, _typed(fields)), *fields, _box_note(visual, None))
+    return (visual, boxes.draw(visual, box), *box, _box_note(visual, box))
+
+
+def typed_box(visual: boxes.Visual | None, *fields) -> tuple:
+    """The box fields were edited: redraw. Returns (visual state, preview, box note)."""
+    if visual is None:
+        return (None, None, "")
+    try:
+        box = boxes.fields_to_box(*fields)
+    except DataError as e:  # often just half typed: say what is missing, draw the default
+        return (visual, boxes.draw(visual, None), str(e))
+    visual = boxes.replace(visual, corner=None)
+    return (visual, boxes.draw(visual, box), _box_note(visual, box))
+
+
+def reset_box(visual: boxes.Visual | None) -> tuple:
+    """Back to the default box. Returns (visual state, preview, x0, y0, x1, y1, box note)."""
+    if visual is None:
+        return (None, None, *NO_BOX, "")
+    visual = boxes.replace(visual, corner=None)
+    return (visual, boxes.draw(visual, None), *NO_BOX, _box_note(visual, None))
+
+
+def _typed(fields: Fields):
+    try:
+        return boxes.fields_to_box(*fields)
+    except DataError:
+        return None
+
+
+# ---------------------------------------------------------------------- the query
+
+class QueryView(NamedTuple):
+    """Everything the Explore tab shows for one query, in output order."""
+
+    status: str
+    gallery_image: list
+    gallery_tactile: list
+    gallery_joint: list
+    table_image: str
+    table_tactile: str
+    table_joint: str
+    plot: Any
+    description: str
+    timings: str
+    raw: dict | None
+
+
+def error_view(message: str) -> QueryView:
+    return QueryView(view.error_md(message), [], [], [], "", "", "", None, "", "", None)
+
+
+def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual | None,
+              tactile: str | np.ndarray | None, x0, y0, x1, y1, k, progress=None) -> QueryView:
+    """Run `pipe.query` on the session's image, the tactile image and the box, and format it."""
+    try:
+        if visual is None:
+            raise DataError("upload a visual image or pick an example first")
+        box = boxes.fields_to_box(x0, y0, x1, y1)
+        if progress is not None:
+            progress(0.05, desc="encoding, retrieving, generating…")
+        result = pipe.query(visual.source, tactile, box=box, k=int(k), label=visual.label)
+        t0 = time.perf_counter()
+        if progress is not None:
+            progress(0.9, desc="thumbnails…")
+        galleries = [view.gallery_items(result, m, thumbnail) for m in view.MODES]
+    except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
+        files = {"visual image": getattr(visual, "source", None), "tactile image": tactile}
+        return error_view(_fail(e, files))
+    tables = [view.neighbour_table(result, m) for m in view.MODES]
+    render_ms = (time.perf_counter() - t0) * 1000
+    return QueryView(view.status_md(visual.title, result["warnings"], result.get("box")),
+                     *galleries, *tables, pca_figure(result, visual.label),
+                     view.description_md(result, visual.label),
+                     view.timings_md(result["timings_ms"], render_ms), result)
+
+
+def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k) -> dict:
+    """The `/query` API: image files, box and K in, `pipe.query`'s JSON out.
+
+    Raises:
+        gr.Error: with the reason, for anything the caller can fix.
+    """
+    try:
+        if visual is None:
+            raise DataError("a visual image is required")
+        box = boxes.fields_to_box(x0, y0, x1, y1)
+        return pipe.query(visual, tactile, box=box, k=int(5 if k is None else k))
+    except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
+        files = {"visual image": visual, "tactile image": tactile}
+        raise gr.Error(user_message(e, files), print_exception=False) from e

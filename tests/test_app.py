@@ -1,0 +1,423 @@
+"""The Gradio app: its handlers over a fake pipeline (same `query()` output as the real one,
+the real input checks), the `/query` API through `gradio_client` against a real server on
+127.0.0.1, and (slow, when the trained assets exist) the real pipeline on a small corpus."""
+
+from __future__ import annotations
+
+import io
+import json
+import socket
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from ratouch.encoders.preprocess import crop_box, to_rgb_array, tvl_contact_box
+from ratouch.errors import DataError
+
+ASSETS = Path(__file__).resolve().parents[1] / "assets"
+HAVE_ASSETS = (ASSETS / "generator" / "default-s" / "ra" / "manifest.json").is_file()
+
+
+# ------------------------------------------------------------------------- the fake pipeline
+
+class FakeCorpus:
+    def __init__(self, n: int):
+        self.entries = [SimpleNamespace(class_name=f"class{i % 7}", caption=f"soft, grainy {i}",
+                                        source=f"world:0:{i % 7}:{i}") for i in range(n)]
+
+    def thumbnail(self, i: int, size: int = 96) -> np.ndarray:
+        rng = np.random.default_rng(i)
+        return np.full((size, size, 3), rng.integers(0, 255, 3), np.uint8)
+
+
+class FakePipeline:
+    """`RATouchPipeline.query`'s output shape, with the library's real input checks.
+
+    The image query returns ids 0..k-1, the tactile query 2..k+1, the joint one 1..k: ids 2..k-1
+    are shared by all three modes, 1 by image and joint, k by tactile and joint.
+    """
+
+    def __init__(self, n: int = 60, delay_s: float = 0.0):
+        self.corpus = FakeCorpus(n)
+        self.encoders = SimpleNamespace(name="fake", dim=8)
+        self.delay_s = delay_s
+        self.calls: list[dict] = []
+
+    def query(self, visual, tactile=None, box=None, k=5, label=None) -> dict:
+        image = to_rgb_array(visual, name="visual image")
+        warnings = []
+        if box is None:
+            box = tvl_contact_box(image.shape[1], image.shape[0])
+            warnings.append(f"no contact box given: used TVL's centred crop {list(box)}")
+        crop_box(image, box)
+        frame = to_rgb_array(tactile, name="tactile image") if tactile is not None else None
+        if not 1 <= k <= len(self.corpus.entries):
+            raise DataError(f"k must be in 1..{len(self.corpus.entries)}, got {k}")
+        self.calls.append({"shape": image.shape, "box": list(box), "k": k, "label": label,
+                           "tactile": frame is not None})
+        time.sleep(self.delay_s)
+        starts = {"image": 0, "tactile": 2, "joint": 1} if frame is not None else {"image": 0}
+        if frame is None:
+            warnings.append("no tactile image: image-only retrieval; the tactile and joint "
+                            "queries and the RA-Touch description are not available")
+        neighbours = {m: [self._neighbour(i, 0.9 - 0.01 * r)
+                          for r, i in enumerate(range(s, s + k))] for m, s in starts.items()}
+        points = [{"role": f"query_{m}", "x": float(j), "y": 1.0} for j, m in enumerate(starts)]
+        points += [{"role": f"neighbour_{m}", "x": 0.1 * n["id"], "y": -0.1 * n["id"],
+                    "id": n["id"]} for m, ns in neighbours.items() for n in ns]
+        if label:
+            points.append({"role": "ground_truth", "x": 0.5, "y": 0.5})
+        return {"neighbours": neighbours,
+                "description": {"ra_touch": "soft and grainy" if frame is not None else "",
+                                "baseline": "smooth" if frame is not None else ""},
+                "pca": {"points": points, "explained": [0.3, 0.2]},
+                "timings_ms": {"preprocess": 1.0, "encode_image": 2.0, "total": 3.0},
+                "warnings": warnings, "box": [int(v) for v in box]}
+
+    def _neighbour(self, i: int, score: float) -> dict:
+        e = self.corpus.entries[i]
+        return {"id": i, "score": round(score, 4), "class_name": e.class_name,
+                "caption": e.caption, "description": "", "source": e.source}
+
+
+@pytest.fixture
+def fake():
+    return FakePipeline()
+
+
+@pytest.fixture(scope="module")
+def pair_files(tmp_path_factory):
+    """A world test pair written as PNGs (what a user would upload)."""
+    from ratouch.world.generator import World
+
+    s = World().sample("test", 60)
+    d = tmp_path_factory.mktemp("pair")
+    Image.fromarray(s.visual).save(d / "visual.png")
+    Image.fromarray(s.tactile).save(d / "tactile.png")
+    return d / "visual.png", d / "tactile.png", s
+
+
+def _thumb(i: int) -> np.ndarray:
+    return np.zeros((8, 8, 3), np.uint8)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+# ------------------------------------------------------------------------- the contact box
+
+def test_two_clicks_on_the_preview_make_a_box_in_image_pixels(pair_files):
+    from app import handlers
+
+    visual, _, _ = handlers.upload_visual(str(pair_files[0]))[:3]
+    assert visual.size == (128, 128) and visual.scale == 4.0  # 128 px shown at 512
+    visual, preview, *fields, note = handlers.click_box(visual, 41, 402, (None,) * 4)
+    assert fields == [None] * 4 and "opposite corner" in note
+    assert preview.shape == (512, 512, 3)
+    visual, preview, *fields, note = handlers.click_box(visual, 300, 81, fields)
+    assert fields == [10, 20, 76, 101]  # both clicked pixels inside, corners in any order
+    assert "Contact box [10, 20, 76, 101]" in note and visual.corner is None
+    # the box is drawn in red on the preview, not on the original the query gets
+    assert tuple(preview[81 + 40, 40]) == (230, 30, 30)
+    assert visual.source == str(pair_files[0])
+
+
+def test_typed_box_is_drawn_and_used_by_the_query(fake, pair_files):
+    from app import handlers
+
+    visual = handlers.upload_visual(str(pair_files[0]))[0]
+    visual, preview, note = handlers.typed_box(visual, 5, 6, 50, 60)
+    assert tuple(preview[6 * 4 + 1, 20 * 4]) == (230, 30, 30) and "[5, 6, 50, 60]" in note
+    v = handlers.run_query(fake, _thumb, visual, str(pair_files[1]), 5, 6, 50, 60, 3)
+    assert fake.calls[-1]["box"] == [5, 6, 50, 60] and fake.calls[-1]["k"] == 3
+    assert "contact box [5, 6, 50, 60]" in v.status
+
+
+def test_default_box_when_none_is_marked(fake, pair_files):
+    from app import handlers
+
+    visual, preview, *fields, note = handlers.upload_visual(str(pair_files[0]))
+    assert fields == [None] * 4 and "TVL's centred crop [48, 48, 81, 81]" in note
+    v = handlers.run_query(fake, _thumb, visual, str(pair_files[1]), *fields, 5)
+    assert fake.calls[-1]["box"] == list(tvl_contact_box(128, 128))
+    assert "centred crop" in v.status  # the pipeline's warning is shown
+    visual, preview, *fields, note = handlers.reset_box(handlers.typed_box(visual, 1, 2, 30, 40)[0])
+    assert fields == [None] * 4 and "centred crop" in note
+
+
+def test_example_pair_brings_its_box_label_and_tactile(fake, world):
+    from app import handlers
+
+    visual, preview, tactile, *fields, note = handlers.load_example(world, 7)
+    s = world.sample("test", 7)
+    assert fields == list(s.box) and visual.label == s.caption and s.caption in note
+    assert np.array_equal(tactile, s.tactile)
+    v = handlers.run_query(fake, _thumb, visual, tactile, *fields, 5)
+    assert fake.calls[-1]["label"] == s.caption
+    assert f"Ground-truth label:** {s.caption}" in v.description
+    assert any(t.name == "ground truth" for t in v.plot.data)
+    assert "test example #7" in v.status
+    assert "out of range" in handlers.load_example(world, 10_000)[-1]
+    assert "no test example" in handlers.load_example(world, None)[-1]
+
+
+# ------------------------------------------------------------------------- the query view
+
+def test_query_view_marks_neighbours_that_modes_share(fake, pair_files):
+    from app import handlers
+
+    visual = handlers.upload_visual(str(pair_files[0]))[0]
+    v = handlers.run_query(fake, _thumb, visual, str(pair_files[1]), None, None, None, None, 5)
+    caps = {m: [c for _, c in g] for m, g in
+            zip(("image", "tactile", "joint"), (v.gallery_image, v.gallery_tactile,
+                                                v.gallery_joint))}
+    assert all(len(c) == 5 for c in caps.values())
+    assert caps["image"][0] == "1. 0.900 · class0 · soft, grainy 0"  # id 0: image only
+    assert caps["image"][1] == "2. 0.890 ◆ · class1 · soft, grainy 1 · shared by I·J"
+    assert caps["image"][2].startswith("3. 0.880 ◆◆ · class2")  # id 2: all three
+    assert caps["image"][2].endswith("shared by I·T·J")
+    assert "shared by T·J" in caps["tactile"][-2] and "◆" not in caps["tactile"][-1]  # 5, 6
+    assert v.table_joint.count("◆◆ I·T·J") == 3
+    assert {t.name for t in v.plot.data} >= {"image query", "joint neighbours"}
+    assert "RA-Touch (with retrieval):** soft and grainy" in v.description
+    assert "total 3 ms" in v.timings and v.raw["box"] == [48, 48, 81, 81]
+
+
+def test_no_tactile_image_gives_an_honest_image_only_view(fake, pair_files):
+    from app import handlers
+
+    visual = handlers.upload_visual(str(pair_files[0]))[0]
+    v = handlers.run_query(fake, _thumb, visual, None, None, None, None, None, 5)
+    assert len(v.gallery_image) == 5 and v.gallery_tactile == [] == v.gallery_joint
+    assert "image-only retrieval" in v.status and "not available" in v.table_tactile
+    assert "needs a tactile image" in v.description
+
+
+def _bytes_file(tmp_path: Path, name: str, data: bytes) -> str:
+    p = tmp_path / name
+    p.write_bytes(data)
+    return str(p)
+
+
+def _png(arr: np.ndarray, mode: str | None = None, **save) -> bytes:
+    buf = io.BytesIO()
+    (Image.fromarray(arr, mode) if mode else Image.fromarray(arr)).save(buf, "PNG", **save)
+    return buf.getvalue()
+
+
+def test_bad_uploads_give_messages_not_exceptions(fake, pair_files, tmp_path):
+    from app import handlers
+
+    good = handlers.upload_visual(str(pair_files[0]))[0]
+    text = _bytes_file(tmp_path, "notes.png", b"this is not an image")
+    png = _png(np.full((64, 64, 3), 120, np.uint8))
+    truncated = _bytes_file(tmp_path, "cut.png", png[: len(png) // 2])
+    tiny = _bytes_file(tmp_path, "tiny.png", _png(np.zeros((4, 4, 3), np.uint8)))
+    for path in (text, truncated, tiny):
+        state, preview, *fields, note = handlers.upload_visual(path)
+        assert state is None and preview is None and note.startswith("⛔"), (path, note)
+    assert "4x4" in handlers.upload_visual(tiny)[-1]
+    # a bad tactile file, a missing upload, bad boxes: the query view says why
+    cases = [(good, text, (None,) * 4, "notes.png (tactile image) as an image"),
+             (good, str(pair_files[1]), (50, 50, 10, 10), "empty or inverted"),
+             (good, str(pair_files[1]), (10, 10, 10, 40), "empty or inverted"),
+             (good, str(pair_files[1]), (500, 500, 600, 600), "outside"),
+             (good, str(pair_files[1]), (1, 2, None, None), "all four"),
+             (None, str(pair_files[1]), (None,) * 4, "upload a visual image")]
+    for visual, tactile, box, expected in cases:
+        v = handlers.run_query(fake, _thumb, visual, tactile, *box, 5)
+        assert v.status.startswith("**⛔") and expected in v.status, (box, v.status)
+        assert v.gallery_image == [] and v.raw is None
+    assert "outside" in handlers.typed_box(good, 500, 500, 600, 600)[-1]
+
+
+def test_awkward_but_valid_images_are_accepted(fake, tmp_path):
+    """Grayscale, RGBA, 16-bit, EXIF-rotated and 20-megapixel uploads all load."""
+    from app import handlers
+
+    grey = _bytes_file(tmp_path, "grey.png", _png(np.tile(np.arange(64, dtype=np.uint8), (48, 1))))
+    rgba = np.zeros((48, 64, 4), np.uint8)
+    rgba[..., 3] = 128
+    rgba_f = _bytes_file(tmp_path, "rgba.png", _png(rgba))
+    deep = _bytes_file(tmp_path, "deep.png",
+                       _png(np.full((48, 64), 60000, np.uint16), mode="I;16"))
+    exif = Image.Exif()
+    exif[0x0112] = 6  # rotate 90 degrees clockwise when shown
+    buf = io.BytesIO()
+    Image.new("RGB", (64, 48), (200, 10, 10)).save(buf, "JPEG", exif=exif)
+    rotated = _bytes_file(tmp_path, "rotated.jpg", buf.getvalue())
+    big = tmp_path / "big.jpg"
+    Image.new("RGB", (5472, 3648), (90, 120, 60)).save(big, quality=70)  # 20 megapixels
+    for path, size in ((grey, (64, 48)), (rgba_f, (64, 48)), (deep, (64, 48)),
+                       (rotated, (48, 64)), (str(big), (5472, 3648))):
+        visual, preview, *_, note = handlers.upload_visual(path)
+        assert visual is not None and visual.size == size, (path, note)
+        assert max(preview.shape[:2]) == 512 and preview.shape[2] == 3
+        v = handlers.run_query(fake, _thumb, visual, path, None, None, None, None, 2)
+        assert not v.status.startswith("**⛔"), v.status
+    assert fake.calls[-1]["shape"] == (3648, 5472, 3)  # the query gets the original
+
+
+def test_unexpected_errors_are_logged_not_shown(pair_files, caplog):
+    from app import handlers
+
+    class Broken(FakePipeline):
+        def query(self, *a, **kw):
+            raise KeyError("bug")
+
+    visual = handlers.upload_visual(str(pair_files[0]))[0]
+    v = handlers.run_query(Broken(), _thumb, visual, None, None, None, None, None, 5)
+    assert "internal error (KeyError)" in v.status and "Traceback" not in v.status
+    assert "unexpected error" in caplog.text
+
+
+def test_importing_the_app_loads_no_model_and_main_has_the_options():
+    import subprocess
+    import sys
+
+    code = "import app, sys; print('gradio' in sys.modules, 'torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=Path(__file__).resolve().parents[1], check=True).stdout
+    assert out.split() == ["False", "False"]
+    from app import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0
+
+
+# ------------------------------------------------------------------------- a real server
+
+@pytest.fixture(scope="module")
+def served():
+    """The app over the fake pipeline, served on 127.0.0.1 (a free port)."""
+    from app.app import build_demo, launch
+
+    pipe = FakePipeline()
+    demo = build_demo(pipe)
+    port = free_port()
+    launch(demo, "127.0.0.1", port, block=False)
+    yield f"http://127.0.0.1:{port}/", pipe, demo
+    demo.close()
+
+
+def test_query_api_through_gradio_client(served, pair_files):
+    from gradio_client import Client, handle_file
+
+    url, pipe, _ = served
+    client = Client(url, verbose=False)
+    out = client.predict(handle_file(str(pair_files[0])), handle_file(str(pair_files[1])),
+                         10, 20, 70, 90, 4, api_name="/query")
+    assert set(out) == {"neighbours", "description", "pca", "timings_ms", "warnings", "box"}
+    assert out["box"] == [10, 20, 70, 90] and len(out["neighbours"]["joint"]) == 4
+    assert out["description"]["ra_touch"] == "soft and grainy"
+    json.dumps(out)
+    # the default box and image-only retrieval are labelled in the JSON
+    out = client.predict(handle_file(str(pair_files[0])), None, None, None, None, None, 5,
+                         api_name="/query")
+    assert list(out["neighbours"]) == ["image"] and len(out["warnings"]) == 2
+    # the API documents only /query: the UI's own events are not callable by clients
+    assert list(client.view_api(print_info=False, return_format="dict")["named_endpoints"]) \
+        == ["/query"]
+
+
+def test_query_api_bad_input_is_a_clear_error_and_the_server_keeps_serving(served, pair_files,
+                                                                            tmp_path):
+    from gradio_client import Client, handle_file
+
+    url, pipe, _ = served
+    client = Client(url, verbose=False)
+    junk = _bytes_file(tmp_path, "junk.png", b"not an image at all")
+    with pytest.raises(Exception, match=r"junk.png \(visual image\)") as e:
+        client.predict(handle_file(junk), None, None, None, None, None, 5, api_name="/query")
+    assert "Traceback" not in str(e.value) and "/tmp/gradio" not in str(e.value)
+    with pytest.raises(Exception, match="empty or inverted"):
+        client.predict(handle_file(str(pair_files[0])), None, 9, 9, 3, 3, 5, api_name="/query")
+    out = client.predict(handle_file(str(pair_files[0])), None, None, None, None, None, 2,
+                         api_name="/query")
+    assert len(out["neighbours"]["image"]) == 2
+
+
+# ------------------------------------------------------------------------- the real pipeline
+
+@pytest.fixture(scope="module")
+def real_pipeline(tmp_path_factory):
+    if not HAVE_ASSETS:
+        pytest.skip("the trained retriever/generator weights are not in assets/ yet")
+    from ratouch.corpus.imagenet_t import build_corpus
+    from ratouch.pipeline import RATouchPipeline, embed_and_index
+
+    folder = tmp_path_factory.mktemp("app-corpus") / "c"
+    build_corpus(folder, 600, progress=False)
+    embed_and_index(folder, "default-s", workers=1, progress=False)
+    return RATouchPipeline.load("default-s", corpus=folder)
+
+
+@pytest.mark.slow
+def test_real_pipeline_example_query(real_pipeline, world):
+    from app import handlers
+
+    thumb = lambda i: real_pipeline.corpus.thumbnail(i, 64)  # noqa: E731
+    visual, _, tactile, *box, _ = handlers.load_example(world, 60)
+    v = handlers.run_query(real_pipeline, thumb, visual, tactile, *box, 5)
+    assert not v.status.startswith("**⛔"), v.status
+    assert [len(g) for g in (v.gallery_image, v.gallery_tactile, v.gallery_joint)] == [5] * 3
+    assert v.raw["description"]["ra_touch"] and v.raw["description"]["baseline"]
+    assert any(t.name == "ground truth" for t in v.plot.data)
+    visual = handlers.load_example(world, 60)[0]
+    v = handlers.run_query(real_pipeline, thumb, visual, None, None, None, None, None, 3)
+    assert len(v.gallery_image) == 3 and "image-only" in v.status
+
+
+# ------------------------------------------------------------------------- load
+
+@pytest.mark.slow
+def test_load_sixteen_clients_ten_queries_each(pair_files):
+    """16 concurrent gradio_client clients x 10 queries against the fake pipeline (20 ms per
+    query): every request is answered; prints p50/p95 latency and the server's RSS."""
+    import threading
+
+    import psutil
+    from gradio_client import Client, handle_file
+
+    from app.app import build_demo, launch
+
+    demo = build_demo(FakePipeline(delay_s=0.02))
+    port = free_port()
+    launch(demo, "127.0.0.1", port, block=False)
+    rss0 = psutil.Process().memory_info().rss
+    latencies: list[float] = []
+    errors: list[BaseException] = []
+
+    def client_run():
+        try:
+            c = Client(f"http://127.0.0.1:{port}/", verbose=False)
+            for _ in range(10):
+                t = time.perf_counter()
+                c.predict(handle_file(str(pair_files[0])), handle_file(str(pair_files[1])),
+                          None, None, None, None, 5, api_name="/query")
+                latencies.append(time.perf_counter() - t)
+        except BaseException as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    try:
+        threads = [threading.Thread(target=client_run) for _ in range(16)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=300)
+    finally:
+        demo.close()
+    rss1 = psutil.Process().memory_info().rss
+    assert not errors, errors[:3]
+    assert len(latencies) == 160
+    p50, p95 = np.percentile(latencies, [50, 95])
+    print(f"\nload: 160 queries, p50 {p50 * 1000:.0f} ms, p95 {p95 * 1000:.0f} ms; "
+          f"RSS {rss0 / 2**20:.0f} -> {rss1 / 2**20:.0f} MiB")

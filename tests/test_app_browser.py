@@ -1,0 +1,106 @@
+"""The app in a real browser: Debian's chromium driven by Playwright against the app served on
+127.0.0.1. Upload a visual/tactile pair, click two corners of the contact box, run the query,
+and check that the galleries, the PCA plot and the description appear. The screenshot is
+kept (tmp_path and /tmp/ratouch_app.png) for a person to look at."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from test_app import HAVE_ASSETS, FakePipeline, free_port
+
+CHROMIUM = Path("/usr/bin/chromium")
+SCREENSHOT_COPY = Path("/tmp/ratouch_app.png")
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def app_url(tmp_path_factory):
+    """The app over the real pipeline on a small corpus if the trained assets exist, else
+    over the fake pipeline, served on a free port of 127.0.0.1."""
+    from app.app import build_demo, launch
+
+    if HAVE_ASSETS:
+        from ratouch.corpus.imagenet_t import build_corpus
+        from ratouch.pipeline import RATouchPipeline, embed_and_index
+
+        folder = tmp_path_factory.mktemp("browser-corpus") / "c"
+        build_corpus(folder, 600, progress=False)
+        embed_and_index(folder, "default-s", workers=1, progress=False)
+        pipe = RATouchPipeline.load("default-s", corpus=folder)
+    else:
+        pipe = FakePipeline()
+    demo = build_demo(pipe)
+    port = free_port()
+    launch(demo, "127.0.0.1", port, block=False)
+    yield f"http://127.0.0.1:{port}/"
+    demo.close()
+
+
+@pytest.fixture
+def page(tmp_path):
+    if not CHROMIUM.exists():
+        pytest.skip(f"{CHROMIUM} is missing (apt-get install chromium); the browser test "
+                    "needs Debian's chromium")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        ctx = p.chromium.launch_persistent_context(
+            str(tmp_path / "chromium-profile"), executable_path=str(CHROMIUM), headless=True,
+            args=["--headless", "--no-sandbox", "--disable-gpu",
+                  "--disable-background-networking"],
+            viewport={"width": 1400, "height": 1000})
+        try:
+            yield ctx.new_page()
+        finally:
+            ctx.close()
+
+
+def _field(page, name: str) -> str:
+    return page.locator(f"#box-{name} input").input_value()
+
+
+def test_upload_mark_box_query_in_chromium(app_url, page, tmp_path, world):
+    s = world.sample("test", 60)
+    Image.fromarray(s.visual).save(tmp_path / "visual.png")
+    Image.fromarray(s.tactile).save(tmp_path / "tactile.png")
+    page.set_default_timeout(60_000)
+    page.goto(app_url)
+    page.locator("#visual input[type=file]").set_input_files(str(tmp_path / "visual.png"))
+    page.locator("#tactile input[type=file]").set_input_files(str(tmp_path / "tactile.png"))
+    page.get_by_text("No box marked").wait_for()
+
+    # two clicks on the preview (512 px for the 128 px image): corners at image pixels
+    # (16, 24) and (95, 111), in either order
+    img = page.locator("#visual img").first
+    b = img.bounding_box()
+    sx, sy = b["width"] / 128, b["height"] / 128
+    page.mouse.click(b["x"] + 95.5 * sx, b["y"] + 111.5 * sy)
+    page.get_by_text("click the opposite corner").wait_for()
+    page.mouse.click(b["x"] + 16.5 * sx, b["y"] + 24.5 * sy)
+    page.get_by_text("Contact box [16, 24, 96, 112]").wait_for()
+    assert [_field(page, n) for n in ("x0", "y0", "x1", "y1")] == ["16", "24", "96", "112"]
+
+    page.locator("#run").click()
+    page.locator("#description").get_by_text("RA-Touch (with retrieval)").wait_for()
+    for mode in ("image", "tactile", "joint"):
+        assert page.locator(f"#gallery-{mode} img").count() == 5, mode
+        assert page.locator(f"#table-{mode} tr").count() == 6, mode
+    page.locator("#pca .js-plotly-plot").wait_for()
+    assert "contact box [16, 24, 96, 112]" in page.locator("#status").inner_text()
+    assert "total" in page.locator("#timings").inner_text()
+    page.wait_for_timeout(500)  # let the plot finish drawing before the screenshot
+    shot = tmp_path / "ratouch_app.png"
+    page.screenshot(path=str(shot), full_page=True)
+    shutil.copy(shot, SCREENSHOT_COPY)
+
+    # an example pair from the test split brings its ground-truth label
+    page.locator("#examples .thumbnail-item").first.click()
+    page.get_by_text("Ground-truth label:").first.wait_for()
+    page.locator("#run").click()
+    page.locator("#description").get_by_text("Ground-truth label:").wait_for()
