@@ -253,7 +253,7 @@ def save_generator(folder: str | os.PathLike, gen: RATouchGenerator,
     if isinstance(dec.tokenizer, TactileTokenizer):
         dec.tokenizer.save(folder / TOKENIZER_FILE)
     # The manifest is written last, so a checkpoint interrupted before it does not load.
-    return save_checkpoint(folder, state, config, meta)
+    return save_checkpoint(folder, state, config, meta, half=True)  # fp16 on disk: assets stay small
 
 
 def load_generator(folder: str | os.PathLike,

@@ -347,17 +347,24 @@ def test_query_api_bad_input_is_a_clear_error_and_the_server_keeps_serving(serve
 
 # ------------------------------------------------------------------------- the real pipeline
 
+def load_real_pipeline(tmp_path_factory):
+    """The real pipeline on a 600-entry world corpus, built once per test session (the
+    browser test uses it too)."""
+    from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
+    from ratouch.pipeline import RATouchPipeline, embed_and_index
+
+    folder = tmp_path_factory.getbasetemp() / "app-corpus-600"
+    if not (folder / MANIFEST).is_file():
+        build_corpus(folder, 600, progress=False)
+    embed_and_index(folder, "default-s", workers=1, progress=False)  # a no-op once done
+    return RATouchPipeline.load("default-s", corpus=folder)
+
+
 @pytest.fixture(scope="module")
 def real_pipeline(tmp_path_factory):
     if not HAVE_ASSETS:
         pytest.skip("the trained retriever/generator weights are not in assets/ yet")
-    from ratouch.corpus.imagenet_t import build_corpus
-    from ratouch.pipeline import RATouchPipeline, embed_and_index
-
-    folder = tmp_path_factory.mktemp("app-corpus") / "c"
-    build_corpus(folder, 600, progress=False)
-    embed_and_index(folder, "default-s", workers=1, progress=False)
-    return RATouchPipeline.load("default-s", corpus=folder)
+    return load_real_pipeline(tmp_path_factory)
 
 
 @pytest.mark.slow

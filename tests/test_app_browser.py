@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from test_app import HAVE_ASSETS, FakePipeline, free_port
+from test_app import HAVE_ASSETS, FakePipeline, free_port, load_real_pipeline
 
 CHROMIUM = Path("/usr/bin/chromium")
 SCREENSHOT_COPY = Path("/tmp/ratouch_app.png")
@@ -25,16 +25,7 @@ def app_url(tmp_path_factory):
     over the fake pipeline, served on a free port of 127.0.0.1."""
     from app.app import build_demo, launch
 
-    if HAVE_ASSETS:
-        from ratouch.corpus.imagenet_t import build_corpus
-        from ratouch.pipeline import RATouchPipeline, embed_and_index
-
-        folder = tmp_path_factory.mktemp("browser-corpus") / "c"
-        build_corpus(folder, 600, progress=False)
-        embed_and_index(folder, "default-s", workers=1, progress=False)
-        pipe = RATouchPipeline.load("default-s", corpus=folder)
-    else:
-        pipe = FakePipeline()
+    pipe = load_real_pipeline(tmp_path_factory) if HAVE_ASSETS else FakePipeline()
     demo = build_demo(pipe)
     port = free_port()
     launch(demo, "127.0.0.1", port, block=False)
