@@ -394,6 +394,12 @@ class Decoder(nn.Module):
         logger.info("LoRA r=%d on %s: %d trainable parameters", cfg.lora_r,
                     cfg.lora_targets, trainable)
 
+    def merge_lora(self) -> None:
+        """Fold the LoRA weights into the base weights for inference (no extra matmuls per
+        layer); the adapter can no longer be trained or saved separately afterwards."""
+        if self.has_lora:
+            self.model = self.model.merge_and_unload()
+
     def save_adapter(self, folder: str | os.PathLike) -> None:
         """Write the LoRA adapter alone (peft `save_pretrained`); the base is not copied."""
         if not self.has_lora:

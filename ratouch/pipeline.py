@@ -23,6 +23,7 @@ from ratouch.retrieval import CorpusIndex, Retriever
 
 log = logging.getLogger(__name__)
 
+# The three galleries: each query modality against the corpus's text embeddings (Table 4).
 MODES = {"image": ("image", "text"), "tactile": ("tactile", "text"), "joint": ("joint", "text")}
 
 
@@ -119,6 +120,8 @@ class RATouchPipeline:
         tgr = load_tgr(encoder)
         gen_ra = load_generator(generator_weights(encoder, "ra"), integrator_factory)
         gen_base = load_generator(generator_weights(encoder, "baseline"))
+        for gen in (gen_ra, gen_base):  # inference only: fold LoRA into the weights
+            gen.decoder.merge_lora()
         img, txt, _ = load_embeddings(corpus, encoder, verify=False)
         ref = np.concatenate([np.asarray(img[:2000]), np.asarray(txt[:2000])])
         return cls(retriever, tgr, gen_ra, gen_base, PCA2D.fit(ref))
@@ -195,8 +198,10 @@ class RATouchPipeline:
             queries["tactile"] = T
             queries["joint"] = self.joint_query(V, T)
             t = lap("retriever", t)
-        results = {mode: self.corpus.search(key, queries[q], k)
-                   for mode, (q, key) in MODES.items() if q in queries}
+        # every mode searches the text index: one batched search for all of them
+        modes = [m for m, (q, _) in MODES.items() if q in queries]
+        scores, ids = self.corpus.search("text", np.concatenate([queries[m] for m in modes]), k)
+        results = {m: (scores[i:i + 1], ids[i:i + 1]) for i, m in enumerate(modes)}
         t = lap("search", t)
         if frame is not None:
             ra = self.describe(V, T, results["joint"][1])[0]
