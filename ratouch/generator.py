@@ -217,7 +217,7 @@ def _unfreeze_lora(dec: Decoder) -> None:
 
 
 def save_generator(folder: str | os.PathLike, gen: RATouchGenerator,
-                   meta: dict | None = None) -> Path:
+                   meta: dict | None = None, half: bool = False) -> Path:
     """Write a generator checkpoint.
 
     Layout: ``model.safetensors`` + ``config.json`` + ``manifest.json`` (via
@@ -230,6 +230,7 @@ def save_generator(folder: str | os.PathLike, gen: RATouchGenerator,
         folder: destination (created).
         gen: the generator.
         meta: anything worth keeping (training figures, seed, ...), stored in the manifest.
+        half: store floating weights as float16 (the shipped assets do; loading casts back).
     """
     folder = Path(folder)
     dec = gen.decoder
@@ -253,7 +254,7 @@ def save_generator(folder: str | os.PathLike, gen: RATouchGenerator,
     if isinstance(dec.tokenizer, TactileTokenizer):
         dec.tokenizer.save(folder / TOKENIZER_FILE)
     # The manifest is written last, so a checkpoint interrupted before it does not load.
-    return save_checkpoint(folder, state, config, meta, half=True)  # fp16 on disk: assets stay small
+    return save_checkpoint(folder, state, config, meta, half=half)
 
 
 def load_generator(folder: str | os.PathLike,

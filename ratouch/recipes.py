@@ -80,6 +80,8 @@ def generator_recipe(encoder: str = "default-s", seed: int = 0, progress: bool =
     trv, trl = _neighbour_embeddings(corpus, encoder, tids)
     report["test"] = evaluate_generators(base, ra, test["V"], test["T"], trv, trl, labels)
     report["seconds"] = round(time.perf_counter() - t0, 1)
-    save_generator(generator_weights(encoder, "baseline"), base, {"encoder": encoder, **report})
-    save_generator(generator_weights(encoder, "ra"), ra, {"encoder": encoder, **report})
+    # shipped weights are stored as float16 (identical test F1 measured; assets stay < 40 MB)
+    save_generator(generator_weights(encoder, "baseline"), base, {"encoder": encoder, **report},
+                   half=True)
+    save_generator(generator_weights(encoder, "ra"), ra, {"encoder": encoder, **report}, half=True)
     return report
