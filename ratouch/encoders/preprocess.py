@@ -270,19 +270,20 @@ def _pil_to_rgb(img: Image.Image, what: str) -> np.ndarray:
     return np.array(img, dtype=np.uint8)
 
 
-def _open_image(path: str | os.PathLike[str]) -> Image.Image:
-    """Open an image file lazily, with project errors for missing or unreadable files."""
+def _open_image(path: str | os.PathLike[str], role: str = "image") -> Image.Image:
+    """Open an image file lazily, with project errors (naming its role, e.g. "tactile
+    image", and path) for missing or unreadable files."""
     path_str = os.fspath(path)
     if not os.path.exists(path_str):
-        raise DataNotFoundError(f"image file not found: {path_str}")
+        raise DataNotFoundError(f"{role} file not found: {path_str}")
     if os.path.isdir(path_str):
-        raise DataError(f"expected an image file, got a directory: {path_str}")
+        raise DataError(f"{role}: expected an image file, got a directory: {path_str}")
     try:
         return Image.open(path_str)
     except Image.DecompressionBombError as e:
-        raise DataError(f"image {path_str} is too large to decode safely: {e}") from e
+        raise DataError(f"{role} {path_str} is too large to decode safely: {e}") from e
     except (UnidentifiedImageError, OSError, ValueError) as e:
-        raise DataError(f"cannot read {path_str} as an image: {e}") from e
+        raise DataError(f"cannot read {role} {path_str} as an image: {e}") from e
 
 
 def to_rgb_array(image: ImageLike, name: str | None = None) -> np.ndarray:
@@ -311,7 +312,7 @@ def to_rgb_array(image: ImageLike, name: str | None = None) -> np.ndarray:
     """
     if isinstance(image, (str, os.PathLike)):
         what = name or f"image {os.fspath(image)}"
-        with _open_image(image) as img:
+        with _open_image(image, name or "image") as img:
             return _pil_to_rgb(img, what)
     what = name or "image"
     if isinstance(image, Image.Image):
