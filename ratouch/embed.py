@@ -7,7 +7,6 @@ and, when complete, `manifest.json` (encoder id, dimension, count, checksums).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
@@ -18,6 +17,7 @@ import numpy as np
 from PIL import Image
 from tqdm import tqdm
 
+from ratouch.checkpoint import sha256_file
 from ratouch.corpus.imagenet_t import CorpusEntry, load_corpus, parse_world_source
 from ratouch.errors import DataError, DataNotFoundError
 from ratouch.world.config import WorldConfig
@@ -29,14 +29,6 @@ EMBED_MANIFEST = "manifest.json"
 
 def embeddings_dir(corpus: str | os.PathLike, encoder_name: str) -> Path:
     return Path(corpus) / "embeddings" / encoder_name
-
-
-def _sha256_array(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 22), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def corpus_images(entries: Sequence[CorpusEntry], start: int, batch: int, workers: int,
@@ -114,8 +106,8 @@ def embed_corpus(corpus: str | os.PathLike, encoders, batch: int = 500, workers:
     del img, txt
     emb_manifest = {"encoder": encoders.name, "dim": d, "count": n,
                     "corpus_sha256": manifest["metadata_sha256"],
-                    "image_sha256": _sha256_array(out / "image.npy"),
-                    "text_sha256": _sha256_array(out / "text.npy")}
+                    "image_sha256": sha256_file(out / "image.npy"),
+                    "text_sha256": sha256_file(out / "text.npy")}
     tmp = done_manifest.with_suffix(".tmp")
     tmp.write_text(json.dumps(emb_manifest, indent=2))
     os.replace(tmp, done_manifest)
@@ -140,7 +132,7 @@ def load_embeddings(corpus: str | os.PathLike, encoder_name: str, dim: int | Non
                         f"gives {dim}")
     if verify:
         for key in ("image", "text"):
-            if _sha256_array(out / f"{key}.npy") != manifest[f"{key}_sha256"]:
+            if sha256_file(out / f"{key}.npy") != manifest[f"{key}_sha256"]:
                 raise DataError(f"{out / (key + '.npy')} is corrupt: checksum mismatch")
     img = np.load(out / "image.npy", mmap_mode="r")
     txt = np.load(out / "text.npy", mmap_mode="r")

@@ -12,7 +12,6 @@ This is the only module in the project that imports faiss.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import math
@@ -25,6 +24,7 @@ from pathlib import Path
 import faiss
 import numpy as np
 
+from ratouch.checkpoint import sha256_file
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 
 logger = logging.getLogger(__name__)
@@ -96,14 +96,6 @@ class IndexConfig:
         if r and self.kind != "ivfpq":
             raise ConfigError(f"refine_factor={r!r} applies to kind='ivfpq' only, not "
                               f"kind={self.kind!r}")
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 22), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def _as_matrix(vectors: np.ndarray, what: str) -> np.ndarray:
@@ -380,7 +372,7 @@ class VectorIndex:
         index_path = folder / INDEX_FILE
         faiss.write_index(self._index, str(index_path))
         manifest = {"kind": self.kind, "dim": self.dim, "count": self.count,
-                    "config": asdict(self._cfg), "index_sha256": _sha256(index_path),
+                    "config": asdict(self._cfg), "index_sha256": sha256_file(index_path),
                     "meta": dict(meta or {})}
         fd, tmp = tempfile.mkstemp(prefix=".manifest-", suffix=".json", dir=folder)
         try:
@@ -429,7 +421,7 @@ class VectorIndex:
                             f"{exc}") from exc
         if not index_path.is_file():
             raise DataError(f"index {str(folder)!r} has no {INDEX_FILE}")
-        if _sha256(index_path) != checksum:
+        if sha256_file(index_path) != checksum:
             raise DataError(f"index {str(folder)!r} is corrupt: checksum mismatch of "
                             f"{INDEX_FILE} (rebuild it explicitly)")
         if expected_dim is not None and dim != expected_dim:

@@ -133,6 +133,16 @@ def _peak_rss_mb() -> float:
     return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
 
 
+def _sweep(index, setting: str, values, queries, truth, k: int) -> dict:
+    """Latency and recall@5 of the same index searched with each value of one setting."""
+    out = {}
+    for value in values:
+        tuned = index.with_search(**{setting: value})
+        ids, times = _latencies(lambda q: tuned.search(q, max(k, 5))[1], queries)
+        out[str(value)] = {**_summary(times), "recall_at_5": recall_at(ids, truth, 5)}
+    return out
+
+
 def bench_retrieval(n: int = 150_000, dim: int = 768, k: int = 5, n_queries: int = 200,
                     batch: int = 64, seed: int = 0, methods: Sequence[str] = METHODS,
                     progress: bool = False) -> dict:
@@ -191,21 +201,10 @@ def bench_retrieval(n: int = 150_000, dim: int = 768, k: int = 5, n_queries: int
             row["batch_ms_per_query"] = round((time.perf_counter() - t0) * 1e3 / n_queries, 4)
             row["vs_bound"] = round(row["p50_ms"] / bound_ms, 3)
         if name == "hnsw":
-            sweep = {}
-            for ef in HNSW_EF_SWEEP:
-                tuned = index.with_search(ef_search=ef)
-                s_ids, s_times = _latencies(lambda q: tuned.search(q, max(k, 5))[1], queries)
-                sweep[str(ef)] = {**_summary(s_times),
-                                  "recall_at_5": recall_at(s_ids, truth, 5)}
-            row["ef_search_sweep"] = sweep
+            row["ef_search_sweep"] = _sweep(index, "ef_search", HNSW_EF_SWEEP, queries, truth, k)
         if name == "ivfpq":
-            sweep = {}
-            for factor in IVFPQ_REFINE_SWEEP:
-                tuned = index.with_search(refine_factor=factor)
-                s_ids, s_times = _latencies(lambda q: tuned.search(q, max(k, 5))[1], queries)
-                sweep[str(factor)] = {**_summary(s_times),
-                                      "recall_at_5": recall_at(s_ids, truth, 5)}
-            row["refine_sweep"] = sweep
+            row["refine_sweep"] = _sweep(index, "refine_factor", IVFPQ_REFINE_SWEEP, queries,
+                                         truth, k)
         results[name] = row
         say("%s: p50 %.3f ms, recall@5 %.3f, build %.1f s", name, row["p50_ms"],
             row["recall_at_5"], build_s)
