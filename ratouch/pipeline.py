@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
-from ratouch.embed import embed_corpus, load_embeddings
+from ratouch.embed import EMBED_MANIFEST, embed_corpus, embeddings_dir, load_embeddings
 from ratouch.encoders.factory import ASSETS, create_model
 from ratouch.errors import DataError, DataNotFoundError
 from ratouch.index import IndexConfig
@@ -49,7 +49,8 @@ def default_corpus(encoder: str = "default-s", size: str = "10k", seed: int = 0,
     if not (folder / MANIFEST).is_file():
         log.info("building the default corpus in %s (first use)", folder)
         build_corpus(folder, size, seed=seed, progress=progress)
-    embed_and_index(folder, encoder, progress=progress)
+    if not (embeddings_dir(folder, encoder) / EMBED_MANIFEST).is_file():
+        embed_and_index(folder, encoder, progress=progress)  # the index is checked on open
     return folder
 
 
@@ -97,17 +98,19 @@ class RATouchPipeline:
     Read-only once loaded; `query` may be called from several threads.
     """
 
-    def __init__(self, retriever: Retriever, tgr, generator_ra, generator_base, pca: PCA2D):
+    def __init__(self, retriever: Retriever, tgr, generator_ra, generator_base,
+                 pca: PCA2D | None = None):
         self.retriever = retriever
         self.encoders = retriever.encoders
         self.corpus = retriever.corpus
         self.tgr = tgr
         self.generator_ra = generator_ra
         self.generator_base = generator_base
-        self.pca = pca
-        txt = load_embeddings(self.corpus.folder, self.encoders.name, self.encoders.dim,
-                              verify=False)
-        self._image_emb, self._text_emb = txt[0], txt[1]
+        self._image_emb, self._text_emb, _ = load_embeddings(
+            self.corpus.folder, self.encoders.name, self.encoders.dim, verify=False)
+        # the fixed reference frame: the first 2000 entries' image and text embeddings
+        self.pca = pca or PCA2D.fit(np.concatenate([np.asarray(self._image_emb[:2000]),
+                                                    np.asarray(self._text_emb[:2000])]))
 
     @classmethod
     def load(cls, encoder: str = "default-s", corpus: str | os.PathLike | None = None,
@@ -122,9 +125,7 @@ class RATouchPipeline:
         gen_base = load_generator(generator_weights(encoder, "baseline"))
         for gen in (gen_ra, gen_base):  # inference only: fold LoRA into the weights
             gen.decoder.merge_lora()
-        img, txt, _ = load_embeddings(corpus, encoder, verify=False)
-        ref = np.concatenate([np.asarray(img[:2000]), np.asarray(txt[:2000])])
-        return cls(retriever, tgr, gen_ra, gen_base, PCA2D.fit(ref))
+        return cls(retriever, tgr, gen_ra, gen_base)
 
     def joint_query(self, V: np.ndarray, T: np.ndarray) -> np.ndarray:
         with torch.no_grad():
