@@ -56,3 +56,35 @@ def _isolated_cache(tmp_path_factory):
         os.environ.pop("RATOUCH_CACHE", None)
     else:
         os.environ["RATOUCH_CACHE"] = old
+
+
+def write_tiny_llama(folder) -> None:
+    """A random 2-layer LlamaForCausalLM (hidden 64, ~300 words) and its fast tokenizer, in the
+    HF folder layout a real LLaMA-2 checkpoint has (for the decoder's real-path wiring)."""
+    import torch
+    from tokenizers import Tokenizer, models, pre_tokenizers
+    from transformers import LlamaConfig, LlamaForCausalLM, PreTrainedTokenizerFast
+
+    from ratouch.decoder import PROMPT
+    from ratouch.vocabulary import TVL_ADJECTIVES
+
+    words = (["<unk>", "<s>", "</s>", "<pad>", ",", "?", "."] + PROMPT[:-1].split()
+             + list(TVL_ADJECTIVES) + [f"w{i}" for i in range(230)])
+    vocab = {w: i for i, w in enumerate(dict.fromkeys(words))}
+    tok = Tokenizer(models.WordLevel(vocab=vocab, unk_token="<unk>"))
+    tok.pre_tokenizer = pre_tokenizers.Whitespace()
+    PreTrainedTokenizerFast(tokenizer_object=tok, bos_token="<s>", eos_token="</s>",
+                            unk_token="<unk>", pad_token="<pad>").save_pretrained(folder)
+    cfg = LlamaConfig(vocab_size=len(vocab), hidden_size=64, intermediate_size=128,
+                      num_hidden_layers=2, num_attention_heads=4, num_key_value_heads=4,
+                      bos_token_id=1, eos_token_id=2, pad_token_id=3)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        LlamaForCausalLM(cfg).save_pretrained(folder)
+
+
+@pytest.fixture(scope="session")
+def tiny_llama(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("tiny-llama")
+    write_tiny_llama(folder)
+    return folder

@@ -217,33 +217,6 @@ def test_adapter_round_trip(tmp_path):
 
 # --- the HF (LLaMA-2) path -----------------------------------------------------------------
 
-def write_tiny_llama(folder) -> None:
-    """A random 2-layer LlamaForCausalLM (hidden 64, ~300 words) and its fast tokenizer."""
-    from tokenizers import Tokenizer, models, pre_tokenizers
-    from transformers import LlamaConfig, LlamaForCausalLM, PreTrainedTokenizerFast
-
-    words = (["<unk>", "<s>", "</s>", "<pad>", ",", "?", "."] + PROMPT[:-1].split()
-             + list(TVL_ADJECTIVES) + [f"w{i}" for i in range(230)])
-    vocab = {w: i for i, w in enumerate(dict.fromkeys(words))}
-    tok = Tokenizer(models.WordLevel(vocab=vocab, unk_token="<unk>"))
-    tok.pre_tokenizer = pre_tokenizers.Whitespace()
-    PreTrainedTokenizerFast(tokenizer_object=tok, bos_token="<s>", eos_token="</s>",
-                            unk_token="<unk>", pad_token="<pad>").save_pretrained(folder)
-    cfg = LlamaConfig(vocab_size=len(vocab), hidden_size=64, intermediate_size=128,
-                      num_hidden_layers=2, num_attention_heads=4, num_key_value_heads=4,
-                      bos_token_id=1, eos_token_id=2, pad_token_id=3)
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(0)
-        LlamaForCausalLM(cfg).save_pretrained(folder)
-
-
-@pytest.fixture(scope="module")
-def tiny_llama(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("tiny-llama")
-    write_tiny_llama(folder)
-    return folder
-
-
 def test_hf_decoder_with_lora_on_all_layers(tiny_llama):
     dec = load_hf_decoder(DecoderConfig(kind="hf", path=str(tiny_llama), max_new_tokens=6))
     assert dec.hidden == 64

@@ -9,7 +9,7 @@ import pytest
 import torch
 from torch import nn
 
-from ratouch.decoder import PROMPT, DecoderConfig, build_small_decoder, load_hf_decoder
+from ratouch.decoder import DecoderConfig, build_small_decoder, load_hf_decoder
 from ratouch.errors import ConfigError, DataError
 from ratouch.generator import (BaselinePrompt, PromptConfig, RATouchGenerator, load_generator,
                                save_generator, trainable_parameters)
@@ -217,23 +217,9 @@ def test_save_load_baseline(tmp_path):
         load_generator(tmp_path / "b")
 
 
-def test_hf_generator_references_the_base_by_path(tmp_path):
+def test_hf_generator_references_the_base_by_path(tmp_path, tiny_llama):
     """The LLaMA weights stay where they are: only prompt, integrator and adapter are saved."""
-    from tokenizers import Tokenizer, models, pre_tokenizers
-    from transformers import LlamaConfig, LlamaForCausalLM, PreTrainedTokenizerFast
-
-    llama = tmp_path / "llama"
-    words = (["<unk>", "<s>", "</s>", "<pad>", ",", "?", "."] + PROMPT[:-1].split()
-             + list(TVL_ADJECTIVES) + [f"w{i}" for i in range(230)])
-    vocab = {w: i for i, w in enumerate(dict.fromkeys(words))}
-    tok = Tokenizer(models.WordLevel(vocab=vocab, unk_token="<unk>"))
-    tok.pre_tokenizer = pre_tokenizers.Whitespace()
-    PreTrainedTokenizerFast(tokenizer_object=tok, bos_token="<s>", eos_token="</s>",
-                            unk_token="<unk>", pad_token="<pad>").save_pretrained(llama)
-    LlamaForCausalLM(LlamaConfig(vocab_size=len(vocab), hidden_size=64, intermediate_size=128,
-                                 num_hidden_layers=2, num_attention_heads=4,
-                                 num_key_value_heads=4, bos_token_id=1, eos_token_id=2,
-                                 pad_token_id=3)).save_pretrained(llama)
+    llama = tiny_llama
 
     dec = load_hf_decoder(DecoderConfig(kind="hf", path=str(llama), max_new_tokens=4))
     dec.add_lora()
