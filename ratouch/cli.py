@@ -158,6 +158,23 @@ def _add_eval(sub) -> None:
     r.add_argument("--json", action="store_true")
 
 
+def _add_judge(sub) -> None:
+    j = sub.add_parser("judge", help="score TVL-format results with the offline or LLM judge")
+    j.add_argument("file", nargs="?", help="TVL-format JSON list (label, generated response, ...)")
+    j.add_argument("--out", help="scored JSON to write (the input plus offline_score/llm_score)")
+    j.add_argument("--judge", choices=("offline", "llm"), default="offline")
+    j.add_argument("--endpoint", help="OpenAI-compatible base URL for --judge llm "
+                                      "(default $RATOUCH_JUDGE_ENDPOINT)")
+    j.add_argument("--model", help="model for --judge llm (default $RATOUCH_JUDGE_MODEL or gpt-4)")
+    j.add_argument("--api-key-env", default="RATOUCH_JUDGE_API_KEY",
+                   help="environment variable holding the API key")
+    j.add_argument("--validate", action="store_true",
+                   help="print the offline judge's agreement with GPT-4 on the held-out data")
+    j.add_argument("--fit", action="store_true",
+                   help="refit the offline judge's calibration on the FIT part and write it")
+    j.add_argument("--json", action="store_true", help="print JSON")
+
+
 def _box(text: str) -> tuple[int, int, int, int]:
     parts = text.split(",")
     try:
@@ -212,6 +229,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_query(sub)
     _add_eval(sub)
     _add_bench(sub)
+    _add_judge(sub)
     app = sub.add_parser("app", help="launch the Gradio app")
     app.add_argument("--host", default="127.0.0.1")
     app.add_argument("--port", type=_pos_int, default=7860)
@@ -380,6 +398,48 @@ def _run_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_judge(args: argparse.Namespace) -> int:
+    from ratouch import judge as J
+
+    if not (args.file or args.validate or args.fit):
+        raise _usage("judge needs FILE --out SCORED.json, --validate or --fit")
+    if args.file and not args.out:
+        raise _usage("judge FILE needs --out SCORED.json")
+    if args.out and not args.file:
+        raise _usage("--out needs an input FILE")
+    report: dict = {}
+    if args.fit:
+        report["fit"] = str(J.write_offline_config(J.fit_offline_judge()))
+    scored = None
+    if args.file:
+        records = J.read_records(args.file)  # checked before anything is written
+        if args.judge == "llm":
+            judge = J.LLMJudge(J.LLMJudgeConfig.from_env(args.endpoint, args.model,
+                                                         args.api_key_env))
+        else:
+            judge = J.OfflineJudge()
+        scored, report["results"] = J.judge_results(records, judge)
+    if args.validate:
+        report["validation"] = J.validate_judge()
+    if scored is not None:
+        J.write_json_atomic(args.out, scored)
+        report["out"] = str(args.out)
+    if args.json:
+        print(json.dumps(report, indent=1))
+        return 0
+    if "fit" in report:
+        print(f"wrote the offline judge calibration to {report['fit']}")
+    if "results" in report:
+        r = report["results"]
+        print(f"{r['judge']} judge on {args.file}: {r['n']} responses, {r['n_failed']} failed "
+              f"(scored 1)")
+        print(J.format_summary(r))
+        print(f"wrote {args.out}")
+    if "validation" in report:
+        print(J.format_validation(report["validation"]))
+    return 0
+
+
 def _run_app(args: argparse.Namespace) -> int:
     app_file = Path(__file__).resolve().parents[1] / "app" / "app.py"
     if not app_file.is_file():
@@ -404,7 +464,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     runners = {"world": _run_world, "corpus": _run_corpus, "train": _run_train,
-               "query": _run_query, "eval": _run_eval, "bench": _run_bench, "app": _run_app}
+               "query": _run_query, "eval": _run_eval, "bench": _run_bench, "app": _run_app,
+               "judge": _run_judge}
     try:
         return runners[args.cmd](args)
     except (RATouchError, OSError) as e:

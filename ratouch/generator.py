@@ -258,8 +258,8 @@ def save_generator(folder: str | os.PathLike, gen: RATouchGenerator,
 
 
 def load_generator(folder: str | os.PathLike,
-                   integrator_factory: Callable[[dict], nn.Module] | None = None
-                   ) -> RATouchGenerator:
+                   integrator_factory: Callable[[dict], nn.Module] | None = None,
+                   stage1: bool = False) -> RATouchGenerator:
     """Read a checkpoint written by `save_generator`.
 
     Args:
@@ -267,6 +267,9 @@ def load_generator(folder: str | os.PathLike,
         integrator_factory: builds an untrained integrator from its saved config dict (empty
             when the integrator had no dataclass ``cfg``); required when the checkpoint holds
             an integrator.
+        stage1: return only what stage 1 trained (the prompt projection and the decoder's base
+            weights; no LoRA adapter, no integrator): the common starting point of stage-2
+            variants (ablations).
 
     Returns:
         The generator in eval mode with all parameters frozen (call `trainable_parameters` to
@@ -288,17 +291,17 @@ def load_generator(folder: str | os.PathLike,
     decoder = build_decoder(dcfg, tokenizer)
     if small:
         load_into(decoder.model, parts.get("decoder", {}), f"{folder} (decoder)")
-    if config.get("lora"):
+    if config.get("lora") and not stage1:
         decoder.load_adapter(folder / ADAPTER_DIR)
     prompt = BaselinePrompt(pcfg)
     load_into(prompt, parts.get("prompt", {}), f"{folder} (prompt)")
     integrator = None
-    if config.get("integrator") is not None:
+    if config.get("integrator") is not None and not stage1:
         if integrator_factory is None:
             raise ConfigError(f"{folder} holds an integrator: pass integrator_factory")
         integrator = integrator_factory(config["integrator"])
         load_into(integrator, parts.get("integrator", {}), f"{folder} (integrator)")
-    elif integrator_factory is not None:
+    elif integrator_factory is not None and not stage1:
         raise ConfigError(f"{folder} holds no integrator, yet integrator_factory was given")
     gen = RATouchGenerator(prompt, decoder, integrator).eval()
     gen.requires_grad_(False)

@@ -110,6 +110,39 @@ def _lora_only(gen) -> list:
     return [p for p in gen.parameters() if p.requires_grad]
 
 
+def train_stage2(stage1, integrator, V, T, labels: list[str], rv, rl,
+                 tc: GeneratorTrainConfig, desc: str = "stage2"):
+    """Stage 2 from a stage-1 generator: fresh LoRA on the decoder, plus `integrator` if given.
+
+    With ``integrator=None`` only LoRA trains and the neighbours are ignored (the baseline's
+    stage 2); otherwise the integrator and LoRA train on p' = p + integrator(T, Rv, Rl), with
+    the prompt projection frozen (RA-Touch, and its ablations). Both get the same budget
+    (`tc.stage2_steps`, `tc.lora_lr`, the same batches), so variants differ only by retrieval.
+
+    Args:
+        stage1: a generator without LoRA (see `load_generator(..., stage1=True)`); not changed.
+        integrator: a new integrator module, or None.
+        V, T: (N, D) float tensors of the training pairs; labels: their captions.
+        rv, rl: (N, K, D) float tensors of each pair's neighbours (unused without integrator).
+
+    Returns:
+        (the trained generator in eval mode, loss history)
+    """
+    from ratouch.generator import trainable_parameters
+
+    torch.manual_seed(tc.seed)
+    gen = copy.deepcopy(stage1)
+    gen.integrator = integrator
+    gen.decoder.add_lora(gen.decoder.cfg, seed=tc.seed)
+    if integrator is None:
+        params, rv, rl = _lora_only(gen), None, None
+    else:
+        params = trainable_parameters(gen, "ra")
+    history = _steps(gen, params, V, T, labels, rv, rl, tc.stage2_steps, tc.batch, tc.lora_lr,
+                     tc.seed + 1, desc)
+    return gen, history
+
+
 def train_generators(emb: dict[str, np.ndarray], labels: list[str], Rv: np.ndarray,
                      Rl: np.ndarray, dim: int, tc: GeneratorTrainConfig, integrator_cfg=None):
     """Train the baseline and RA-Touch generators.
@@ -144,16 +177,12 @@ def train_generators(emb: dict[str, np.ndarray], labels: list[str], Rv: np.ndarr
     history = _steps(stage1, trainable_parameters(stage1, "baseline"), V, T, labels, None, None,
                      tc.stage1_steps, tc.batch, tc.lr, tc.seed, "stage1")
     t1 = time.perf_counter()
-    base = copy.deepcopy(stage1)
-    base.decoder.add_lora(dcfg, seed=tc.seed)
-    history += _steps(base, _lora_only(base), V, T, labels, None, None,
-                      tc.stage2_steps, tc.batch, tc.lora_lr, tc.seed + 1, "baseline-lora")
+    base, h = train_stage2(stage1, None, V, T, labels, None, None, tc, "baseline-lora")
+    history += h
     icfg = integrator_cfg or IntegratorConfig(dim=dim, out_dim=decoder.hidden)
-    ra = copy.deepcopy(stage1)
-    ra.integrator = TextureAwareIntegrator(icfg)
-    ra.decoder.add_lora(dcfg, seed=tc.seed)
-    history += _steps(ra, trainable_parameters(ra, "ra"), V, T, labels, rv, rl,
-                      tc.stage2_steps, tc.batch, tc.lora_lr, tc.seed + 1, "ra-touch-lora")
+    ra, h = train_stage2(stage1, TextureAwareIntegrator(icfg), V, T, labels, rv, rl, tc,
+                         "ra-touch-lora")
+    history += h
     report = {"train": asdict(tc), "n_pairs": len(V), "integrator": asdict(icfg),
               "stage1_seconds": round(t1 - t0, 1),
               "stage2_seconds": round(time.perf_counter() - t1, 1), "history": history}

@@ -9,22 +9,18 @@ returns passes `validate_caption`.
 
 from __future__ import annotations
 
-import http.client
-import json
 import logging
 import math
-import os
 import re
 import threading
-import urllib.error
 import urllib.parse
-import urllib.request
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from types import MappingProxyType
 
 from ratouch.errors import ConfigError, DataError
+from ratouch.llm_http import REQUEST_ERRORS, chat_completion, chat_url
 from ratouch.vocabulary import EXTRA_TACTILE, TACTILE_WORDS, TVL_ADJECTIVES, banned_category
 
 logger = logging.getLogger(__name__)
@@ -55,9 +51,6 @@ DESCRIPTION_WEIGHT = 1.0
 _WORD_RE = re.compile(r"^[a-z]+(?:-[a-z]+)*$")
 _TOKEN_RE = re.compile(r"[a-z]+(?:-[a-z]+)*")
 _QUOTES = "\"'`\u201c\u201d\u2018\u2019"
-# Failures of one request: OSError covers URLError/HTTPError, timeouts and refused connections;
-# ValueError covers malformed JSON; Key/Index/TypeError a reply without choices[0].message.content.
-_REQUEST_ERRORS = (OSError, http.client.HTTPException, ValueError, KeyError, IndexError, TypeError)
 # Rank of every tactile word: TVL frequency order first, then the extra words.
 _RANK: Mapping[str, int] = MappingProxyType(
     {w: i for i, w in enumerate(dict.fromkeys(TVL_ADJECTIVES + EXTRA_TACTILE))}
@@ -442,7 +435,7 @@ class LLMRecaptioner:
             raise ConfigError("RecaptionConfig.endpoint is required for LLMRecaptioner, got None")
         self.config = config
         self.fallback = fallback
-        self.url = config.endpoint.rstrip("/") + "/chat/completions"
+        self.url = chat_url(config.endpoint)
         self.n_requests = 0
         self.n_rejected = 0
         self.n_errors = 0
@@ -455,29 +448,11 @@ class LLMRecaptioner:
 
     def _request(self, prompt: str) -> str:
         """POST one chat-completions request and return the reply text."""
-        body = {
-            "model": self.config.model,
-            "messages": [{"role": "user", "content": prompt}],
-            "temperature": self.config.temperature,
-        }
-        headers = {"Content-Type": "application/json"}
-        key = os.environ.get(self.config.api_key_env, "")
-        if key:
-            headers["Authorization"] = f"Bearer {key}"
-        request = urllib.request.Request(
-            self.url, data=json.dumps(body).encode("utf-8"), headers=headers, method="POST"
-        )
         self._count("n_requests")
-        try:
-            with urllib.request.urlopen(request, timeout=self.config.timeout_s) as response:
-                payload = json.loads(response.read().decode("utf-8"))
-        except urllib.error.HTTPError as exc:
-            exc.close()  # release the socket before the caller retries
-            raise
-        content = payload["choices"][0]["message"]["content"]
-        if not isinstance(content, str):
-            raise TypeError(f"message content is {type(content).__name__}, not a string")
-        return content
+        return chat_completion(
+            self.url, self.config.model, prompt, api_key_env=self.config.api_key_env,
+            timeout_s=self.config.timeout_s, temperature=self.config.temperature,
+        )
 
     def recaption(self, class_name: str, description: str) -> list[str]:
         """Return 5 validated tactile adjectives from the LLM, or the fallback's.
@@ -496,7 +471,7 @@ class LLMRecaptioner:
             except CaptionRejected as exc:
                 self._count("n_rejected")
                 logger.warning("attempt %d for %r: %s", attempt, class_name, exc.reason)
-            except _REQUEST_ERRORS as exc:
+            except REQUEST_ERRORS as exc:
                 self._count("n_errors")
                 logger.warning(
                     "attempt %d for %r failed: %s: %s", attempt, class_name, type(exc).__name__, exc

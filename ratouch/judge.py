@@ -1,0 +1,718 @@
+"""The evaluation judges of the TVL benchmark protocol: an offline judge and an LLM judge.
+
+TVL scores a generated tactile description by asking GPT-4 to rate it against the ground-truth
+adjectives on a 1-10 scale (`JUDGE_PROMPT` is written in the spirit of TVL's prompt).
+
+`OfflineJudge` needs no network. It splits label and answer into adjectives, compares them with
+hand-made synonym groups and antonym pairs (soft ~ plush ~ cushioned; soft vs hard; ...), turns
+the comparison into six features (exact precision, soft recall, soft precision, antonym clashes,
+number of predicted adjectives, share of non-tactile words such as "cool" or "reflective") and
+maps them to 1-10 with a logistic-linear calibration, ``1 + 9 * sigmoid(b + w . z)``, fitted by
+least squares on the FIT half of the published TVL judge data (`fit_offline_judge`, stored in
+``ratouch/configs/judge_offline.json``). `validate_judge` measures it on the held-out half.
+
+`LLMJudge` asks any OpenAI-compatible chat-completions endpoint, retries a bounded number of
+times, and falls back to the offline judge when the endpoint fails or answers without a score.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import re
+import threading
+import urllib.parse
+from collections.abc import Iterable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.llm_http import REQUEST_ERRORS, chat_completion, chat_url
+from ratouch.vocabulary import parse_adjectives
+
+logger = logging.getLogger(__name__)
+
+MIN_SCORE, MAX_SCORE = 1.0, 10.0
+LABEL_KEY, RESPONSE_KEY, EVAL_KEY = "label", "generated response", "evaluation"
+TVL_QUESTION = "This image gives tactile feelings of?"
+MODELS = ("tvl_llama_vits", "tvl_llama_vits_bgs", "tvl_llama_vittiny")
+SUBSETS = ("SSVTP", "HCT")
+GPT4_INTERRUN_SPEARMAN = 0.89  # reference agreement of two GPT-4 judging runs (quoted, not measured)
+DATA_DIR_ENV = "RATOUCH_TVL_JUDGE_DIR"
+CONFIG_PATH = Path(__file__).resolve().parent / "configs" / "judge_offline.json"
+
+# --------------------------------------------------------------------------- parsing
+
+_SCORE_RE = re.compile(r"^\s*(?:\*\*)?\s*(?:score\s*[:=]?\s*)?(\d{1,2}(?:\.\d+)?)(?!\d)", re.I)
+_MODIFIERS = frozenset({
+    "slightly", "very", "somewhat", "quite", "a", "bit", "little", "mostly", "rather", "fairly",
+    "and", "or", "the", "but", "with", "also", "extremely", "highly", "relatively",
+})
+_STRIP = " \t.!?\"'`()[]*:"
+
+
+def parse_gpt_score(evaluation: str | None) -> float | None:
+    """The judge's score: the number (1-10) that starts its answer, else None.
+
+    TVL's GPT-4 evaluations put the score first ("7.5\\nThe assistant's response ..."); scores
+    may be fractional (7.5, 7.785), so the value is a float, as in TVL's own analysis script.
+    A leading "Score:" or markdown bold and a trailing "/10" are tolerated.
+    """
+    if not isinstance(evaluation, str):
+        return None
+    m = _SCORE_RE.match(evaluation)
+    if m is None:
+        return None
+    value = float(m.group(1))
+    return value if MIN_SCORE <= value <= MAX_SCORE else None
+
+
+def adjectives(text: str | None) -> list[str]:
+    """Distinct lower-case adjectives of a caption, in order.
+
+    Builds on `ratouch.vocabulary.parse_adjectives` (comma split, lower case, no periods) and
+    also splits on "and", "/" and ";", strips quotes and punctuation and drops modifiers
+    ("slightly squishy" -> "squishy").
+    """
+    if not isinstance(text, str):
+        return []
+    text = re.sub(r"\s+(?:and|or|&)\s+", ", ", text.replace("/", ","), flags=re.I)
+    out: list[str] = []
+    for chunk in parse_adjectives(text):
+        words = [w.strip(_STRIP) for w in chunk.split()]
+        words = [w for w in words if w and w not in _MODIFIERS]
+        word = " ".join(words)
+        if word and word not in out:
+            out.append(word)
+    return out
+
+
+# --------------------------------------------------------------------------- lexicon
+
+# Synonym groups, "word" or "word:weight" (weight of a looser member, default 1). Two different
+# words are similar when they share a group: similarity SYNONYM * w_a * w_b (exact match: 1).
+_GROUPS_SPEC = {
+    "soft": "soft plush cushioned cushiony squishy spongy fluffy padded yielding compressible "
+            "velvety fuzzy:0.7 pliable:0.6 deformable:0.6",
+    "hard": "hard rigid firm stiff solid sturdy dense durable:0.6 metallic:0.5 wooden:0.5",
+    "flexible": "flexible pliable deformable elastic rubbery rubber stretchy supple flimsy:0.7 "
+                "resilient:0.7 springy yielding:0.7",
+    "smooth": "smooth sleek slick polished glossy:0.8 slippery:0.8 even:0.8 level:0.7 uniform:0.6 "
+              "varnished:0.8 silky glassy flat:0.5",
+    "glossy": "glossy polished sleek:0.8 shiny reflective:0.7 varnished slick:0.7",
+    "rough": "rough coarse abrasive gritty grainy:0.8 granular:0.8 scratchy rugged textured:0.6 "
+             "uneven:0.5",
+    "uneven": "uneven bumpy lumpy irregular knobby dented indented dimpled raised:0.8 extruded:0.7 "
+              "textured:0.6 rugged:0.7 wrinkly:0.6 wrinkled:0.6 creased:0.6 contoured:0.5 "
+              "rough:0.5",
+    "ridged": "lined ridged grooved ribbed corrugated striped:0.7 grid-like:0.8 patterned:0.5 "
+              "textured:0.5",
+    "patterned": "patterned dotted splotchy speckled printed text striped embroidered:0.6 "
+                 "grid-like:0.6",
+    "fabric": "woven fabric cloth-like fabric-like fibrous mesh:0.8 knitted sewn embroidered:0.8 "
+              "fuzzy:0.6 plush:0.5",
+    "metal": "metallic wired wire",
+    "plastic": "plastic plastic-like synthetic artificial rubbery:0.6 rubber:0.6",
+    "matte": "matte dry:0.7",
+    "flat": "flat level even:0.8 smooth:0.4",
+    "curved": "curved round circular contoured",
+    "sharp": "pointed sharp",
+    "perforated": "perforated mesh grid-like:0.6",
+    "thick": "thick",
+    "thin": "thin flimsy:0.8 paper-like:0.6",
+    "wrinkled": "wrinkly wrinkled creased folded",
+    "grippy": "grippy rubbery:0.6 tacky",
+    "slippery": "slippery slick sleek:0.6",
+}
+# Opposite groups: a predicted word that matches nothing in the label but belongs to the
+# opposite of a label word's group is an antonym clash (strength w_a * w_b).
+ANTONYM_GROUPS = (
+    ("soft", "hard"), ("smooth", "rough"), ("smooth", "uneven"), ("flexible", "hard"),
+    ("glossy", "matte"), ("flat", "uneven"), ("flat", "curved"), ("thick", "thin"),
+    ("slippery", "grippy"), ("smooth", "ridged"),
+)
+# Words TVL-LLaMA answers use that are not touch properties (temperature, looks, durability).
+NON_TACTILE = frozenset({
+    "cool", "warm", "cold", "hot", "reflective", "shiny", "blurred", "blurry", "indistinct",
+    "printed", "speckled", "durable", "text", "colorful", "bright", "dark",
+})
+SYNONYM = 0.7
+_MATCHED = 0.5  # a predicted word with similarity >= this to a label word is not a clash
+
+
+def _parse_groups(spec: Mapping[str, str]) -> dict[str, dict[str, float]]:
+    members: dict[str, dict[str, float]] = {}
+    for group, words in spec.items():
+        for item in words.split():
+            word, _, weight = item.partition(":")
+            members.setdefault(word, {})[group] = float(weight) if weight else 1.0
+    return members
+
+
+_MEMBERS = _parse_groups(_GROUPS_SPEC)
+_OPPOSITE = frozenset(ANTONYM_GROUPS) | frozenset((b, a) for a, b in ANTONYM_GROUPS)
+assert {g for pair in ANTONYM_GROUPS for g in pair} <= set(_GROUPS_SPEC)
+
+
+def similarity(a: str, b: str) -> float:
+    """1 for the same word, SYNONYM * w_a * w_b for words sharing a synonym group, else 0."""
+    if a == b:
+        return 1.0
+    ga, gb = _MEMBERS.get(a, {}), _MEMBERS.get(b, {})
+    return max((SYNONYM * ga[g] * gb[g] for g in ga.keys() & gb.keys()), default=0.0)
+
+
+def antonymy(a: str, b: str) -> float:
+    """w_a * w_b when a and b belong to opposite groups (soft / hard, ...), else 0."""
+    ga, gb = _MEMBERS.get(a, {}), _MEMBERS.get(b, {})
+    return max((wa * wb for x, wa in ga.items() for y, wb in gb.items() if (x, y) in _OPPOSITE),
+               default=0.0)
+
+
+FEATURES = ("exact_precision", "soft_recall", "soft_precision", "antonym_clash", "n_predicted",
+            "non_tactile_share")
+
+
+def judge_features(label: Sequence[str], predicted: Sequence[str]) -> list[float]:
+    """The `FEATURES` of a predicted adjective list against the label's (both non-empty)."""
+    label_set = set(label)
+    exact_precision = sum(p in label_set for p in predicted) / len(predicted)
+    soft_recall = sum(max(similarity(lw, p) for p in predicted) for lw in label) / len(label)
+    best = [max(similarity(p, lw) for lw in label) for p in predicted]
+    soft_precision = sum(best) / len(predicted)
+    clash = float(sum(max(antonymy(p, lw) for lw in label)
+                      for p, b in zip(predicted, best) if b < _MATCHED))
+    non_tactile = sum(p in NON_TACTILE for p in predicted) / len(predicted)
+    return [exact_precision, soft_recall, soft_precision, clash, float(len(predicted)),
+            non_tactile]
+
+
+def adjective_f1(label: str, response: str | None) -> float:
+    """Plain adjective-set F1 (exact words), the baseline the offline judge is compared with."""
+    lab, pred = set(adjectives(label)), set(adjectives(response))
+    if not lab or not pred:
+        return 0.0
+    return 2 * len(lab & pred) / (len(lab) + len(pred))
+
+
+def _is_failed(response: object) -> bool:
+    return not adjectives(response if isinstance(response, str) else None)
+
+
+# --------------------------------------------------------------------------- offline judge
+
+
+class OfflineJudge:
+    """Synonym/antonym-aware adjective matching plus a fitted 1-10 calibration.
+
+    Args:
+        params: Calibration (keys ``features``, ``mean``, ``scale``, ``intercept``, ``weights``),
+            e.g. from `fit_offline_judge`; default: the shipped ``configs/judge_offline.json``.
+
+    Raises:
+        ConfigError: If the calibration is missing or malformed.
+    """
+
+    name = "offline"
+    key = "offline_score"
+
+    def __init__(self, params: Mapping | None = None) -> None:
+        if params is None:
+            params = load_offline_config()
+        self.params = _check_params(params)
+        self._mean = np.asarray(self.params["mean"], dtype=np.float64)
+        self._scale = np.asarray(self.params["scale"], dtype=np.float64)
+        self._w = np.asarray(self.params["weights"], dtype=np.float64)
+        self._b = float(self.params["intercept"])
+
+    def explain(self, label: str, response: str | None) -> dict:
+        """Parsed adjectives, features and score of one answer (for people reading a score)."""
+        lab, pred = adjectives(label), adjectives(response)
+        if not lab:
+            raise DataError(f"label {label!r} has no adjectives")
+        if not pred:
+            return {"label": lab, "predicted": [], "features": None, "score": MIN_SCORE}
+        feats = judge_features(lab, pred)
+        z = (np.asarray(feats) - self._mean) / self._scale
+        score = MIN_SCORE + (MAX_SCORE - MIN_SCORE) / (1.0 + math.exp(-(self._b + float(z @ self._w))))
+        return {"label": lab, "predicted": pred, "features": dict(zip(FEATURES, feats)),
+                "score": score}
+
+    def score(self, label: str, response: str | None) -> float:
+        """Score in [1, 10] of a generated response against the ground-truth label; a missing
+        or empty response scores 1."""
+        return float(self.explain(label, response)["score"])
+
+    def score_many(self, pairs: Iterable[tuple[str, str | None]]) -> list[float]:
+        """Scores of (label, response) pairs, in order."""
+        return [self.score(label, response) for label, response in pairs]
+
+    def stats(self) -> dict:
+        return {}
+
+
+def _check_params(params: Mapping) -> dict:
+    if not isinstance(params, Mapping):
+        raise ConfigError(f"offline judge calibration must be a mapping, got {type(params).__name__}")
+    missing = [k for k in ("features", "mean", "scale", "intercept", "weights") if k not in params]
+    if missing:
+        raise ConfigError(f"offline judge calibration lacks {missing}")
+    if list(params["features"]) != list(FEATURES):
+        raise ConfigError(f"offline judge calibration is for features {params['features']}, "
+                          f"this code computes {list(FEATURES)}; refit with `ratouch judge --fit`")
+    for k in ("mean", "scale", "weights"):
+        v = params[k]
+        if (not isinstance(v, Sequence) or len(v) != len(FEATURES)
+                or not all(isinstance(x, (int, float)) and math.isfinite(x) for x in v)):
+            raise ConfigError(f"offline judge calibration {k!r} must be {len(FEATURES)} finite numbers")
+    if not all(s > 0 for s in params["scale"]):
+        raise ConfigError("offline judge calibration 'scale' must be > 0")
+    if not isinstance(params["intercept"], (int, float)) or not math.isfinite(params["intercept"]):
+        raise ConfigError("offline judge calibration 'intercept' must be a finite number")
+    return dict(params)
+
+
+def load_offline_config(path: str | os.PathLike | None = None) -> dict:
+    """Read the offline judge's calibration (default: the shipped one)."""
+    path = Path(path) if path is not None else CONFIG_PATH
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as e:
+        raise ConfigError(f"offline judge calibration {path} is missing; "
+                          "write it with `ratouch judge --fit`") from e
+    except ValueError as e:
+        raise ConfigError(f"offline judge calibration {path} is not valid JSON: {e}") from e
+
+
+# --------------------------------------------------------------------------- LLM judge
+
+JUDGE_SYSTEM = "You are a careful and impartial assistant who grades answers against a reference."
+JUDGE_PROMPT = """[Question]: {question}
+
+[Assistant's answer]: {response}
+
+[Correct answer]: {label}
+
+Please rate how well the AI assistant's answer to the question above matches the correct answer.
+The user asked the question while looking at an image; the correct answer lists the tactile
+properties of the surface (how it feels to the touch). Compare only the meaning of the two
+answers and ignore grammar and formatting. Give the assistant one overall score from 1 to 10,
+where a higher score means the answer is closer to the correct answer.
+Write the score alone on the first line. From the next line on, explain your rating briefly and
+without bias."""
+
+
+def build_judge_prompt(label: str, response: str, question: str = TVL_QUESTION) -> str:
+    """Fill `JUDGE_PROMPT` with the question, the generated response and the correct label."""
+    return JUDGE_PROMPT.format(question=question.strip(), response=response.strip(),
+                               label=label.strip())
+
+
+@dataclass(frozen=True)
+class LLMJudgeConfig:
+    """Where and how the LLM judge asks.
+
+    Attributes:
+        endpoint: Base URL such as ``http://127.0.0.1:8000/v1`` (requests go to
+            ``{endpoint}/chat/completions``); default ``$RATOUCH_JUDGE_ENDPOINT``.
+        model: Model name; default ``$RATOUCH_JUDGE_MODEL`` or ``gpt-4``.
+        api_key_env: Environment variable holding the API key (never passed or logged).
+        timeout_s: Per-request timeout in seconds.
+        max_attempts: Requests per answer before falling back to the offline judge.
+        temperature: Sampling temperature in [0, 2].
+    """
+
+    endpoint: str
+    model: str = "gpt-4"
+    api_key_env: str = "RATOUCH_JUDGE_API_KEY"
+    timeout_s: float = 30.0
+    max_attempts: int = 3
+    temperature: float = 0.0
+
+    def __post_init__(self) -> None:
+        parsed = urllib.parse.urlparse(self.endpoint) if isinstance(self.endpoint, str) else None
+        if parsed is None or parsed.scheme not in ("http", "https") or not parsed.netloc:
+            raise ConfigError(f"LLM judge endpoint must be an http(s) URL, got {self.endpoint!r} "
+                              "(set --endpoint or $RATOUCH_JUDGE_ENDPOINT)")
+        for name in ("model", "api_key_env"):
+            value = getattr(self, name)
+            if not isinstance(value, str) or not value.strip():
+                raise ConfigError(f"LLMJudgeConfig.{name} must be a non-empty string, got {value!r}")
+        if (isinstance(self.timeout_s, bool) or not isinstance(self.timeout_s, (int, float))
+                or not self.timeout_s > 0):
+            raise ConfigError(f"LLMJudgeConfig.timeout_s must be > 0, got {self.timeout_s!r}")
+        if (isinstance(self.max_attempts, bool) or not isinstance(self.max_attempts, int)
+                or self.max_attempts < 1):
+            raise ConfigError(f"LLMJudgeConfig.max_attempts must be an integer >= 1, "
+                              f"got {self.max_attempts!r}")
+        if (isinstance(self.temperature, bool) or not isinstance(self.temperature, (int, float))
+                or not 0.0 <= self.temperature <= 2.0):
+            raise ConfigError(f"LLMJudgeConfig.temperature must be in [0, 2], got {self.temperature!r}")
+
+    @classmethod
+    def from_env(cls, endpoint: str | None = None, model: str | None = None,
+                 api_key_env: str | None = None, **kwargs) -> "LLMJudgeConfig":
+        """Arguments first, then ``$RATOUCH_JUDGE_ENDPOINT`` / ``$RATOUCH_JUDGE_MODEL``."""
+        return cls(endpoint=endpoint or os.environ.get("RATOUCH_JUDGE_ENDPOINT", ""),
+                   model=model or os.environ.get("RATOUCH_JUDGE_MODEL", "") or "gpt-4",
+                   api_key_env=api_key_env or "RATOUCH_JUDGE_API_KEY", **kwargs)
+
+
+class LLMJudge:
+    """Judge that asks an OpenAI-compatible chat-completions endpoint the TVL-style prompt.
+
+    Each answer gets up to ``config.max_attempts`` requests; transport errors, malformed replies
+    and replies without a 1-10 score first are retried, then the offline judge answers.
+    Thread-safe; counters: ``n_requests``, ``n_errors``, ``n_unparseable``, ``n_fallbacks``.
+
+    Args:
+        config: Endpoint, model, key variable, timeout, attempts and temperature.
+        fallback: Judge used when every attempt fails (default: `OfflineJudge()`).
+    """
+
+    name = "llm"
+    key = "llm_score"
+
+    def __init__(self, config: LLMJudgeConfig, fallback: OfflineJudge | None = None) -> None:
+        self.config = config
+        self.fallback = fallback if fallback is not None else OfflineJudge()
+        self.url = chat_url(config.endpoint)
+        self.n_requests = self.n_errors = self.n_unparseable = self.n_fallbacks = 0
+        self._lock = threading.Lock()
+
+    def _count(self, name: str) -> None:
+        with self._lock:
+            setattr(self, name, getattr(self, name) + 1)
+
+    def score(self, label: str, response: str | None, question: str = TVL_QUESTION) -> float:
+        """Score in [1, 10] from the LLM, or the offline judge's after failed attempts; a
+        missing or empty response scores 1 without a request."""
+        if _is_failed(response):
+            return MIN_SCORE
+        prompt = build_judge_prompt(label, response, question)
+        for attempt in range(1, self.config.max_attempts + 1):
+            self._count("n_requests")
+            try:
+                reply = chat_completion(self.url, self.config.model, prompt,
+                                        api_key_env=self.config.api_key_env,
+                                        timeout_s=self.config.timeout_s,
+                                        temperature=self.config.temperature, system=JUDGE_SYSTEM)
+            except REQUEST_ERRORS as exc:
+                self._count("n_errors")
+                logger.warning("judge attempt %d failed: %s: %s", attempt, type(exc).__name__, exc)
+                continue
+            value = parse_gpt_score(reply)
+            if value is not None:
+                return value
+            self._count("n_unparseable")
+            logger.warning("judge attempt %d: no 1-10 score first in %r", attempt, reply[:80])
+        self._count("n_fallbacks")
+        return self.fallback.score(label, response)
+
+    def score_many(self, pairs: Iterable[tuple[str, str | None]], max_workers: int = 4) -> list[float]:
+        """Scores of (label, response) pairs with a small thread pool, in input order."""
+        pairs = list(pairs)
+        if not pairs:
+            return []
+        with ThreadPoolExecutor(max_workers=max(1, min(max_workers, len(pairs)))) as pool:
+            return list(pool.map(lambda p: self.score(p[0], p[1]), pairs))
+
+    def stats(self) -> dict:
+        with self._lock:
+            return {"n_requests": self.n_requests, "n_errors": self.n_errors,
+                    "n_unparseable": self.n_unparseable, "n_fallbacks": self.n_fallbacks}
+
+
+# --------------------------------------------------------------------------- TVL result files
+
+
+def subset_of(image_fp: object) -> str | None:
+    """"SSVTP" or "HCT" from a TVL image path (relative or absolute), else None."""
+    if not isinstance(image_fp, str):
+        return None
+    fp = image_fp.lower()
+    if "ssvtp" in fp:
+        return "SSVTP"
+    if "hct" in fp:
+        return "HCT"
+    return None
+
+
+def check_records(records: object, source: str = "input") -> list[dict]:
+    """Raise DataError unless `records` is a non-empty list of objects, each with a non-empty
+    string ``label`` and a ``generated response`` (a string or null)."""
+    if not isinstance(records, list):
+        raise DataError(f"{source}: expected a JSON list of objects, got {type(records).__name__}")
+    if not records:
+        raise DataError(f"{source}: the list is empty")
+    for i, rec in enumerate(records):
+        if not isinstance(rec, dict):
+            raise DataError(f"{source}: record {i} is a {type(rec).__name__}, not an object")
+        for key in (LABEL_KEY, RESPONSE_KEY):
+            if key not in rec:
+                raise DataError(f"{source}: record {i} has no {key!r} key")
+        if not isinstance(rec[LABEL_KEY], str) or not adjectives(rec[LABEL_KEY]):
+            raise DataError(f"{source}: record {i} has an empty or non-string label "
+                            f"{rec[LABEL_KEY]!r}")
+        if rec[RESPONSE_KEY] is not None and not isinstance(rec[RESPONSE_KEY], str):
+            raise DataError(f"{source}: record {i} 'generated response' must be a string or null, "
+                            f"got {type(rec[RESPONSE_KEY]).__name__}")
+    return records
+
+
+def read_records(path: str | os.PathLike) -> list[dict]:
+    """Load and check a TVL-format result file (see `check_records`)."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataNotFoundError(f"{path} does not exist or is not a file")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as e:
+        raise DataError(f"{path} is not valid JSON: {e}") from e
+    return check_records(data, str(path))
+
+
+def _mean(values: list[float]) -> float | None:
+    return float(np.mean(values)) if values else None
+
+
+def judge_results(records: list[dict], judge: OfflineJudge | LLMJudge) -> tuple[list[dict], dict]:
+    """Score every record of a TVL-format list.
+
+    Returns:
+        (copies of the records with ``judge.key`` -- ``offline_score`` or ``llm_score`` -- added,
+        summary). A null or empty response scores 1 and counts as failed. The summary holds,
+        per subset (SSVTP, HCT, overall), n, n_failed, the judge's mean and, where the
+        ``evaluation`` field parses, the GPT-4 mean and how many parsed.
+    """
+    check_records(records)
+    failed = [_is_failed(r[RESPONSE_KEY]) for r in records]
+    todo = [i for i, f in enumerate(failed) if not f]
+    got = judge.score_many([(records[i][LABEL_KEY], records[i][RESPONSE_KEY]) for i in todo])
+    scores = [MIN_SCORE] * len(records)
+    for i, s in zip(todo, got):
+        scores[i] = float(s)
+    out = [{**rec, judge.key: s} for rec, s in zip(records, scores)]
+    groups: dict[str, list[int]] = {name: [] for name in SUBSETS}
+    for i, rec in enumerate(records):
+        sub = subset_of(rec.get("image_fp"))
+        if sub is not None:
+            groups[sub].append(i)
+    groups["overall"] = list(range(len(records)))
+    subsets = {}
+    for name, idx in groups.items():
+        gpt = [g for g in (parse_gpt_score(records[i].get(EVAL_KEY)) for i in idx) if g is not None]
+        subsets[name] = {"n": len(idx), "n_failed": sum(failed[i] for i in idx),
+                         "mean": _mean([scores[i] for i in idx]),
+                         "gpt4_mean": _mean(gpt), "n_gpt4": len(gpt)}
+    summary = {"judge": judge.name, "score_key": judge.key, "n": len(records),
+               "n_failed": sum(failed), "subsets": subsets, **judge.stats()}
+    return out, summary
+
+
+def format_summary(summary: dict) -> str:
+    """Per-subset means as a small table."""
+    judge = summary["judge"]
+    lines = [f"{'subset':<9}{'n':>5}{'failed':>8}{judge:>9}{'GPT-4':>8}"]
+    for name, s in summary["subsets"].items():
+        mean = f"{s['mean']:.3f}" if s["mean"] is not None else "-"
+        gpt = f"{s['gpt4_mean']:.3f}" if s["gpt4_mean"] is not None else "-"
+        lines.append(f"{name:<9}{s['n']:>5}{s['n_failed']:>8}{mean:>9}{gpt:>8}")
+    if judge == "llm":
+        lines.append(f"LLM requests {summary['n_requests']}, errors {summary['n_errors']}, "
+                     f"unparseable {summary['n_unparseable']}, "
+                     f"fallbacks to the offline judge {summary['n_fallbacks']}")
+    return "\n".join(lines)
+
+
+def write_json_atomic(path: str | os.PathLike, obj) -> Path:
+    """Write JSON to a temporary file beside `path`, then rename it over `path`."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.partial")
+    try:
+        tmp.write_text(json.dumps(obj, indent=1) + "\n", encoding="utf-8")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+# --------------------------------------------------------------------------- protocol: fit / validate
+
+
+def judge_data_dir() -> Path:
+    """``$RATOUCH_TVL_JUDGE_DIR``, else ``../shared/data/tvl_judge`` beside the repository."""
+    env = os.environ.get(DATA_DIR_ENV)
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tvl_judge"
+
+
+def load_tvl_results(data_dir: str | os.PathLike | None = None) -> dict[str, list[dict]]:
+    """The three published TVL-LLaMA result files, checked to hold the same samples in order."""
+    folder = Path(data_dir) if data_dir is not None else judge_data_dir()
+    out = {}
+    for model in MODELS:
+        path = folder / f"{model}.json"
+        if not path.is_file():
+            raise DataNotFoundError(f"TVL judge data {path} not found (set ${DATA_DIR_ENV})")
+        out[model] = read_records(path)
+    ref = out[MODELS[0]]
+    for model in MODELS[1:]:
+        recs = out[model]
+        if len(recs) != len(ref) or any(
+                a[LABEL_KEY] != b[LABEL_KEY] or Path(str(a.get("image_fp"))).name
+                != Path(str(b.get("image_fp"))).name for a, b in zip(ref, recs)):
+            raise DataError(f"{model}.json does not list the same samples as {MODELS[0]}.json")
+    return out
+
+
+def heldout_split(records: list[dict], seed: int = 0, fit_fraction: float = 0.5
+                  ) -> tuple[list[int], list[int]]:
+    """(fit, held-out) sample indices, stratified by subset and seeded. The same indices are
+    used for every model, so the answers of the models to one sample share a side."""
+    rng = np.random.default_rng(seed)
+    by_subset: dict[str | None, list[int]] = {}
+    for i, rec in enumerate(records):
+        by_subset.setdefault(subset_of(rec.get("image_fp")), []).append(i)
+    fit: list[int] = []
+    for key in (*SUBSETS, None):  # a fixed order: SSVTP, HCT, then samples of neither
+        if key not in by_subset:
+            continue
+        idx = np.asarray(by_subset[key])[rng.permutation(len(by_subset[key]))]
+        fit += idx[: int(len(idx) * fit_fraction)].tolist()
+    fit_set = set(fit)
+    return sorted(fit_set), [i for i in range(len(records)) if i not in fit_set]
+
+
+def _rows(data: Mapping[str, list[dict]], idx: Sequence[int]):
+    """(label, response, GPT-4 score, model, subset) of the answers of every model to samples
+    `idx`, skipping answers whose GPT-4 evaluation does not parse."""
+    rows = []
+    for model in MODELS:
+        for i in idx:
+            rec = data[model][i]
+            gpt = parse_gpt_score(rec.get(EVAL_KEY))
+            if gpt is not None:
+                rows.append((rec[LABEL_KEY], rec[RESPONSE_KEY], gpt, model,
+                             subset_of(rec.get("image_fp"))))
+    return rows
+
+
+def fit_offline_judge(data_dir: str | os.PathLike | None = None, seed: int = 0,
+                      fit_fraction: float = 0.5) -> dict:
+    """Fit the offline judge's calibration on the FIT part of the TVL judge data only.
+
+    Least squares of ``1 + 9 * sigmoid(b + w . z)`` against the GPT-4 scores, z the
+    standardised `FEATURES` of every non-failed answer of the three models to the FIT samples.
+    """
+    from scipy.optimize import least_squares
+
+    data = load_tvl_results(data_dir)
+    fit_idx, _ = heldout_split(data[MODELS[0]], seed, fit_fraction)
+    X, y = [], []
+    for label, response, gpt, _, _ in _rows(data, fit_idx):
+        pred = adjectives(response)
+        if pred:
+            X.append(judge_features(adjectives(label), pred))
+            y.append(gpt)
+    X, y = np.asarray(X, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    mean, scale = X.mean(0), X.std(0)
+    scale[scale == 0] = 1.0
+    Z = (X - mean) / scale
+
+    def residual(p):
+        return MIN_SCORE + (MAX_SCORE - MIN_SCORE) / (1.0 + np.exp(-(p[0] + Z @ p[1:]))) - y
+
+    p = least_squares(residual, np.zeros(Z.shape[1] + 1), method="trf").x
+    return {
+        "features": list(FEATURES), "mean": mean.tolist(), "scale": scale.tolist(),
+        "intercept": float(p[0]), "weights": p[1:].tolist(),
+        "fit": {"models": list(MODELS), "split_seed": seed, "fit_fraction": fit_fraction,
+                "n_fit_samples": len(fit_idx), "n_fit_answers": int(len(y))},
+    }
+
+
+def write_offline_config(params: Mapping, path: str | os.PathLike | None = None) -> Path:
+    """Write a calibration (atomically) to `path` (default: the shipped config)."""
+    return write_json_atomic(path if path is not None else CONFIG_PATH, _check_params(params))
+
+
+def _ranking(means: Mapping[str, float]) -> list[str]:
+    return sorted(means, key=lambda m: (-means[m], m))
+
+
+def validate_judge(data_dir: str | os.PathLike | None = None, judge: OfflineJudge | None = None,
+                   seed: int | None = None, fit_fraction: float | None = None) -> dict:
+    """Held-out agreement of the offline judge (and of plain adjective F1) with GPT-4.
+
+    The split defaults to the one the judge's calibration was fitted with, so only samples it
+    never saw are used. Returns pooled Spearman rho over the three models' answers, per-subset
+    rho, per-model mean scores and the rankings of the models by mean score.
+    """
+    from scipy.stats import spearmanr
+
+    judge = judge if judge is not None else OfflineJudge()
+    fit_meta = judge.params.get("fit", {})
+    seed = fit_meta.get("split_seed", 0) if seed is None else seed
+    fit_fraction = fit_meta.get("fit_fraction", 0.5) if fit_fraction is None else fit_fraction
+    data = load_tvl_results(data_dir)
+    fit_idx, held_idx = heldout_split(data[MODELS[0]], seed, fit_fraction)
+    rows = _rows(data, held_idx)
+    gpt = np.array([r[2] for r in rows])
+    off = np.array([judge.score(r[0], r[1]) for r in rows])
+    f1 = np.array([adjective_f1(r[0], r[1]) for r in rows])
+    models = np.array([r[3] for r in rows])
+    subsets = np.array([str(r[4]) for r in rows])
+    per_model = {m: {"gpt4": float(gpt[models == m].mean()), "offline": float(off[models == m].mean()),
+                     "f1": float(f1[models == m].mean())} for m in MODELS}
+    rankings = {k: _ranking({m: per_model[m][k] for m in MODELS}) for k in ("gpt4", "offline", "f1")}
+    by_subset = {}
+    for name in SUBSETS:
+        sel = subsets == name
+        if sel.sum() > 1:
+            by_subset[name] = {"n_answers": int(sel.sum()),
+                               "spearman_offline": float(spearmanr(off[sel], gpt[sel])[0]),
+                               "spearman_f1": float(spearmanr(f1[sel], gpt[sel])[0])}
+    return {
+        "split_seed": seed, "fit_fraction": fit_fraction, "n_samples": len(data[MODELS[0]]),
+        "n_fit_samples": len(fit_idx), "n_heldout_samples": len(held_idx),
+        "n_heldout_answers": len(rows),
+        "spearman_offline": float(spearmanr(off, gpt)[0]),
+        "spearman_f1": float(spearmanr(f1, gpt)[0]),
+        "gpt4_interrun_reference": GPT4_INTERRUN_SPEARMAN,
+        "by_subset": by_subset, "per_model": per_model,
+        "ranking_gpt4": rankings["gpt4"], "ranking_offline": rankings["offline"],
+        "ranking_f1": rankings["f1"],
+        "ranking_identical": rankings["offline"] == rankings["gpt4"],
+    }
+
+
+def format_validation(r: dict) -> str:
+    """The validation figures for people."""
+    lines = [
+        f"offline judge vs GPT-4 on the held-out part of the TVL judge data: "
+        f"{r['n_heldout_samples']} of {r['n_samples']} samples x {len(r['per_model'])} models = "
+        f"{r['n_heldout_answers']} answers (fitted on the other {r['n_fit_samples']} samples, "
+        f"split seed {r['split_seed']})",
+        f"Spearman rho with GPT-4: offline judge {r['spearman_offline']:.3f}, "
+        f"adjective-set F1 {r['spearman_f1']:.3f} "
+        f"(GPT-4 inter-run reference {r['gpt4_interrun_reference']:.2f})",
+    ]
+    for name, s in r["by_subset"].items():
+        lines.append(f"  {name:<6} ({s['n_answers']} answers): offline {s['spearman_offline']:.3f}, "
+                     f"F1 {s['spearman_f1']:.3f}")
+    lines.append(f"{'model':<22}{'GPT-4':>8}{'offline':>9}{'F1':>8}")
+    for m, s in r["per_model"].items():
+        lines.append(f"{m:<22}{s['gpt4']:>8.3f}{s['offline']:>9.3f}{s['f1']:>8.3f}")
+    lines.append("ranking GPT-4:   " + " > ".join(r["ranking_gpt4"]))
+    lines.append("ranking offline: " + " > ".join(r["ranking_offline"])
+                 + ("  (identical)" if r["ranking_identical"] else "  (DIFFERENT)"))
+    lines.append("ranking F1:      " + " > ".join(r["ranking_f1"]))
+    return "\n".join(lines)
