@@ -156,18 +156,44 @@ def _add_eval(sub) -> None:
     r.add_argument("--index", choices=("flat", "hnsw", "ivfpq"), default="flat")
     r.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
     r.add_argument("--json", action="store_true")
+    t = esub.add_parser("tvl", help="TVL benchmark protocol on the world's test split: "
+                                    "generate, judge, write a TVL-format results file")
+    t.add_argument("--system", choices=("baseline", "ra-touch"), required=True)
+    t.add_argument("--out", required=True, help="results JSON to write (TVL format + scores)")
+    t.add_argument("--encoder", default="default-s")
+    t.add_argument("--k", type=_pos_int, default=5, help="neighbours RA-Touch reads")
+    t.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
+    _add_stress(t)
+    _add_judge_options(t)
+    t.add_argument("--json", action="store_true")
+    tt = esub.add_parser("ttest", help="paired t-test between two scored results files (B - A)")
+    tt.add_argument("a", help="results file A (e.g. the baseline)")
+    tt.add_argument("b", help="results file B (e.g. RA-Touch)")
+    tt.add_argument("--json", action="store_true")
+
+
+def _add_judge_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--judge", choices=("offline", "llm"), default="offline")
+    p.add_argument("--endpoint", help="OpenAI-compatible base URL for --judge llm "
+                                      "(default $RATOUCH_JUDGE_ENDPOINT)")
+    p.add_argument("--model", help="model for --judge llm (default $RATOUCH_JUDGE_MODEL or gpt-4)")
+    p.add_argument("--api-key-env", default="RATOUCH_JUDGE_API_KEY",
+                   help="environment variable holding the API key")
+
+
+def _make_judge(args: argparse.Namespace):
+    from ratouch import judge as J
+
+    if args.judge == "llm":
+        return J.LLMJudge(J.LLMJudgeConfig.from_env(args.endpoint, args.model, args.api_key_env))
+    return J.OfflineJudge()
 
 
 def _add_judge(sub) -> None:
     j = sub.add_parser("judge", help="score TVL-format results with the offline or LLM judge")
     j.add_argument("file", nargs="?", help="TVL-format JSON list (label, generated response, ...)")
     j.add_argument("--out", help="scored JSON to write (the input plus offline_score/llm_score)")
-    j.add_argument("--judge", choices=("offline", "llm"), default="offline")
-    j.add_argument("--endpoint", help="OpenAI-compatible base URL for --judge llm "
-                                      "(default $RATOUCH_JUDGE_ENDPOINT)")
-    j.add_argument("--model", help="model for --judge llm (default $RATOUCH_JUDGE_MODEL or gpt-4)")
-    j.add_argument("--api-key-env", default="RATOUCH_JUDGE_API_KEY",
-                   help="environment variable holding the API key")
+    _add_judge_options(j)
     j.add_argument("--validate", action="store_true",
                    help="print the offline judge's agreement with GPT-4 on the held-out data")
     j.add_argument("--fit", action="store_true",
@@ -341,6 +367,10 @@ def _run_query(args: argparse.Namespace) -> int:
 
 
 def _run_eval(args: argparse.Namespace) -> int:
+    if args.eval_cmd == "tvl":
+        return _eval_tvl(args)
+    if args.eval_cmd == "ttest":
+        return _eval_ttest(args)
     from ratouch.pipeline import default_corpus, open_retriever
     from ratouch.retrieval_eval import evaluate_retrieval, format_retrieval_eval
     from ratouch.world.config import WorldConfig
@@ -360,6 +390,33 @@ def _run_eval(args: argparse.Namespace) -> int:
                 return tgr(torch.from_numpy(V), torch.from_numpy(T)).query.numpy()
     r = evaluate_retrieval(retriever, WorldConfig(seed=args.seed), joint_fn=joint_fn)
     print(json.dumps(r, indent=1) if args.json else format_retrieval_eval(r))
+    return 0
+
+
+def _eval_tvl(args: argparse.Namespace) -> int:
+    from ratouch.judge import format_summary, write_json_atomic
+    from ratouch.pipeline import RATouchPipeline
+    from ratouch.tvl_eval import run_tvl
+
+    judge = _make_judge(args)  # configuration errors before any work
+    pipeline = RATouchPipeline.load(args.encoder)
+    records, summary = run_tvl(pipeline, args.system, args.k, judge, _world_cfg(args))
+    write_json_atomic(args.out, records)
+    if args.json:
+        print(json.dumps({**summary, "out": str(args.out)}, indent=1))
+        return 0
+    print(f"{args.system} on the world's test split (seed {args.seed}, K={args.k}):")
+    print(format_summary(summary))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _eval_ttest(args: argparse.Namespace) -> int:
+    from ratouch.judge import read_records
+    from ratouch.tvl_eval import format_ttest, paired_ttest
+
+    r = paired_ttest(read_records(args.a), read_records(args.b))
+    print(json.dumps(r, indent=1) if args.json else format_ttest(r, args.a, args.b))
     return 0
 
 
@@ -413,12 +470,7 @@ def _run_judge(args: argparse.Namespace) -> int:
     scored = None
     if args.file:
         records = J.read_records(args.file)  # checked before anything is written
-        if args.judge == "llm":
-            judge = J.LLMJudge(J.LLMJudgeConfig.from_env(args.endpoint, args.model,
-                                                         args.api_key_env))
-        else:
-            judge = J.OfflineJudge()
-        scored, report["results"] = J.judge_results(records, judge)
+        scored, report["results"] = J.judge_results(records, _make_judge(args))
     if args.validate:
         report["validation"] = J.validate_judge()
     if scored is not None:

@@ -9,7 +9,7 @@ the comparison into six features (exact precision, soft recall, soft precision, 
 number of predicted adjectives, share of non-tactile words such as "cool" or "reflective") and
 maps them to 1-10 with a logistic-linear calibration, ``1 + 9 * sigmoid(b + w . z)``, fitted by
 least squares on the FIT half of the published TVL judge data (`fit_offline_judge`, stored in
-``ratouch/configs/judge_offline.json``). `validate_judge` measures it on the held-out half.
+``ratouch/configs/judge/offline.json``). `validate_judge` measures it on the held-out half.
 
 `LLMJudge` asks any OpenAI-compatible chat-completions endpoint, retries a bounded number of
 times, and falls back to the offline judge when the endpoint fails or answers without a score.
@@ -44,7 +44,7 @@ MODELS = ("tvl_llama_vits", "tvl_llama_vits_bgs", "tvl_llama_vittiny")
 SUBSETS = ("SSVTP", "HCT")
 GPT4_INTERRUN_SPEARMAN = 0.89  # reference agreement of two GPT-4 judging runs (quoted, not measured)
 DATA_DIR_ENV = "RATOUCH_TVL_JUDGE_DIR"
-CONFIG_PATH = Path(__file__).resolve().parent / "configs" / "judge_offline.json"
+CONFIG_PATH = Path(__file__).resolve().parent / "configs" / "judge" / "offline.json"
 
 # --------------------------------------------------------------------------- parsing
 
@@ -212,7 +212,7 @@ class OfflineJudge:
 
     Args:
         params: Calibration (keys ``features``, ``mean``, ``scale``, ``intercept``, ``weights``),
-            e.g. from `fit_offline_judge`; default: the shipped ``configs/judge_offline.json``.
+            e.g. from `fit_offline_judge`; default: the shipped ``configs/judge/offline.json``.
 
     Raises:
         ConfigError: If the calibration is missing or malformed.

@@ -1,0 +1,205 @@
+"""The TVL benchmark protocol on the world's test split (46 structured + 356 wild pairs).
+
+Describe each test pair with a system (the no-retrieval baseline or RA-Touch), write the
+answers in the TVL results format (a list of objects with ``image_fp``, ``tactile_fp``,
+``label``, ``generated response``, ``prompt``), score them with a judge (`ratouch.judge`), and
+compare two systems with a paired t-test over the same samples. Image paths follow the world's
+TVL layout (``ssvtp/...`` for the structured subset, ``hct/data1/...`` for the wild one), so the
+judge's per-subset means are SSVTP / HCT / overall as in the paper's Table 1.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from ratouch.errors import ConfigError, DataError
+from ratouch.judge import (RESPONSE_KEY, TVL_QUESTION, OfflineJudge, judge_results, subset_of)
+from ratouch.world.config import WorldConfig
+
+SYSTEMS = ("baseline", "ra-touch")
+QUERY_MODES = ("image", "tactile", "joint")
+
+
+@dataclass
+class TestSplit:
+    """The encoded test split of a world.
+
+    Attributes:
+        V, T: (N, D) visual (contact-box crop) and tactile embeddings.
+        labels: ground-truth captions as written in the data set.
+        subsets: "structured" / "wild" per sample.
+        materials: the world's ground-truth material per sample.
+        indices: sample indices in the test split.
+        object_scale: object size / frame side per sample (a failure-mode axis).
+        world: the world config (seed and stress knobs) the split was rendered with.
+    """
+
+    V: np.ndarray
+    T: np.ndarray
+    labels: list[str]
+    subsets: list[str]
+    materials: list[str]
+    indices: list[int]
+    object_scale: list[float]
+    world: WorldConfig
+
+    def image_fp(self, i: int) -> str:
+        from ratouch.world.dataset import SUBSET_DIRS
+
+        return f"{SUBSET_DIRS[self.subsets[i]]}/vision/test_{self.indices[i]:06d}.png"
+
+    def tactile_fp(self, i: int) -> str:
+        return self.image_fp(i).replace("/vision/", "/tactile/")
+
+
+def encode_test_split(encoders, world: WorldConfig | None = None,
+                      indices: Sequence[int] | None = None) -> TestSplit:
+    """Render and encode the test split (all 402 pairs unless `indices` are given)."""
+    from ratouch.world.dataset import world_for
+    from ratouch.world.generator import TEST_SIZE
+
+    world = world or WorldConfig()
+    gen = world_for(world)
+    idx = list(range(TEST_SIZE)) if indices is None else [int(i) for i in indices]
+    samples = [gen.sample("test", i) for i in idx]
+    crops = [s.visual[s.box[1]:s.box[3], s.box[0]:s.box[2]] for s in samples]
+    return TestSplit(
+        V=encoders.encode_image(crops), T=encoders.encode_tactile([s.tactile for s in samples]),
+        labels=[s.caption for s in samples], subsets=[s.subset for s in samples],
+        materials=[s.material for s in samples], indices=idx,
+        object_scale=[float(s.object_scale) for s in samples], world=world)
+
+
+def retrieve(pipeline, V: np.ndarray, T: np.ndarray, k: int, mode: str = "joint",
+             key: str = "text") -> np.ndarray:
+    """(N, k) corpus ids for a query mode (image / tactile / joint) against a key index."""
+    if mode not in QUERY_MODES:
+        raise ConfigError(f"mode must be one of {QUERY_MODES}, got {mode!r}")
+    q = {"image": V, "tactile": T}.get(mode)
+    if q is None:
+        q = pipeline.joint_query(V, T)
+    return pipeline.corpus.search(key, np.ascontiguousarray(q, np.float32), k)[1]
+
+
+def describe(gen, V: np.ndarray, T: np.ndarray, rv: np.ndarray | None = None,
+             rl: np.ndarray | None = None, batch: int = 128) -> list[str]:
+    """Greedy descriptions of a generator over arrays, in batches (neighbours optional)."""
+    out: list[str] = []
+    for s in range(0, len(V), batch):
+        args = [torch.from_numpy(np.ascontiguousarray(a[s:s + batch], np.float32))
+                for a in (V, T)]
+        if rv is not None:
+            args += [torch.from_numpy(np.ascontiguousarray(a[s:s + batch], np.float32))
+                     for a in (rv, rl)]
+        out += gen.describe(*args)
+    return out
+
+
+def records_for(split: TestSplit, responses: Sequence[str | None], system: str) -> list[dict]:
+    """TVL-format result records (plus the world's ground truth, for failure analysis)."""
+    if len(responses) != len(split.labels):
+        raise DataError(f"{len(responses)} responses for {len(split.labels)} test samples")
+    return [{"image_fp": split.image_fp(i), "tactile_fp": split.tactile_fp(i),
+             "label": split.labels[i], RESPONSE_KEY: responses[i], "prompt": TVL_QUESTION,
+             "system": system, "index": split.indices[i], "subset": split.subsets[i],
+             "material": split.materials[i], "object_scale": round(split.object_scale[i], 4)}
+            for i in range(len(responses))]
+
+
+def system_responses(pipeline, split: TestSplit, system: str, k: int = 5,
+                     mode: str = "joint") -> tuple[list[str], np.ndarray | None]:
+    """A system's answers on a split: (descriptions, the neighbour ids RA-Touch read)."""
+    if system not in SYSTEMS:
+        raise ConfigError(f"system must be one of {SYSTEMS}, got {system!r}")
+    if system == "baseline":
+        return describe(pipeline.generator_base, split.V, split.T), None
+    ids = retrieve(pipeline, split.V, split.T, k, mode)
+    rv, rl = pipeline.neighbour_embeddings(ids)
+    return describe(pipeline.generator_ra, split.V, split.T, rv, rl), ids
+
+
+def run_tvl(pipeline, system: str, k: int = 5, judge=None, world: WorldConfig | None = None,
+            split: TestSplit | None = None) -> tuple[list[dict], dict]:
+    """Generate, judge and summarise one system on the world's test split."""
+    split = split or encode_test_split(pipeline.encoders, world)
+    responses, ids = system_responses(pipeline, split, system, k)
+    records = records_for(split, responses, system)
+    if ids is not None:
+        for rec, row in zip(records, ids):
+            rec["neighbours"] = [int(i) for i in row]
+    scored, summary = judge_results(records, judge or OfflineJudge())
+    summary.update({"system": system, "k": k, "world_seed": split.world.seed})
+    return scored, summary
+
+
+def score_key(records: Sequence[dict]) -> str:
+    for key in ("offline_score", "llm_score"):
+        if records and all(key in r for r in records):
+            return key
+    raise DataError("the results carry no judge score on every record: run `ratouch judge` "
+                    "on them first")
+
+
+def paired_ttest(a: Sequence[dict], b: Sequence[dict], key: str | None = None) -> dict:
+    """Paired t-test of two scored result lists over the samples they share.
+
+    Samples are matched by (image_fp, tactile_fp); the difference is b - a, per subset and
+    overall. A sample present in only one file is left out and counted.
+    """
+    from scipy.stats import ttest_rel
+
+    key = key or score_key(a)
+    if key not in b[0]:
+        raise DataError(f"the second results file has no {key!r} scores")
+
+    def by_pair(recs):
+        out = {}
+        for r in recs:
+            out[(r.get("image_fp"), r.get("tactile_fp"))] = r
+        return out
+
+    ra, rb = by_pair(a), by_pair(b)
+    common = [p for p in ra if p in rb]
+    if len(common) < 2:
+        raise DataError(f"only {len(common)} samples are shared by the two results files; "
+                        "a paired test needs the same samples in both")
+    groups: dict[str, list] = {"SSVTP": [], "HCT": [], "overall": common}
+    for p in common:
+        sub = subset_of(p[0])
+        if sub:
+            groups[sub].append(p)
+    out = {"key": key, "n_shared": len(common), "only_first": len(ra) - len(common),
+           "only_second": len(rb) - len(common), "subsets": {}}
+    for name, pairs in groups.items():
+        if not pairs:
+            continue
+        x = np.array([float(ra[p][key]) for p in pairs])
+        y = np.array([float(rb[p][key]) for p in pairs])
+        row = {"n": len(pairs), "mean_a": round(float(x.mean()), 4),
+               "mean_b": round(float(y.mean()), 4), "diff": round(float((y - x).mean()), 4)}
+        if len(pairs) >= 2 and np.any(y - x):
+            t = ttest_rel(y, x)
+            row.update({"t": round(float(t.statistic), 3), "p": float(t.pvalue)})
+        else:
+            row.update({"t": 0.0, "p": 1.0})
+        out["subsets"][name] = row
+    return out
+
+
+def format_ttest(result: dict, name_a: str = "A", name_b: str = "B") -> str:
+    lines = [f"paired t-test on {result['key']} ({result['n_shared']} shared samples; "
+             f"B - A, A = {name_a}, B = {name_b})",
+             f"{'subset':<9}{'n':>5}{'A':>8}{'B':>8}{'B-A':>8}{'t':>8}{'p':>11}"]
+    for name, r in result["subsets"].items():
+        lines.append(f"{name:<9}{r['n']:>5}{r['mean_a']:>8.3f}{r['mean_b']:>8.3f}"
+                     f"{r['diff']:>+8.3f}{r['t']:>8.2f}{r['p']:>11.2e}")
+    return "\n".join(lines)
+
+
+def results_path(folder: str | os.PathLike, system: str) -> str:
+    return os.path.join(folder, f"tvl_{system.replace('-', '_')}.json")
