@@ -153,3 +153,26 @@ class TextureAwareIntegrator(nn.Module):
         if empty is not None:
             delta = delta.masked_fill(empty.unsqueeze(1), 0.0)  # (B, D')
         return delta
+
+
+class SumIntegrator(nn.Module):
+    """Table 2's "retriever without integrator" row: the neighbours are summed and one Linear
+    matches the width (the paper: "we apply a simple summation to integrate retrieval
+    information and linear operation to match the feature dimensions").
+
+        δ = Linear(mean_k Rv_k + mean_k Rl_k)      (D -> D'), zero-initialised like the
+                                                      integrator, so p' = p at step 0.
+    """
+
+    def __init__(self, dim: int, out_dim: int) -> None:
+        super().__init__()
+        self.cfg = IntegratorConfig(dim=dim, out_dim=out_dim)
+        self.proj = nn.Linear(dim, out_dim)
+        nn.init.zeros_(self.proj.weight)
+        nn.init.zeros_(self.proj.bias)
+
+    def forward(self, T: Tensor, Rv: Tensor, Rl: Tensor, mask: Tensor | None = None) -> Tensor:
+        """Args as `TextureAwareIntegrator.forward` (T is unused); returns (B, D') δ."""
+        if Rv is None or Rl is None or Rv.dim() != 3 or Rv.shape != Rl.shape:
+            raise DataError("SumIntegrator needs Rv and Rl of the same shape (B, K, D)")
+        return self.proj(Rv.mean(1) + Rl.mean(1))  # (B, D')

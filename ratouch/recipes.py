@@ -21,6 +21,15 @@ from ratouch.train_retriever import RetrieverTrainConfig, paired_embeddings, tra
 log = logging.getLogger(__name__)
 
 
+def training_pairs(encoders, seed: int = 0, progress: bool = False) -> dict:
+    """V, T and captions of the world's cached paired training split, for frozen encoders."""
+    tc = TrainConfig(model=encoders.name, seed=seed)
+    data = training_data(tc, encoders.cfg.vision_size, encoders.cfg.tactile_size, progress)
+    emb = paired_embeddings(encoders, data)
+    return {"V": emb["V"], "T": emb["T"], "labels": list(data["labels"]),
+            "materials": list(data["materials"])}
+
+
 def _pairs(encoder: str, seed: int, progress: bool):
     model = create_model(encoder)
     tc = TrainConfig(model=encoder, seed=seed)

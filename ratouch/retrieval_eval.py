@@ -33,6 +33,12 @@ def split_queries(world_cfg: WorldConfig, n: int = TEST_SIZE) -> dict:
             "labels": labels}
 
 
+def material_precision(ids: np.ndarray, materials: Sequence[str], corpus) -> float:
+    """Share of retrieved corpus entries (ids: (N, K)) whose material is the query's."""
+    entry_mats = np.array([e.material for e in corpus.entries])
+    return float((entry_mats[ids] == np.asarray(materials)[:, None]).mean())
+
+
 def _metrics(ids: np.ndarray, mats: Sequence[str], labels: Sequence[set], entry_mats: np.ndarray,
              entry_words: list[set], k: int, sel: np.ndarray) -> dict:
     top = ids[sel, :k]

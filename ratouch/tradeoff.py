@@ -1,0 +1,252 @@
+"""Speed against accuracy (`ratouch bench tradeoff`): latency per query against quality, over
+encoder size, index type, corpus size and K, measured in one run, with the upstream retrieval
+recipe as a reference point.
+
+Per point:
+
+* latency: p50 (and p95) over warm single-pair queries of the RA-Touch answer path - encode
+  the contact crop and the tactile frame, the Tactile-Guided Retriever, search, the RA-Touch
+  generation - on one thread-pinned index (no PCA, no baseline generation);
+* quality: the offline judge's mean on the world's 402 test pairs for the RA-Touch description
+  given that point's neighbours (the shipped generator, trained with K=5 over the whole corpus),
+  and the material precision@5 of the joint query's neighbours.
+
+Encoders without a trained retriever and generators (only default-s ships them) get retrieval
+points only: tactile->text precision@5 and the encode + search latency, marked as such.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Sequence
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def _p(times: list[float], q: float) -> float:
+    return round(float(np.percentile(np.asarray(times) * 1000, q)), 3)
+
+
+def _subset_index(lab, kind: str, size: int):
+    from ratouch.index import IndexConfig, VectorIndex
+
+    ids = lab.subset_ids(size)
+    emb = np.ascontiguousarray(lab.corpus_emb["tactile_caption"][ids])
+    return ids, VectorIndex.build(emb, IndexConfig(kind=kind))
+
+
+def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
+                   sizes: Sequence[int] = (1000, 2500, 10000), ks: Sequence[int] = (1, 5, 10),
+                   other_encoders: Sequence[str] = ("default-tiny", "default-b"),
+                   n_latency: int = 30, progress: bool = False) -> dict:
+    """Measure every point; returns {"points": [...], "upstream": {...}, "settings": {...}}."""
+    import torch
+
+    from ratouch.experiments import Lab
+    from ratouch.judge import judge_results
+    from ratouch.retrieval_bench import upstream_retrieve
+    from ratouch.retrieval_eval import material_precision
+    from ratouch.tvl_eval import describe, records_for
+
+    lab = lab or Lab()
+    p, test = lab.pipeline, lab.test
+    torch.set_num_threads(1)
+    rng = np.random.default_rng(0)
+    picks = rng.choice(len(test.labels), size=min(n_latency, len(test.labels)), replace=False)
+    crops, frames = _raw_pairs(test, picks)
+    joint = p.joint_query(test.V, test.T)
+    points = []
+
+    search_times: list[float] = []
+
+    def timed_query(search) -> list[float]:
+        times = []
+        search_times.clear()
+        for j, (crop, frame) in enumerate(zip(crops, frames)):
+            t0 = time.perf_counter()
+            V = p.encoders.encode_image([crop])
+            T = p.encoders.encode_tactile([frame])
+            q = p.joint_query(V, T)
+            s0 = time.perf_counter()
+            ids = search(q)
+            if j:
+                search_times.append(time.perf_counter() - s0)
+            rv, rl = p.neighbour_embeddings(ids)
+            p.generator_ra.describe(*(torch.from_numpy(x) for x in (V, T, rv, rl)))
+            if j:  # the first query warms caches
+                times.append(time.perf_counter() - t0)
+        return times
+
+    for kind in indexes:
+        for size in sizes:
+            ids_map, index = _subset_index(lab, kind, size)
+            for k in ks:
+                t0 = time.perf_counter()
+                ids = ids_map[index.search(joint, k)[1]]
+                rv, rl = p.neighbour_embeddings(ids)
+                responses = describe(p.generator_ra, test.V, test.T, rv, rl)
+                _, summary = judge_results(records_for(test, responses, "ra-touch"), lab.judge)
+                ids5 = ids_map[index.search(joint, 5)[1]]
+                times = timed_query(lambda q: ids_map[index.search(q, k)[1]])
+                pt = {"encoder": lab.cfg.encoder, "index": kind, "corpus": len(ids_map), "k": k,
+                      "p50_ms": _p(times, 50), "p95_ms": _p(times, 95),
+                      "search_p50_ms": _p(search_times, 50),
+                      "judge": round(summary["subsets"]["overall"]["mean"], 4),
+                      "precision_at_5": round(material_precision(ids5, test.materials,
+                                                                 p.corpus), 4),
+                      "system": "RA-Touch"}
+                points.append(pt)
+                if progress:
+                    print(f"{kind:<6}{len(ids_map):>7}{k:>4}  p50 {pt['p50_ms']:7.2f} ms  "
+                          f"judge {pt['judge']:.3f}  P@5 {pt['precision_at_5']:.3f}  "
+                          f"({time.perf_counter() - t0:.0f} s)", flush=True)
+
+    # the upstream recipe (torch re-normalisation + full matmul + topk) on the whole corpus
+    corpus_t = torch.from_numpy(np.ascontiguousarray(lab.corpus_emb["tactile_caption"]))
+    up_times = timed_query(lambda q: upstream_retrieve(corpus_t, torch.from_numpy(q), 5)
+                           .numpy().reshape(1, -1))
+    flat = next((q for q in points if q["index"] == "flat" and q["corpus"] == len(p.corpus)
+                 and q["k"] == 5), None)
+    upstream = {"encoder": lab.cfg.encoder, "index": "upstream", "corpus": len(p.corpus),
+                "k": 5, "p50_ms": _p(up_times, 50), "p95_ms": _p(up_times, 95),
+                "search_p50_ms": _p(search_times, 50),
+                "judge": flat["judge"] if flat else None,
+                "precision_at_5": flat["precision_at_5"] if flat else None,
+                "system": "RA-Touch, upstream retrieval"}
+    # baseline (no retrieval) as the floor
+    base = describe(p.generator_base, test.V, test.T)
+    _, bsum = judge_results(records_for(test, base, "baseline"), lab.judge)
+    floor = round(bsum["subsets"]["overall"]["mean"], 4)
+    points += _encoder_points(other_encoders, test, lab, n_latency, progress)
+    return {"points": points, "upstream": upstream, "baseline_judge": floor,
+            "settings": {"n_latency": n_latency, "threads": 1, "test_pairs": len(test.labels),
+                         "note": "RA-Touch generator trained with K=5 on the whole corpus; "
+                                 "other points change retrieval at inference only"}}
+
+
+def _raw_pairs(test, picks) -> tuple[list, list]:
+    from ratouch.world.dataset import world_for
+
+    world = world_for(test.world)
+    crops, frames = [], []
+    for i in picks:
+        s = world.sample("test", test.indices[int(i)])
+        x0, y0, x1, y1 = s.box
+        crops.append(s.visual[y0:y1, x0:x1])
+        frames.append(s.tactile)
+    return crops, frames
+
+
+def _encoder_points(encoders: Sequence[str], test, lab, n_latency: int, progress: bool) -> list:
+    """Retrieval-only points for encoders without a trained retriever / generators."""
+    from ratouch.pipeline import default_corpus, open_retriever
+    from ratouch.retrieval_eval import material_precision
+    from ratouch.tvl_eval import encode_test_split
+
+    out = []
+    for name in encoders:
+        t0 = time.perf_counter()
+        retriever = open_retriever(default_corpus(name, progress=progress), name)
+        split = encode_test_split(retriever.encoders, test.world)
+        ids = retriever.corpus.search("text", split.T, 5)[1]
+        crops, frames = _raw_pairs(test, range(min(n_latency, len(test.labels))))
+        times = []
+        for j, frame in enumerate(frames):
+            s = time.perf_counter()
+            retriever.encoders.encode_image([crops[j]])
+            T = retriever.encoders.encode_tactile([frame])
+            retriever.corpus.search("text", T, 5)
+            if j:
+                times.append(time.perf_counter() - s)
+        pt = {"encoder": name, "index": "flat", "corpus": len(retriever.corpus), "k": 5,
+              "p50_ms": _p(times, 50), "p95_ms": _p(times, 95), "search_p50_ms": None,
+              "judge": None,
+              "precision_at_5": round(material_precision(ids, split.materials,
+                                                         retriever.corpus), 4),
+              "system": "retrieval only (tactile->text)"}
+        out.append(pt)
+        if progress:
+            print(f"{name}: p50 {pt['p50_ms']:.2f} ms (encode + search), tactile->text P@5 "
+                  f"{pt['precision_at_5']:.3f} ({time.perf_counter() - t0:.0f} s)", flush=True)
+    return out
+
+
+def pareto(points: Sequence[dict], key: str) -> list[dict]:
+    """Points not beaten on both latency (lower) and `key` (higher), by latency."""
+    pts = sorted((q for q in points if q.get(key) is not None), key=lambda q: q["p50_ms"])
+    front, best = [], -np.inf
+    for q in pts:
+        if q[key] > best:
+            front.append(q)
+            best = q[key]
+    return front
+
+
+def tradeoff_figure(result: dict):
+    """One chart: latency (log x) against the judge score, and against precision@5."""
+    import plotly.graph_objects as go
+    from plotly.subplots import make_subplots
+
+    fig = make_subplots(rows=1, cols=2, subplot_titles=(
+        "offline judge score (RA-Touch, test split)", "material precision@5 of the neighbours"))
+    symbols = {"flat": "circle", "hnsw": "diamond", "ivfpq": "square", "upstream": "x"}
+    pts = result["points"]
+    for col, key in ((1, "judge"), (2, "precision_at_5")):
+        for kind in ("flat", "hnsw", "ivfpq"):
+            sel = [q for q in pts if q["index"] == kind and q["system"] == "RA-Touch"
+                   and q[key] is not None]
+            if sel:
+                fig.add_scatter(
+                    x=[q["p50_ms"] for q in sel], y=[q[key] for q in sel], mode="markers",
+                    name=f"{kind}", legendgroup=kind, showlegend=col == 1,
+                    marker={"symbol": symbols[kind], "size": [6 + 2 * q["k"] for q in sel],
+                            "color": [np.log10(q["corpus"]) for q in sel],
+                            "colorscale": "Viridis", "cmin": 3, "cmax": 4,
+                            "showscale": col == 2,
+                            "colorbar": {"title": "log10 corpus"}},
+                    text=[f"{q['index']} corpus {q['corpus']} K={q['k']}" for q in sel],
+                    row=1, col=col)
+        front = pareto([q for q in pts if q["system"] == "RA-Touch"], key)
+        fig.add_scatter(x=[q["p50_ms"] for q in front], y=[q[key] for q in front],
+                        mode="lines", name="frontier", line={"color": "grey", "dash": "dot"},
+                        showlegend=col == 1, legendgroup="frontier", row=1, col=col)
+        up = result["upstream"]
+        if up.get(key) is not None:
+            fig.add_scatter(x=[up["p50_ms"]], y=[up[key]], mode="markers+text",
+                            text=["upstream"], textposition="top center",
+                            marker={"symbol": "x", "size": 12, "color": "red"},
+                            name="upstream retrieval", showlegend=col == 1, row=1, col=col)
+        if key == "precision_at_5":
+            enc = [q for q in pts if q["system"].startswith("retrieval only")]
+            if enc:
+                fig.add_scatter(x=[q["p50_ms"] for q in enc], y=[q[key] for q in enc],
+                                mode="markers+text", text=[q["encoder"] for q in enc],
+                                textposition="bottom center", name="other encoders "
+                                "(tactile->text, no generator)",
+                                marker={"symbol": "triangle-up", "size": 10, "color": "black"},
+                                row=1, col=col)
+        else:
+            fig.add_hline(y=result["baseline_judge"], line_dash="dash", line_color="black",
+                          annotation_text="baseline (no retrieval)", row=1, col=col)
+    fig.update_xaxes(type="log", title="p50 latency per query, ms (warm, 1 thread)")
+    fig.update_layout(title="Speed against accuracy (marker size = K, colour = corpus size)",
+                      template="plotly_white", height=500, width=1100,
+                      legend={"orientation": "h", "y": -0.22})
+    return fig
+
+
+def format_tradeoff(result: dict) -> str:
+    lines = [f"{'encoder':<13}{'index':<9}{'corpus':>7}{'K':>4}{'p50 ms':>9}{'p95 ms':>9}"
+             f"{'search':>9}{'judge':>8}{'P@5':>7}  system"]
+    for q in result["points"] + [result["upstream"]]:
+        judge = f"{q['judge']:.3f}" if q["judge"] is not None else "-"
+        prec = f"{q['precision_at_5']:.3f}" if q["precision_at_5"] is not None else "-"
+        srch = f"{q['search_p50_ms']:.3f}" if q.get("search_p50_ms") is not None else "-"
+        lines.append(f"{q['encoder']:<13}{q['index']:<9}{q['corpus']:>7}{q['k']:>4}"
+                     f"{q['p50_ms']:>9.2f}{q['p95_ms']:>9.2f}{srch:>9}{judge:>8}{prec:>7}"
+                     f"  {q['system']}")
+    lines.append(f"baseline (no retrieval) judge: {result['baseline_judge']:.3f}")
+    return "\n".join(lines)
