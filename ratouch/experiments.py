@@ -547,7 +547,7 @@ EXPERIMENTS: dict[str, Callable[[Lab], Report]] = {
 # writing reports
 
 
-def write_report(rep: Report, folder: str | os.PathLike) -> dict[str, Path]:
+def write_report(rep: Report, folder: str | os.PathLike, png: bool = True) -> dict[str, Path]:
     """``<name>.md``, ``<name>.html`` (self-contained), ``<name>.json`` (plotly figure JSON, for
     the app) and ``<name>.png`` when a static exporter works offline."""
     from ratouch.judge import write_json_atomic
@@ -562,9 +562,9 @@ def write_report(rep: Report, folder: str | os.PathLike) -> dict[str, Path]:
         rep.figure.write_html(out["html"], include_plotlyjs=True, full_html=True)
         out["json"] = folder / f"{rep.name}.json"
         out["json"].write_text(rep.figure.to_json(), encoding="utf-8")
-        png = save_png(rep.figure, folder / f"{rep.name}.png")
-        if png is not None:
-            out["png"] = png
+        path = save_png(rep.figure, folder / f"{rep.name}.png") if png else None
+        if path is not None:
+            out["png"] = path
     return out
 
 
@@ -591,7 +591,7 @@ def git_commit() -> str:
 
 
 def run_experiments(names: Sequence[str], cfg: ExperimentConfig, out: str | os.PathLike,
-                    lab: Lab | None = None) -> list[Report]:
+                    lab: Lab | None = None, png: bool = True) -> list[Report]:
     unknown = [n for n in names if n not in EXPERIMENTS]
     if unknown:
         raise ConfigError(f"unknown experiment(s) {unknown}; choose from {list(EXPERIMENTS)}")
@@ -601,7 +601,7 @@ def run_experiments(names: Sequence[str], cfg: ExperimentConfig, out: str | os.P
         t0 = time.perf_counter()
         rep = EXPERIMENTS[n](lab)
         rep.seconds = time.perf_counter() - t0
-        write_report(rep, Path(out) / "figures")
+        write_report(rep, Path(out) / "figures", png)
         reports.append(rep)
         log.info("%s done in %.0f s", n, rep.seconds)
     return reports

@@ -88,3 +88,22 @@ def tiny_llama(tmp_path_factory):
     folder = tmp_path_factory.mktemp("tiny-llama")
     write_tiny_llama(folder)
     return folder
+
+
+@pytest.fixture(scope="session")
+def shipped_corpus(tmp_path_factory):
+    """A 600-entry world corpus embedded with the shipped default encoder."""
+    from ratouch.corpus.imagenet_t import build_corpus
+    from ratouch.pipeline import embed_and_index
+
+    folder = tmp_path_factory.mktemp("shipped") / "c600"
+    build_corpus(folder, 600, seed=0, progress=False)
+    embed_and_index(folder, "default-s", workers=1, progress=False)
+    return folder
+
+
+@pytest.fixture(scope="session")
+def pipeline(shipped_corpus):
+    from ratouch.pipeline import RATouchPipeline
+
+    return RATouchPipeline.load("default-s", corpus=shipped_corpus)

@@ -11,25 +11,6 @@ from PIL import Image
 from ratouch.errors import DataError
 
 
-@pytest.fixture(scope="module")
-def shipped_corpus(tmp_path_factory):
-    """A 600-entry world corpus embedded with the shipped default encoder."""
-    from ratouch.corpus.imagenet_t import build_corpus
-    from ratouch.pipeline import embed_and_index
-
-    folder = tmp_path_factory.mktemp("shipped") / "c600"
-    build_corpus(folder, 600, seed=0, progress=False)
-    embed_and_index(folder, "default-s", workers=1, progress=False)
-    return folder
-
-
-@pytest.fixture(scope="module")
-def pipeline(shipped_corpus):
-    from ratouch.pipeline import RATouchPipeline
-
-    return RATouchPipeline.load("default-s", corpus=shipped_corpus)
-
-
 def test_query_returns_every_documented_field(pipeline, world):
     s = world.sample("test", 120)
     r = pipeline.query(s.visual, s.tactile, box=s.box, k=5, label=s.caption)

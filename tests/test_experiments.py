@@ -1,0 +1,99 @@
+"""The paper's experiments: variant training from stage 1, the disk cache, the reports."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from ratouch.errors import ConfigError
+from ratouch.experiments import (BASELINE, RA_TOUCH, ExperimentConfig, Lab, Variant, exact_topk,
+                                 make_integrator, results_markdown, run_experiments)
+
+
+def test_exact_topk_matches_a_full_sort():
+    rng = np.random.default_rng(0)
+    q, keys = rng.normal(size=(7, 16)), rng.normal(size=(50, 16))
+    ids = exact_topk(q, keys, 5, batch=3)
+    full = np.argsort(-(q @ keys.T), axis=1)[:, :5]
+    assert (ids == full).all()
+    assert exact_topk(q, keys[:3], 5).shape == (7, 3)  # K larger than the corpus
+
+
+@pytest.mark.parametrize("integration", ["image", "text", "both", "sum"])
+def test_integrators_start_at_zero_and_have_the_right_width(integration):
+    m = make_integrator(replace(RA_TOUCH, integration=integration), 24, 16)
+    T, R = torch.randn(3, 24), torch.randn(3, 5, 24)
+    assert torch.equal(m(T, R, R), torch.zeros(3, 16))  # p' = p at step 0
+
+
+def test_unknown_integration_and_bad_config_are_refused():
+    with pytest.raises(ConfigError):
+        make_integrator(replace(RA_TOUCH, integration="neither"), 24, 16)
+    with pytest.raises(ConfigError):
+        ExperimentConfig(steps=0)
+    with pytest.raises(ConfigError):
+        run_experiments(["table9"], ExperimentConfig(), "unused")
+
+
+@pytest.fixture(scope="module")
+def lab(pipeline, world):
+    """A lab over the small shipped-encoder corpus, with 48 training pairs and 21 test pairs."""
+    from ratouch.tvl_eval import encode_test_split
+
+    lab = Lab(ExperimentConfig(steps=2, batch=8, workers=1, ks=(1, 3), corpus_sizes=(100, 600)))
+    lab.__dict__["pipeline"] = pipeline
+    samples = [world.sample("train", i) for i in range(48)]
+    enc = pipeline.encoders
+    lab.__dict__["train"] = {
+        "V": enc.encode_image([s.visual[s.box[1]:s.box[3], s.box[0]:s.box[2]] for s in samples]),
+        "T": enc.encode_tactile([s.tactile for s in samples]),
+        "labels": [s.caption for s in samples], "materials": [s.material for s in samples]}
+    lab.__dict__["test"] = encode_test_split(enc, indices=range(0, 402, 20))
+    return lab
+
+
+def test_subset_ids_are_stratified_and_nested(lab):
+    a, b = lab.subset_ids(100), lab.subset_ids(300)
+    assert len(a) == 100 and len(b) == 300 and set(a) <= set(b)
+    classes = {lab.pipeline.corpus.entry(int(i)).class_name for i in a}
+    assert len(classes) >= 90  # 100 entries spread over the classes, not one class's first 100
+    assert len(lab.subset_ids(0)) == len(lab.pipeline.corpus)
+
+
+def test_neighbours_follow_the_variant(lab):
+    V, T = lab.test.V[:4], lab.test.T[:4]
+    ids, rv, rl = lab.neighbours(replace(RA_TOUCH, k=3, corpus_size=100), V, T)
+    assert ids.shape == (4, 3) and set(ids.ravel()) <= set(lab.subset_ids(100))
+    assert rv.shape == rl.shape == (4, 3, lab.pipeline.encoders.dim)
+    _, _, rl_names = lab.neighbours(replace(RA_TOUCH, caption="class_name", k=3), V, T)
+    assert not np.allclose(rl, rl_names)
+
+
+def test_an_experiment_trains_judges_caches_and_reports(lab, tmp_path, monkeypatch):
+    reports = run_experiments(["table2"], lab.cfg, tmp_path, lab, png=False)
+    rep = reports[0]
+    assert rep.markdown.count("\n|") >= 4  # header rule + baseline + two variants
+    assert "baseline (no retrieval)" in rep.markdown and "p=" in rep.markdown
+    for ext in ("md", "html", "json", "data.json"):
+        assert (tmp_path / "figures" / f"table2.{ext}").is_file()
+    res = lab.evaluate([BASELINE, RA_TOUCH])
+    for r in res.values():
+        assert len(r["scores"]) == len(lab.test.labels)
+        assert all(1.0 <= s <= 10.0 for s in r["scores"])
+        assert set(r["means"]) == {"SSVTP", "HCT", "overall"}
+    # a fresh lab finds every variant in the disk cache and trains nothing
+    fresh = Lab(lab.cfg)
+    fresh.__dict__.update({k: lab.__dict__[k] for k in ("pipeline", "train", "test")})
+    monkeypatch.setattr(Lab, "_train_many", lambda *a: pytest.fail("retrained a cached variant"))
+    assert fresh.evaluate([BASELINE, RA_TOUCH])[RA_TOUCH]["scores"] == res[RA_TOUCH]["scores"]
+    md = results_markdown(reports, lab.cfg, 12.0)
+    assert "commit" in md and "Table 2" in md and "figures/table2.png" in md
+
+
+def test_variant_labels_are_distinct():
+    vs = [BASELINE, RA_TOUCH, replace(RA_TOUCH, k=7), replace(RA_TOUCH, mode="image"),
+          replace(RA_TOUCH, corpus_size=100), Variant(integration="sum")]
+    assert len({v.label() for v in vs}) == len(vs)
