@@ -143,6 +143,22 @@ def train_stage2(stage1, integrator, V, T, labels: list[str], rv, rl,
     return gen, history
 
 
+def train_stage1(V, T, labels: list[str], dim: int, tc: GeneratorTrainConfig):
+    """Stage 1 (TVL-LLaMA): the prompt projection p = Linear(V + T) and the small decoder,
+    from scratch. Returns (generator without LoRA, loss history)."""
+    from ratouch.decoder import DecoderConfig, build_small_decoder
+    from ratouch.generator import BaselinePrompt, PromptConfig, RATouchGenerator, trainable_parameters
+
+    torch.manual_seed(tc.seed)
+    decoder = build_small_decoder(DecoderConfig(hidden=tc.hidden, layers=tc.layers),
+                                  list(TVL_ADJECTIVES) + list(EXTRA_TACTILE), seed=tc.seed)
+    stage1 = RATouchGenerator(BaselinePrompt(PromptConfig(dim=dim, out_dim=decoder.hidden)),
+                              decoder)
+    history = _steps(stage1, trainable_parameters(stage1, "baseline"), V, T, labels, None, None,
+                     tc.stage1_steps, tc.batch, tc.lr, tc.seed, "stage1")
+    return stage1, history
+
+
 def train_generators(emb: dict[str, np.ndarray], labels: list[str], Rv: np.ndarray,
                      Rl: np.ndarray, dim: int, tc: GeneratorTrainConfig, integrator_cfg=None):
     """Train the baseline and RA-Touch generators.
@@ -158,28 +174,19 @@ def train_generators(emb: dict[str, np.ndarray], labels: list[str], Rv: np.ndarr
     Returns:
         (baseline generator, RA-Touch generator, report)
     """
-    from ratouch.decoder import DecoderConfig, build_small_decoder
-    from ratouch.generator import (BaselinePrompt, PromptConfig, RATouchGenerator,
-                                   trainable_parameters)
     from ratouch.integrator import IntegratorConfig, TextureAwareIntegrator
 
-    torch.manual_seed(tc.seed)
     torch.set_num_threads(tc.threads)
     t0 = time.perf_counter()
     V = torch.from_numpy(np.asarray(emb["V"], np.float32))
     T = torch.from_numpy(np.asarray(emb["T"], np.float32))
     rv = torch.from_numpy(np.asarray(Rv, np.float32))
     rl = torch.from_numpy(np.asarray(Rl, np.float32))
-    dcfg = DecoderConfig(hidden=tc.hidden, layers=tc.layers)
-    decoder = build_small_decoder(dcfg, list(TVL_ADJECTIVES) + list(EXTRA_TACTILE), seed=tc.seed)
-    prompt = BaselinePrompt(PromptConfig(dim=dim, out_dim=decoder.hidden))
-    stage1 = RATouchGenerator(prompt, decoder)
-    history = _steps(stage1, trainable_parameters(stage1, "baseline"), V, T, labels, None, None,
-                     tc.stage1_steps, tc.batch, tc.lr, tc.seed, "stage1")
+    stage1, history = train_stage1(V, T, labels, dim, tc)
     t1 = time.perf_counter()
     base, h = train_stage2(stage1, None, V, T, labels, None, None, tc, "baseline-lora")
     history += h
-    icfg = integrator_cfg or IntegratorConfig(dim=dim, out_dim=decoder.hidden)
+    icfg = integrator_cfg or IntegratorConfig(dim=dim, out_dim=stage1.decoder.hidden)
     ra, h = train_stage2(stage1, TextureAwareIntegrator(icfg), V, T, labels, rv, rl, tc,
                          "ra-touch-lora")
     history += h

@@ -97,3 +97,16 @@ def test_variant_labels_are_distinct():
     vs = [BASELINE, RA_TOUCH, replace(RA_TOUCH, k=7), replace(RA_TOUCH, mode="image"),
           replace(RA_TOUCH, corpus_size=100), Variant(integration="sum")]
     assert len({v.label() for v in vs}) == len(vs)
+
+
+def test_withheld_materials_table(lab, tmp_path):
+    cfg = replace(lab.cfg, stage1_steps=2, withheld=3)
+    small = Lab(cfg)
+    small.__dict__.update({k: lab.__dict__[k] for k in ("pipeline", "train", "test")})
+    held = small.withheld_materials(3)
+    assert len(held) == 3 and held == small.withheld_materials(3)
+    assert not set(held) & set(small.train_for(3)["materials"])
+    rep = run_experiments(["table6"], cfg, tmp_path, small, png=False)[0]
+    assert "withheld materials" in rep.markdown and ", ".join(held) in rep.markdown
+    with pytest.raises(ConfigError):
+        small.withheld_materials(10_000)
