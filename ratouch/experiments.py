@@ -546,10 +546,10 @@ def fig5_loss_pca(lab: Lab) -> Report:
     from ratouch.pca import PCA2D
     from ratouch.retrieval_eval import material_precision
     from ratouch.retriever import collapse_stats
-    from ratouch.stress_eval import align_only_retriever
+    from ratouch.stress_eval import align_only_tgr
 
     t0 = time.perf_counter()
-    tgrs = {"alignment only": align_only_retriever(lab.cfg.encoder),
+    tgrs = {"alignment only": align_only_tgr(lab.cfg.encoder, seed=lab.cfg.seed)[0],
             "alignment + stability (shipped)": lab.pipeline.tgr}
     V, T = (torch.from_numpy(np.asarray(x, np.float32)) for x in (lab.test.V, lab.test.T))
     fig = make_subplots(rows=1, cols=2, subplot_titles=list(tgrs))
@@ -651,7 +651,7 @@ def write_report(rep: Report, folder: str | os.PathLike, png: bool = True) -> di
     write_json_atomic(folder / f"{rep.name}.data.json", rep.data)
     if rep.figure is not None:
         out["html"] = folder / f"{rep.name}.html"
-        rep.figure.write_html(out["html"], include_plotlyjs=True, full_html=True)
+        rep.figure.write_html(out["html"], include_plotlyjs="directory", full_html=True)
         out["json"] = folder / f"{rep.name}.json"
         out["json"].write_text(rep.figure.to_json(), encoding="utf-8")
         path = save_png(rep.figure, folder / f"{rep.name}.png") if png else None
