@@ -166,6 +166,40 @@ def _add_eval(sub) -> None:
     _add_stress(t)
     _add_judge_options(t)
     t.add_argument("--json", action="store_true")
+    st = esub.add_parser("stress", help="quality and stability of retrieval and generation "
+                                        "under each stress knob, break points, collapse check")
+    st.add_argument("--encoder", default="default-s")
+    st.add_argument("--k", type=_pos_int, default=5, help="neighbours per query (P@K, overlap@K)")
+    st.add_argument("--n", type=_pos_int, default=None,
+                    help="test samples, stratified over structured/wild (default 200; 402 = all)")
+    st.add_argument("--knobs", default=None,
+                    help="comma-separated knobs (default all: object_scale, clutter, "
+                         "background_dominance, tactile_noise, tactile_blur, tactile_rotation, "
+                         "box_offset, missing, paper_failure)")
+    st.add_argument("--values", action="append", metavar="KNOB=V1,V2",
+                    help="other sweep values for a knob (repeatable)")
+    st.add_argument("--drop", type=float, default=0.8,
+                    help="break point: quality below this fraction of the unperturbed value")
+    st.add_argument("--no-collapse", action="store_true",
+                    help="skip the collapse diagnostic (it trains an align-only retriever once)")
+    st.add_argument("--collapse-epochs", type=_pos_int, default=12,
+                    help="epochs of the align-only retriever (the shipped one had 12)")
+    st.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
+    st.add_argument("--out", default="reports/stress", help="report folder")
+    st.add_argument("--json", action="store_true", help="print the result as JSON")
+    from ratouch.experiments import EXPERIMENTS
+
+    for name, fn in [*EXPERIMENTS.items(), ("all", None)]:
+        e = esub.add_parser(name, help=(fn.__doc__ or "").split("\n")[0] if fn else
+                            "every paper experiment; regenerates docs/results.md")
+        e.add_argument("--out", default="docs" if fn is None else "reports",
+                       help="folder for the markdown and figures (figures/ inside it)")
+        e.add_argument("--steps", type=_pos_int, default=300,
+                       help="stage-2 training steps of every generator variant")
+        e.add_argument("--workers", type=_pos_int, default=2,
+                       help="variants trained in parallel (one thread each)")
+        e.add_argument("--encoder", default="default-s")
+        e.add_argument("--seed", type=_nonneg_int, default=0)
     tt = esub.add_parser("ttest", help="paired t-test between two scored results files (B - A)")
     tt.add_argument("a", help="results file A (e.g. the baseline)")
     tt.add_argument("b", help="results file B (e.g. RA-Touch)")
@@ -234,6 +268,16 @@ def _add_bench(sub) -> None:
     r.add_argument("--scale", type=_nonneg_int, default=0,
                    help="also build/load/query an index of this many vectors (e.g. 1000000)")
     r.add_argument("--json", action="store_true")
+    to = bsub.add_parser("tradeoff", help="latency against quality over index, corpus size, "
+                                          "K and encoder; one chart with the frontier")
+    to.add_argument("--out", default="docs", help="writes figures/tradeoff.* inside it")
+    to.add_argument("--n", type=_pos_int, default=30, help="timed queries per point")
+    to.add_argument("--sizes", default="1000,2500,10000", help="corpus subset sizes")
+    to.add_argument("--ks", default="1,5,10", help="values of K")
+    to.add_argument("--indexes", default="flat,hnsw,ivfpq")
+    to.add_argument("--encoders", default="default-tiny,default-b",
+                    help="other encoders, retrieval-only points ('' for none)")
+    to.add_argument("--json", action="store_true")
     qb = bsub.add_parser("query", help="latency of the whole RA-Touch query, cold and warm")
     qb.add_argument("--encoder", default="default-s")
     qb.add_argument("--corpus", default=None)
@@ -369,8 +413,12 @@ def _run_query(args: argparse.Namespace) -> int:
 def _run_eval(args: argparse.Namespace) -> int:
     if args.eval_cmd == "tvl":
         return _eval_tvl(args)
+    if args.eval_cmd in _experiment_names():
+        return _eval_experiments(args)
     if args.eval_cmd == "ttest":
         return _eval_ttest(args)
+    if args.eval_cmd == "stress":
+        return _eval_stress(args)
     from ratouch.pipeline import default_corpus, open_retriever
     from ratouch.retrieval_eval import evaluate_retrieval, format_retrieval_eval
     from ratouch.world.config import WorldConfig
@@ -411,6 +459,84 @@ def _eval_tvl(args: argparse.Namespace) -> int:
     return 0
 
 
+def _eval_stress(args: argparse.Namespace) -> int:
+    from ratouch import stress_eval as S
+    from ratouch.pipeline import RATouchPipeline
+    from ratouch.world.config import WorldConfig
+    from ratouch.world.dataset import check_writable
+
+    knobs = [k.strip() for k in args.knobs.split(",") if k.strip()] if args.knobs else None
+    sweeps = S.build_sweeps(knobs, S.parse_values(args.values))  # checked before any work
+    if not 0 < args.drop < 1:
+        raise _usage(f"--drop {args.drop} must lie in (0, 1)")
+    S.stratified_indices(args.n or S.DEFAULT_N)
+    check_writable(Path(args.out))
+    pipeline = RATouchPipeline.load(args.encoder)
+    result = S.run_stress(pipeline, sweeps, k=args.k, n=args.n or S.DEFAULT_N,
+                          world=WorldConfig(seed=args.seed), collapse=not args.no_collapse,
+                          collapse_epochs=args.collapse_epochs, encoder=args.encoder,
+                          drop=args.drop, progress=lambda line: print(line, file=sys.stderr,
+                                                                      flush=True))
+    paths = S.write_report(result, args.out)
+    if args.json:
+        print(json.dumps({**result, "files": paths}, indent=1))
+        return 0
+    print(S.format_table(result))
+    print(f"wrote {', '.join(paths.values())}")
+    return 0
+
+
+def _experiment_names() -> set[str]:
+    from ratouch.experiments import EXPERIMENTS
+
+    return set(EXPERIMENTS) | {"all"}
+
+
+def _eval_experiments(args: argparse.Namespace) -> int:
+    import time
+
+    from ratouch.experiments import (EXPERIMENTS, ExperimentConfig, results_markdown,
+                                     run_experiments)
+
+    cfg = ExperimentConfig(encoder=args.encoder, steps=args.steps, seed=args.seed,
+                           workers=args.workers)
+    names = list(EXPERIMENTS) if args.eval_cmd == "all" else [args.eval_cmd]
+    t0 = time.perf_counter()
+    reports = run_experiments(names, cfg, args.out)
+    out = Path(args.out)
+    doc = out / ("results.md" if args.eval_cmd == "all" else f"{args.eval_cmd}.md")
+    doc.write_text(results_markdown(reports, cfg, time.perf_counter() - t0), encoding="utf-8")
+    for rep in reports:
+        print(f"## {rep.title}  ({rep.seconds:.0f} s)\n\n{rep.markdown}\n")
+    print(f"wrote {doc} and its figures in {out / 'figures'}")
+    return 0
+
+
+def _csv(text: str, conv=str) -> list:
+    try:
+        return [conv(x) for x in text.split(",") if x.strip()]
+    except ValueError as e:
+        raise _usage(f"{text!r}: {e}") from e
+
+
+def _bench_tradeoff(args: argparse.Namespace) -> int:
+    from ratouch.experiments import Report, write_report
+    from ratouch.tradeoff import bench_tradeoff, format_tradeoff, tradeoff_figure
+
+    bad = set(_csv(args.indexes)) - {"flat", "hnsw", "ivfpq"}
+    if bad:
+        raise _usage(f"--indexes: unknown index type(s) {sorted(bad)}; use flat, hnsw, ivfpq")
+    r = bench_tradeoff(indexes=_csv(args.indexes), sizes=_csv(args.sizes, int),
+                       ks=_csv(args.ks, int), other_encoders=_csv(args.encoders),
+                       n_latency=args.n, progress=not args.json)
+    table = format_tradeoff(r)
+    write_report(Report("tradeoff", "Speed against accuracy", f"```\n{table}\n```\n\n"
+                        f"Settings: `{json.dumps(r['settings'])}`", tradeoff_figure(r), r),
+                 Path(args.out) / "figures")
+    print(json.dumps(r, indent=1) if args.json else table)
+    return 0
+
+
 def _eval_ttest(args: argparse.Namespace) -> int:
     from ratouch.judge import read_records
     from ratouch.tvl_eval import format_ttest, paired_ttest
@@ -424,6 +550,8 @@ def _run_bench(args: argparse.Namespace) -> int:
     from ratouch.bench import bench_world
     from ratouch.corpus.imagenet_t import parse_size
 
+    if args.bench_cmd == "tradeoff":
+        return _bench_tradeoff(args)
     if args.bench_cmd == "query":
         from ratouch.bench import bench_query
 

@@ -79,12 +79,13 @@ def integrator_factory(cfg: dict):
     return TextureAwareIntegrator(IntegratorConfig(**cfg))
 
 
-def load_tgr(encoder: str):
-    """The frozen Tactile-Guided Retriever trained for an encoder."""
+def load_tgr(encoder: str, folder: str | os.PathLike | None = None):
+    """The frozen Tactile-Guided Retriever trained for an encoder (the shipped one in assets/,
+    or the one saved in `folder`, e.g. an ablation trained into the cache)."""
     from ratouch.checkpoint import load_into, read_checkpoint
     from ratouch.retriever import RetrieverConfig, TactileGuidedRetriever
 
-    folder = retriever_weights(encoder)
+    folder = Path(folder) if folder is not None else retriever_weights(encoder)
     state, cfg, _ = read_checkpoint(folder)
     cfg = {k: v for k, v in cfg.items() if k != "kind"}
     model = TactileGuidedRetriever(RetrieverConfig(**cfg))
