@@ -12,6 +12,7 @@ import argparse
 import functools
 import logging
 import sys
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -22,6 +23,7 @@ import gradio as gr  # noqa: E402
 
 from app import handlers, view  # noqa: E402
 from app.box import PREVIEW_SIDE  # noqa: E402
+from ratouch.serving import QueryBatcher  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -41,91 +43,112 @@ CSS = """
                              max-width: calc(100% - 8px); }
 """
 
-ABOUT_LATER = """### Failure cases and benchmarks
-The failure-case inspector (the worst test cases, the judge's score, what each query mode got
-wrong) and the benchmark tables come with the evaluation, in a later issue. Until then this
-tab has nothing to show: no numbers are made up here. Headless, `ratouch eval` and
-`ratouch bench` are the way in."""
+MAX_FIGURES = 12  # plot slots of the Benchmarks tab
+FAILURE_ROWS = 50  # worst cases shown at once
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+
+FAILURES_ABOUT = """### Failure cases
+Every pair of the world's test split (46 structured close-ups + 356 wild scenes) under a few
+stress conditions, described by the no-retrieval baseline and by RA-Touch, each description
+scored by the offline judge (1–10) against the ground-truth label, and the material
+precision@K of the neighbours that the image, tactile and joint queries retrieve. The table
+is computed once per pipeline (a few minutes on a CPU) and cached; it is never computed at
+start-up. Conditions:
+"""
 
 
-def build_demo(pipeline, world=None) -> gr.Blocks:
-    """The app around a loaded pipeline (read-only, shared by all sessions).
+def build_demo(pipeline, world=None, failure_options: dict | None = None,
+               docs: str | Path | None = None) -> gr.Blocks:
+    """The app around a pipeline (read-only, shared by all sessions).
 
     Args:
         pipeline: a `RATouchPipeline` (or an object with the same `query()`, `corpus` and
-            `encoders`).
+            `encoders`), or an `app.loading.BackgroundPipeline` still loading one.
         world: the `World` whose test split gives the examples (default: the default world).
+        failure_options: `ratouch.failures.load_or_compute`'s k / conditions / indices
+            (default: K=5, every condition, the whole test split, on `world`'s config).
+        docs: the folder holding `results.md` and `figures/*.json` (default: the repo's docs/).
     """
+    from ratouch import failures
     from ratouch.world.generator import World
 
     world = world or World()
+    options = {"world": world.cfg, "k": 5, "conditions": failures.DEFAULT_CONDITIONS,
+               **(failure_options or {})}
+    docs = Path(docs) if docs is not None else DOCS
 
     @functools.lru_cache(maxsize=512)  # corpus thumbnails are re-rendered; keep recent ones
     def thumbnail(i: int):
         return pipeline.corpus.thumbnail(i, THUMBNAIL_SIDE)
 
     with gr.Blocks(title="RA-Touch Explorer", delete_cache=(1800, SESSION_TTL_S)) as demo:
-        ui = _layout(pipeline, world)
-        _wire(ui, pipeline, world, thumbnail)
+        ui = _layout(pipeline, world, options["conditions"])
+        _wire(demo, ui, pipeline, world, thumbnail, options, docs)
+    demo.ratouch_docs = docs  # `launch` serves its images (and nothing else from disk)
     return demo
 
 
-def _layout(pipeline, world) -> SimpleNamespace:
+def _pending(pipeline) -> bool:
+    ready = getattr(pipeline, "ready", None)
+    return callable(ready) and not ready()
+
+
+def _header(pipeline) -> str:
+    title = "# RA-Touch Explorer\nRetrieval-augmented touch understanding · encoder "
+    if _pending(pipeline):
+        status = pipeline.status()
+        if status == "loading":
+            return (f"{title}`{pipeline.name}` · ⏳ loading the models "
+                    f"({time.perf_counter() - pipeline.started:.0f} s so far): browse "
+                    "examples meanwhile; a query waits until they are ready")
+        return f"{title}`{pipeline.name}` · ⛔ {status}"
+    return (f"{title}`{pipeline.encoders.name}` · corpus of {len(pipeline.corpus.entries):,} "
+            "ImageNet-T entries")
+
+
+def _layout(pipeline, world, conditions) -> SimpleNamespace:
     """Place the components; returns them by name."""
+    from ratouch import failures
     from ratouch.world.generator import TEST_SIZE
 
     ui = SimpleNamespace(state=gr.State(None, time_to_live=SESSION_TTL_S))
-    n_corpus = len(pipeline.corpus.entries)
-    gr.Markdown(f"# RA-Touch Explorer\nRetrieval-augmented touch understanding · encoder "
-                f"`{pipeline.encoders.name}` · corpus of {n_corpus:,} ImageNet-T entries")
-    with gr.Tab("Explore"):
-        with gr.Row():
-            with gr.Column(scale=3):
-                ui.visual = gr.Image(
-                    label="Visual image — click two opposite corners of the contact box",
-                    type="filepath", image_mode=None, sources=["upload", "clipboard"],
-                    format="png", height=PREVIEW_SIDE, elem_id="visual")
-                with gr.Row():
-                    ui.fields = [gr.Number(label=n, precision=0, elem_id=f"box-{n}",
-                                           min_width=60) for n in ("x0", "y0", "x1", "y1")]
-                    ui.reset = gr.Button("Default box", size="sm", min_width=60)
-                ui.box_note = gr.Markdown(elem_id="box-note")
-            with gr.Column(scale=2):
-                ui.tactile = gr.Image(label="Tactile image (DIGIT / GelSight frame)",
-                                      type="filepath", image_mode=None, format="png",
-                                      sources=["upload", "clipboard"], height=300,
-                                      elem_id="tactile")
-                ui.k = gr.Slider(1, min(MAX_K, n_corpus), value=min(5, n_corpus), step=1,
-                                 label="K (neighbours per query)", elem_id="k")
-                ui.run = gr.Button("Run query", variant="primary", elem_id="run")
-                ui.status = gr.Markdown(elem_id="status")
-        with gr.Accordion("Examples from the world's test split (ground-truth label shown)"):
-            ui.examples = gr.Gallery(
-                handlers.example_gallery(world, EXAMPLES), columns=len(EXAMPLES), height=200,
-                allow_preview=False, show_label=False, elem_id="examples",
-                elem_classes="ra-gallery")
+    n_corpus = MAX_K if _pending(pipeline) else len(pipeline.corpus.entries)
+    # refreshed on every page load, and by the timer while the models load
+    ui.header = gr.Markdown(_header(pipeline), elem_id="header")
+    ui.timer = gr.Timer(2.0, active=_pending(pipeline))
+    with gr.Tabs(elem_id="tabs") as ui.tabs:
+        with gr.Tab("Explore", id="explore", elem_id="tab-explore"):
+            _explore_tab(ui, world, n_corpus, TEST_SIZE)
+        with gr.Tab("Failure cases", id="failures", elem_id="tab-failures") as ui.failures_tab:
+            gr.Markdown(FAILURES_ABOUT + view.conditions_md(
+                {c: failures.CONDITIONS[c] for c in conditions}))
+            with gr.Row(equal_height=True):
+                ui.subset = gr.Radio(["all", *failures.SUBSETS], value="all", label="subset",
+                                     elem_id="fail-subset")
+                ui.condition = gr.Dropdown(["all", *conditions], value="all",
+                                           label="condition", elem_id="fail-condition")
+                ui.fail_view = gr.Radio(list(failures.VIEWS.values()),
+                                        value=failures.VIEWS["ra_lowest"], label="view",
+                                        elem_id="fail-view")
+                ui.compute = gr.Button("Compute the failure table", elem_id="fail-compute",
+                                       min_width=120, scale=0, size="sm")
+            ui.fail_status = gr.Markdown(elem_id="fail-status")
+            ui.fail_summary = gr.Dataframe(label="per condition and subset (means)",
+                                           interactive=False, elem_id="fail-summary",
+                                           max_height=260)
+            ui.cases = gr.Dataframe(label="worst cases — click a row to open it in Explore",
+                                    interactive=False, wrap=True, elem_id="fail-cases",
+                                    max_height=600, column_widths=view.CASE_WIDTHS)
+        with gr.Tab("Benchmarks", id="benchmarks", elem_id="tab-benchmarks") as ui.bench_tab:
             with gr.Row():
-                ui.index = gr.Number(label=f"or any test index (0–{TEST_SIZE - 1})", value=0,
-                                     precision=0, minimum=0, maximum=TEST_SIZE - 1)
-                ui.load = gr.Button("Load example", size="sm")
-        ui.galleries, ui.tables = [], []
-        with gr.Row(equal_height=False):
-            for mode in view.MODES:
-                with gr.Column(min_width=260):
-                    gr.Markdown(view.mode_header(mode))
-                    ui.galleries.append(gr.Gallery(
-                        show_label=False, columns=3, height=300, object_fit="contain",
-                        elem_id=f"gallery-{mode}"))
-                    ui.tables.append(gr.HTML(elem_id=f"table-{mode}"))
-        with gr.Row():
-            ui.plot = gr.Plot(label="PCA", elem_id="pca", scale=3)
-            ui.description = gr.Markdown(elem_id="description")
-        ui.timings = gr.Markdown(elem_id="timings", elem_classes="ra-timings")
-        with gr.Accordion("Raw result (the JSON that the /query API and `ratouch query` return)",
-                          open=False):
-            ui.raw = gr.JSON(show_label=False)
-    with gr.Tab("Failure cases & benchmarks"):
-        gr.Markdown(ABOUT_LATER)
+                ui.fig_note = gr.Markdown(elem_id="bench-note")
+                ui.reload = gr.Button("Reload", size="sm", min_width=80, scale=0)
+            ui.figures = []
+            for row in range(0, MAX_FIGURES, 2):
+                with gr.Row():
+                    ui.figures += [gr.Plot(visible=False, elem_id=f"bench-fig-{row + j}")
+                                   for j in range(2)]
+            ui.report = gr.Markdown(elem_id="bench-report")
     with gr.Row(visible=False):  # the /query API's own inputs and output
         ui.api_visual = gr.File(label="visual image", file_types=["image"])
         ui.api_tactile = gr.File(label="tactile image", file_types=["image"])
@@ -134,12 +157,72 @@ def _layout(pipeline, world) -> SimpleNamespace:
     return ui
 
 
-def _wire(ui: SimpleNamespace, pipeline, world, thumbnail) -> None:
+def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int) -> None:
+    with gr.Row():
+        with gr.Column(scale=3):
+            ui.visual = gr.Image(
+                label="Visual image — click two opposite corners of the contact box",
+                type="filepath", image_mode=None, sources=["upload", "clipboard"],
+                format="png", height=PREVIEW_SIDE, elem_id="visual")
+            with gr.Row():
+                ui.fields = [gr.Number(label=n, precision=0, elem_id=f"box-{n}",
+                                       min_width=60) for n in ("x0", "y0", "x1", "y1")]
+                ui.reset = gr.Button("Default box", size="sm", min_width=60)
+            ui.box_note = gr.Markdown(elem_id="box-note")
+        with gr.Column(scale=2):
+            ui.tactile = gr.Image(label="Tactile image (DIGIT / GelSight frame)",
+                                  type="filepath", image_mode=None, format="png",
+                                  sources=["upload", "clipboard"], height=300,
+                                  elem_id="tactile")
+            ui.k = gr.Slider(1, min(MAX_K, n_corpus), value=min(5, n_corpus), step=1,
+                             label="K (neighbours per query)", elem_id="k")
+            ui.run = gr.Button("Run query", variant="primary", elem_id="run")
+            ui.status = gr.Markdown(elem_id="status")
+    with gr.Accordion("Examples from the world's test split (ground-truth label shown)"):
+        ui.examples = gr.Gallery(
+            handlers.example_gallery(world, EXAMPLES), columns=len(EXAMPLES), height=200,
+            allow_preview=False, show_label=False, elem_id="examples",
+            elem_classes="ra-gallery")
+        with gr.Row():
+            ui.index = gr.Number(label=f"or any test index (0–{test_size - 1})", value=0,
+                                 precision=0, minimum=0, maximum=test_size - 1)
+            ui.load = gr.Button("Load example", size="sm")
+    ui.galleries, ui.tables = [], []
+    with gr.Row(equal_height=False):
+        for mode in view.MODES:
+            with gr.Column(min_width=260):
+                gr.Markdown(view.mode_header(mode))
+                ui.galleries.append(gr.Gallery(
+                    show_label=False, columns=3, height=300, object_fit="contain",
+                    elem_id=f"gallery-{mode}"))
+                ui.tables.append(gr.HTML(elem_id=f"table-{mode}"))
+    with gr.Row():
+        ui.plot = gr.Plot(label="PCA", elem_id="pca", scale=3)
+        ui.description = gr.Markdown(elem_id="description")
+    ui.timings = gr.Markdown(elem_id="timings", elem_classes="ra-timings")
+    with gr.Accordion("Raw result (the JSON that the /query API and `ratouch query` return)",
+                      open=False):
+        ui.raw = gr.JSON(show_label=False)
+
+
+def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, options: dict,
+          docs: Path) -> None:
     """Connect events to the handlers. Only `/query` is an API; the UI's events are private."""
     box_out = [ui.state, ui.visual, *ui.fields, ui.box_note]
     example_out = [ui.state, ui.visual, ui.tactile, *ui.fields, ui.box_note]
+    query_in = [ui.state, ui.tactile, *ui.fields, ui.k]
+    query_out = [ui.status, *ui.galleries, *ui.tables, ui.plot, ui.description, ui.timings,
+                 ui.raw]
+    fail_in = [ui.subset, ui.condition, ui.fail_view]
+    fail_out = [ui.fail_status, ui.fail_summary, ui.cases]
+    bench_out = [ui.report, ui.fig_note, *ui.figures]
     private = dict(api_visibility="private")
     light = dict(concurrency_limit=None, show_progress="hidden", **private)  # milliseconds
+    shared = {}  # the failure table once loaded: read-only, the same for every session
+    # queries share one pool; a batching pipeline answers its concurrent calls together
+    batching = isinstance(pipeline, QueryBatcher)
+    queries = dict(concurrency_id="query",
+                   concurrency_limit=pipeline.max_batch if batching else 2)
 
     def select_example(evt: gr.SelectData):
         return handlers.load_example(world, EXAMPLES[evt.index])
@@ -152,6 +235,24 @@ def _wire(ui: SimpleNamespace, pipeline, world, thumbnail) -> None:
         return tuple(handlers.run_query(pipeline, thumbnail, state, tac, a, b, c, d, k,
                                         progress))
 
+    def failures_tab(subset, condition, view_label, compute, progress=None):
+        return tuple(handlers.failures_tab(pipeline, options, shared, compute, subset,
+                                           condition, view_label, FAILURE_ROWS, progress))
+
+    def show_failures(subset, condition, view_label):
+        return failures_tab(subset, condition, view_label, False)
+
+    def compute_failures(subset, condition, view_label, progress=gr.Progress()):
+        return failures_tab(subset, condition, view_label, True, progress)
+
+    def open_case(evt: gr.SelectData):
+        return (*handlers.open_case(options["world"], evt.row_value),
+                gr.Tabs(selected="explore"))
+
+    def poll_header():
+        return _header(pipeline), gr.Timer(active=_pending(pipeline))
+
+    gr.on([demo.load, ui.timer.tick], poll_header, None, [ui.header, ui.timer], **light)
     ui.visual.upload(handlers.upload_visual, ui.visual, box_out, **private)
     ui.visual.clear(lambda: handlers.reset_box(None), None, box_out, **light)
     ui.examples.select(select_example, None, example_out, **private)
@@ -160,40 +261,64 @@ def _wire(ui: SimpleNamespace, pipeline, world, thumbnail) -> None:
     gr.on([f.submit for f in ui.fields] + [f.blur for f in ui.fields], handlers.typed_box,
           [ui.state, *ui.fields], [ui.state, ui.visual, ui.box_note], **light)
     ui.reset.click(handlers.reset_box, ui.state, box_out, **light)
-    ui.run.click(show_query, [ui.state, ui.tactile, *ui.fields, ui.k],
-                 [ui.status, *ui.galleries, *ui.tables, ui.plot, ui.description, ui.timings,
-                  ui.raw], **private)
+    ui.run.click(show_query, query_in, query_out, **queries, **private)
+    # failure cases: read from the cache when the tab opens, computed only on request
+    gr.on([ui.failures_tab.select, ui.subset.change, ui.condition.change, ui.fail_view.change],
+          show_failures, fail_in, fail_out, **private)
+    ui.compute.click(compute_failures, fail_in, fail_out, concurrency_limit=1, **private)
+    ui.cases.select(open_case, None, [*example_out, ui.tabs], **private).success(
+        show_query, query_in, query_out, **queries, **private)
+    gr.on([ui.bench_tab.select, ui.reload.click],
+          lambda: handlers.benchmarks(docs, MAX_FIGURES), None, bench_out, **private)
     ui.api_button.click(functools.partial(handlers.api_query, pipeline),
                         [ui.api_visual, ui.api_tactile, *ui.fields, ui.k], ui.api_out,
-                        api_name="query")
+                        api_name="query", **queries)
 
 
 def main(argv: list[str] | None = None) -> None:
+    t_main = time.perf_counter()
     p = argparse.ArgumentParser(prog="python -m app", description=__doc__.splitlines()[0])
     p.add_argument("--host", default="127.0.0.1", help="address to serve on")
     p.add_argument("--port", type=int, default=7860)
     p.add_argument("--encoder", default="default-s", help="encoder set (default: default-s)")
     p.add_argument("--corpus", default=None,
                    help="built corpus folder (default: the world's 10k corpus, built on first use)")
+    p.add_argument("--max-batch", type=int, default=16,
+                   help="most concurrent queries answered in one batch (default 16)")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    from app.loading import BackgroundPipeline
     from ratouch.errors import RATouchError
     from ratouch.pipeline import RATouchPipeline
 
-    log.info("loading the RA-Touch pipeline (encoder %s) ...", args.encoder)
+    # serve at once; the models load meanwhile and a query waits for them. Concurrent
+    # queries are answered in batches (one model pass for all of them).
+    log.info("loading the RA-Touch pipeline (encoder %s) in the background ...", args.encoder)
+    loading = BackgroundPipeline(
+        lambda: RATouchPipeline.load(args.encoder, corpus=args.corpus, progress=True),
+        args.encoder, start=False)
+    demo = build_demo(QueryBatcher(loading, max_batch=args.max_batch))
+    launch(demo, args.host, args.port, block=False)
+    loading.start()  # after the server is up: both compete for the same cores and the GIL
+    log.info("serving on http://%s:%d/ (%.1f s after main()); the models are loading",
+             args.host, args.port, time.perf_counter() - t_main)
     try:
-        pipeline = RATouchPipeline.load(args.encoder, corpus=args.corpus, progress=True)
+        loading.get(timeout=24 * 3600)
     except RATouchError as e:
+        demo.close()
         raise SystemExit(f"python -m app: cannot load the pipeline: {e}") from e
-    launch(build_demo(pipeline), args.host, args.port)
+    log.info("ready: the models loaded in %.1f s", loading.seconds)
+    demo.block_thread()
 
 
 def launch(demo: gr.Blocks, host: str, port: int, block: bool = True):
-    """Serve `demo` with the app's limits: a bounded queue, bounded uploads and sessions."""
+    """Serve `demo` with the app's limits: a bounded queue, bounded uploads and sessions.
+    Besides uploads, only the docs folder (the benchmark report's figures) is served."""
+    docs = getattr(demo, "ratouch_docs", DOCS)
     return demo.queue(default_concurrency_limit=2, max_size=64).launch(
         server_name=host, server_port=port, max_file_size="50mb", state_session_capacity=256,
         prevent_thread_lock=not block, show_error=False, ssr_mode=False, quiet=not block,
-        css=CSS, footer_links=["api"])
+        css=CSS, footer_links=["api"], allowed_paths=[str(docs)])
 
 
 if __name__ == "__main__":

@@ -19,6 +19,7 @@ from PIL import Image
 from app import box as boxes
 from app import view
 from app.plot import pca_figure
+from ratouch import failures
 from ratouch.errors import DataError, RATouchError
 
 log = logging.getLogger(__name__)
@@ -202,10 +203,15 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
         files = {"visual image": getattr(visual, "source", None), "tactile image": tactile}
         return error_view(_fail(e, files))
     tables = [view.neighbour_table(result, m) for m in view.MODES]
+    try:  # a ground-truth label (test-split examples): score both descriptions against it
+        scores = failures.judge_scores(visual.label, result["description"])
+    except RATouchError as e:  # e.g. no judge calibration: the view simply has no scores
+        log.warning("no judge scores: %s", e)
+        scores = {}
     render_ms = (time.perf_counter() - t0) * 1000
     return QueryView(view.status_md(visual.title, result["warnings"], result.get("box")),
                      *galleries, *tables, pca_figure(result, visual.label),
-                     view.description_md(result, visual.label),
+                     view.description_md(result, visual.label, scores),
                      view.timings_md(result["timings_ms"], render_ms), result)
 
 
@@ -223,3 +229,113 @@ def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k) 
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         files = {"visual image": visual, "tactile image": tactile}
         raise gr.Error(user_message(e, files), print_exception=False) from e
+
+
+# ---------------------------------------------------------------------- failure cases
+
+class FailureView(NamedTuple):
+    """What the Failure cases tab shows, in output order."""
+
+    status: str
+    summary: Any  # DataFrame or None
+    cases: Any  # DataFrame or None
+
+
+def failure_table(pipe, options: dict, compute: bool, progress=None) -> dict | None:
+    """The failure-case table for the app's settings: cached, else computed (`compute`) or
+    None. `options` are `ratouch.failures.load_or_compute`'s world/k/conditions/indices."""
+    report = None if progress is None else (lambda f, what: progress(f, desc=what))
+    return failures.load_or_compute(pipe, progress=report, cached_only=not compute, **options)
+
+
+def failures_tab(pipe, options: dict, shared: dict, compute: bool, subset: str,
+                 condition: str, view_label: str, limit: int = 50, progress=None
+                 ) -> FailureView:
+    """The Failure cases tab: the table from `shared` (the app's, loaded once), else from
+    the cache, else computed when `compute`; then filtered and sorted."""
+    try:
+        if shared.get("table") is None:
+            shared["table"] = failure_table(pipe, options, compute, progress)
+    except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
+        return FailureView(f"⛔ cannot {'compute' if compute else 'load'} the failure "
+                           f"table: {_fail(e)}", None, None)
+    return failure_view(shared["table"], subset, condition, view_label, limit)
+
+
+def failure_view(table: dict | None, subset: str, condition: str, view_label: str,
+                 limit: int = 50) -> FailureView:
+    """The filtered, sorted worst cases of a table (None: not computed yet)."""
+    if table is None:
+        return FailureView("The failure-case table has not been computed for this pipeline "
+                           "yet: press **Compute** (a few minutes on a CPU; cached afterwards).",
+                           None, None)
+    view_key = next((k for k, v in failures.VIEWS.items() if v == view_label), view_label)
+    try:
+        matching = failures.select_cases(table["rows"], subset, condition, view_key, limit=None)
+    except RATouchError as e:
+        return FailureView(f"⛔ {e}", None, None)
+    summary = failures.summarise([r for r in table["rows"]
+                                  if condition in ("all", r["condition"])])
+    shown = matching[:limit]
+    return FailureView(view.failures_status_md(table["meta"], len(shown), len(matching),
+                                               failures.VIEWS[view_key]),
+                       view.summary_frame(summary), view.cases_frame(shown))
+
+
+def open_case(world_cfg, row: Any) -> tuple:
+    """Open a failure-table row (its condition and test index come first) in Explore.
+
+    Returns:
+        load_example's outputs: (visual state, preview, tactile image, x0, y0, x1, y1, note)
+
+    Raises:
+        gr.Error: the row does not name a case (so that a chained query does not run).
+    """
+    try:
+        condition, index = row[0], int(row[1])
+        s = failures.case_sample(condition, index, world_cfg)
+        visual = boxes.load_visual(
+            s.visual, f"failure case #{index} under “{condition}” ({s.subset}: "
+            f"{s.class_name or 'close-up'}, {s.material.replace('_', ' ')})", label=s.caption)
+    except (TypeError, ValueError, IndexError, *USER_ERRORS) as e:
+        raise gr.Error(user_message(e if isinstance(e, USER_ERRORS) else
+                                    DataError(f"not a failure case: {row!r}")),
+                       print_exception=False) from e
+    box = tuple(int(v) for v in s.box)
+    return (visual, boxes.draw(visual, box), s.tactile, *box,
+            f"Ground-truth label: **{s.caption}** · condition **{condition}** · "
+            f"{_box_note(visual, box)}")
+
+
+# ---------------------------------------------------------------------- benchmarks
+
+def benchmarks(docs: Path, slots: int) -> tuple:
+    """The Benchmarks tab: the report's markdown, then `slots` plot updates (the figures
+    found in docs/figures/, the rest hidden).
+
+    Returns:
+        (report markdown, figures note, gr.update per slot)
+    """
+    import plotly.io as pio
+
+    files = view.list_figures(docs)
+    updates, problems = [], []
+    for path in files:
+        if len(updates) == slots:
+            problems.append(f"{path.name} (only {slots} figures are shown)")
+            continue
+        try:
+            fig = pio.from_json(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError, TypeError) as e:
+            problems.append(f"{path.name} ({type(e).__name__}: {str(e)[:120]})")
+            continue
+        updates.append(gr.update(value=fig, label=view.figure_title(path), visible=True))
+    updates += [gr.update(value=None, visible=False)] * (slots - len(updates))
+    note = (f"{len(files)} figure file(s) in `docs/figures/`" if files else
+            "No figure files (`docs/figures/*.json`) yet: `ratouch bench tradeoff` writes the "
+            "speed-vs-accuracy chart.")
+    if files and not (Path(docs) / view.FIGURES_DIR / "tradeoff.json").is_file():
+        note += " · no speed-vs-accuracy chart yet (`ratouch bench tradeoff`)"
+    if problems:
+        note += " · not shown: " + "; ".join(problems)
+    return (view.report_md(docs, files), note, *updates)

@@ -1,11 +1,14 @@
-"""Turning one `RATouchPipeline.query` result into what the app shows: gallery items with
-shared-neighbour marks, neighbour tables, the descriptions, warnings and timings.
-Formatting only: every number comes from the result."""
+"""Turning library results into what the app shows: gallery items with shared-neighbour marks,
+neighbour tables, the descriptions (with judge scores), warnings and timings of one
+`RATouchPipeline.query`; the failure-case table; the benchmark report and its figures.
+Formatting only: every number comes from the library or from files it wrote."""
 
 from __future__ import annotations
 
+import re
 from html import escape
-from typing import Callable
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -72,16 +75,26 @@ def mode_header(mode: str) -> str:
     return f"#### {dot} {MODE_TITLE[mode]}"
 
 
-def description_md(result: dict, label: str | None) -> str:
-    """The generated descriptions (with and without retrieval) and the ground truth."""
+def description_md(result: dict, label: str | None,
+                   scores: Mapping[str, float | None] | None = None) -> str:
+    """The generated descriptions (with and without retrieval), the ground truth and, when
+    the label is known, each description's judge score."""
     d = result["description"]
-    ra = d.get("ra_touch") or "_not available: needs a tactile image_"
-    base = d.get("baseline") or "_not available: needs a tactile image_"
-    parts = ["### Tactile description",
-             f"**RA-Touch (with retrieval):** {ra}",
-             f"**Baseline (no retrieval):** {base}"]
+    scores = scores or {}
+
+    def line(title: str, key: str) -> str:
+        text = d.get(key) or "_not available: needs a tactile image_"
+        score = scores.get(key)
+        return f"**{title}:** {text}" + (f" · judge **{score:.1f}**/10" if score else "")
+
+    parts = ["### Tactile description", line("RA-Touch (with retrieval)", "ra_touch"),
+             line("Baseline (no retrieval)", "baseline")]
     if label:
         parts.append(f"**Ground-truth label:** {label}")
+    if any(v is not None for v in scores.values()):
+        parts.append("<span class='ra-muted'>judge: the offline judge's 1–10 score of the "
+                     "description against the ground-truth label (as in `ratouch eval tvl`)"
+                     "</span>")
     return "\n\n".join(parts)
 
 
@@ -98,8 +111,132 @@ def error_md(message: str) -> str:
 
 def timings_md(timings: dict[str, float], render_ms: float | None = None) -> str:
     """One discreet line: per-stage milliseconds, the total, and the app's own rendering."""
-    stages = [f"{k.replace('_', ' ')} {v:.0f} ms" for k, v in timings.items() if k != "total"]
+    stages = [f"{k.replace('_', ' ')} {v:.0f} ms" for k, v in timings.items()
+              if k not in ("total", "batch_size")]
     line = " · ".join(stages) + f" · **total {timings.get('total', 0):.0f} ms**"
+    if timings.get("batch_size", 1) > 1:
+        line += f" (answered in a batch of {timings['batch_size']} concurrent queries)"
     if render_ms is not None:
         line += f" (+ app rendering {render_ms:.0f} ms)"
     return f"Timings: {line}"
+
+
+# ---------------------------------------------------------------------- failure cases
+
+# (column header, row key) of the failure-case table; the first two identify the case
+CASE_COLUMNS = (("condition", "condition"), ("#", "index"), ("subset", "subset"),
+                ("material", "material"), ("ground-truth label", "label"),
+                ("RA-Touch", "ra_touch"), ("RA score", "ra_score"), ("baseline", "baseline"),
+                ("base score", "baseline_score"), ("Δ RA−base", "ra_delta"),
+                ("P@K image", "precision_image"), ("P@K tactile", "precision_tactile"),
+                ("P@K joint", "precision_joint"))
+CASE_WIDTHS = ["11%", "4%", "7%", "9%", "14%", "13%", "5%", "13%", "5%", "5%", "5%", "4%",
+               "5%"]
+SUMMARY_COLUMNS = (("condition", "condition"), ("subset", "subset"), ("n", "n"),
+                   ("base score", "baseline_score"), ("RA score", "ra_score"),
+                   ("Δ RA−base", "ra_delta"), ("P@K image", "precision_image"),
+                   ("P@K tactile", "precision_tactile"), ("P@K joint", "precision_joint"),
+                   ("joint loses", "joint_loses"))
+
+
+def _frame(rows: Sequence[dict], columns):
+    import pandas as pd
+
+    return pd.DataFrame([[r[key] for _, key in columns] for r in rows],
+                        columns=[name for name, _ in columns])
+
+
+def cases_frame(rows: Sequence[dict]):
+    """The failure-case rows as the table shows them (a pandas DataFrame)."""
+    return _frame(rows, CASE_COLUMNS)
+
+
+def summary_frame(summary: Sequence[dict]):
+    """`ratouch.failures.summarise` as a table; 'joint loses' as a percentage."""
+    rows = [{**s, "joint_loses": f"{s['joint_loses']:.0%}"} for s in summary]
+    return _frame(rows, SUMMARY_COLUMNS)
+
+
+def failures_status_md(meta: dict, shown: int, matching: int, view: str) -> str:
+    k = meta.get("k", "?")
+    n_cond = len(meta.get("conditions", {}))
+    return (f"{meta.get('n_rows', '?')} cases ({n_cond} conditions × the test split) · "
+            f"computed {meta.get('computed_at', '?')} in {meta.get('seconds', '?')} s · "
+            f"P@K = material precision@{k} of each query mode's neighbours · judge = offline "
+            f"judge, 1–10. Showing {shown} of {matching} cases ({view}); **click a row to open "
+            f"it in Explore**.")
+
+
+def conditions_md(conditions: Mapping[str, Mapping]) -> str:
+    """One line per stress condition: its name and knobs."""
+    def knobs(d):
+        return ", ".join(f"{k}={v}" for k, v in d.items()) or "no stress (the natural split)"
+
+    return "\n".join(f"- **{name}**: {knobs(d)}" for name, d in conditions.items())
+
+
+# ---------------------------------------------------------------------- benchmarks
+
+REPORT_NAME = "results.md"
+FIGURES_DIR = "figures"
+FIRST_FIGURES = ("tradeoff",)  # shown first when present
+NOT_GENERATED = ("**Not generated yet.** The paper-experiment report (`docs/{report}`) and its "
+                 "figures (`docs/figures/*.json`) are written by the evaluation commands: run "
+                 "`ratouch eval all` for the report, `ratouch bench tradeoff` for the "
+                 "speed-vs-accuracy chart, then press *Reload*. Nothing is made up here.")
+_IMAGE_LINK = re.compile(r"!\[([^\]]*)\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
+_LINK = re.compile(r"(?<!!)\[([^\]]*)\]\(([^)\s]+)\)")
+
+
+def list_figures(docs: Path) -> list[Path]:
+    """The plotly figure files (`fig.to_json()` output) in `docs/figures/`, the
+    speed-vs-accuracy chart first, then by name."""
+    folder = Path(docs) / FIGURES_DIR
+    if not folder.is_dir():
+        return []
+    # `<name>.data.json` beside a figure holds its raw numbers, not a figure
+    files = sorted(p for p in folder.glob("*.json")
+                   if p.is_file() and not p.name.endswith(".data.json"))
+    rank = {name: i for i, name in enumerate(FIRST_FIGURES)}
+    return sorted(files, key=lambda p: (rank.get(p.stem, len(rank)), p.name))
+
+
+def figure_title(path: Path) -> str:
+    return Path(path).stem.replace("_", " ").replace("-", " ")
+
+
+def report_md(docs: Path, figures: Sequence[Path] = ()) -> str:
+    """`docs/results.md` ready for gr.Markdown: an image whose figure is shown interactively
+    becomes a pointer to it; other local images and links to local files (the figures'
+    HTML pages) go through the app's file route. The not-generated message when there is
+    no report."""
+    docs = Path(docs)
+    path = docs / REPORT_NAME
+    if not path.is_file():
+        return NOT_GENERATED.format(report=REPORT_NAME)
+    text = path.read_text(encoding="utf-8", errors="replace")
+    interactive = {p.stem for p in figures}
+
+    def image(m: re.Match) -> str:
+        alt, target = m.group(1), m.group(2)
+        if re.match(r"^[a-z]+://", target):
+            return m.group(0)
+        stem = Path(target).stem
+        if stem in interactive:
+            return (f"*[figure “{alt or stem}”: the interactive chart "
+                    f"**{figure_title(Path(stem))}** below]*")
+        local = (docs / target).resolve()
+        if local.is_file() and local.is_relative_to(docs.resolve()):
+            return f"![{alt}](/gradio_api/file={local})"
+        return f"*[figure “{alt or stem}” ({target}) not found]*"
+
+    def link(m: re.Match) -> str:
+        text, target = m.group(1), m.group(2)
+        if re.match(r"^([a-z]+:|#|/)", target):
+            return m.group(0)
+        local = (docs / target).resolve()
+        if local.is_file() and local.is_relative_to(docs.resolve()):
+            return f"[{text}](/gradio_api/file={local})"
+        return text
+
+    return _LINK.sub(link, _IMAGE_LINK.sub(image, text))

@@ -24,11 +24,14 @@ class PCA2D:
         if x.ndim != 2 or len(x) < 3:
             raise DataError(f"PCA needs at least 3 reference vectors, got shape {x.shape}")
         mean = x.mean(0)
-        _, s, vt = np.linalg.svd(x - mean, full_matrices=False)
-        comps = vt[:2]
+        xc = x - mean
+        # eigen-decomposition of the (D, D) covariance: the same axes as an SVD of the data,
+        # measured 0.3 s instead of 5-12 s for 4000 x 384 on a busy 2-core machine
+        var, vecs = np.linalg.eigh(xc.T @ xc)  # ascending eigenvalues
+        var, vecs = np.clip(var[::-1], 0, None), vecs[:, ::-1]
+        comps = vecs[:, :2].T
         signs = np.sign(comps[np.arange(2), np.abs(comps).argmax(1)])
         comps = comps * signs[:, None]
-        var = s ** 2
         ratio = var[:2] / var.sum()
         return cls(mean.astype(np.float32), comps.astype(np.float32),
                    (float(ratio[0]), float(ratio[1])))

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import socket
 import time
 from pathlib import Path
@@ -20,6 +21,9 @@ from ratouch.errors import DataError
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
 HAVE_ASSETS = (ASSETS / "generator" / "default-s" / "ra" / "manifest.json").is_file()
+# the user's cache as it was before conftest isolated the tests from it (read at collection):
+# the real-app load test serves the real default corpus from there
+USER_CACHE = Path(os.environ.get("RATOUCH_CACHE", Path.home() / ".cache" / "ratouch"))
 
 
 # ------------------------------------------------------------------------- the fake pipeline
@@ -27,7 +31,8 @@ HAVE_ASSETS = (ASSETS / "generator" / "default-s" / "ra" / "manifest.json").is_f
 class FakeCorpus:
     def __init__(self, n: int):
         self.entries = [SimpleNamespace(class_name=f"class{i % 7}", caption=f"soft, grainy {i}",
-                                        source=f"world:0:{i % 7}:{i}") for i in range(n)]
+                                        source=f"world:0:{i % 7}:{i}", material="")
+                        for i in range(n)]
 
     def thumbnail(self, i: int, size: int = 96) -> np.ndarray:
         rng = np.random.default_rng(i)
@@ -162,6 +167,12 @@ def test_example_pair_brings_its_box_label_and_tactile(fake, world):
     v = handlers.run_query(fake, _thumb, visual, tactile, *fields, 5)
     assert fake.calls[-1]["label"] == s.caption
     assert f"Ground-truth label:** {s.caption}" in v.description
+    # both descriptions carry the offline judge's score against the label
+    from ratouch.failures import judge_scores
+
+    scores = judge_scores(s.caption, {"ra_touch": "soft and grainy", "baseline": "smooth"})
+    assert f"soft and grainy · judge **{scores['ra_touch']:.1f}**/10" in v.description
+    assert f"smooth · judge **{scores['baseline']:.1f}**/10" in v.description
     assert any(t.name == "ground truth" for t in v.plot.data)
     assert "test example #7" in v.status
     assert "out of range" in handlers.load_example(world, 10_000)[-1]
@@ -198,6 +209,7 @@ def test_no_tactile_image_gives_an_honest_image_only_view(fake, pair_files):
     assert len(v.gallery_image) == 5 and v.gallery_tactile == [] == v.gallery_joint
     assert "image-only retrieval" in v.status and "not available" in v.table_tactile
     assert "needs a tactile image" in v.description
+    assert "judge" not in v.description  # no label, no scores
 
 
 def _bytes_file(tmp_path: Path, name: str, data: bytes) -> str:
@@ -291,6 +303,225 @@ def test_importing_the_app_loads_no_model_and_main_has_the_options():
     with pytest.raises(SystemExit) as e:
         main(["--help"])
     assert e.value.code == 0
+
+
+# ------------------------------------------------------------------------- failure cases tab
+
+def _case(cond: str, i: int, subset: str, ra: float, base: float, pi: float, pt: float,
+          pj: float) -> dict:
+    best = max(pi, pt)
+    return {"condition": cond, "index": i, "subset": subset, "material": "wool",
+            "object_scale": 0.5, "label": "soft, fuzzy", "baseline": "soft",
+            "ra_touch": "hard", "baseline_score": base, "ra_score": ra,
+            "ra_delta": ra - base, "precision_image": pi, "precision_tactile": pt,
+            "precision_joint": pj, "best_unimodal": best, "joint_gap": best - pj,
+            "joint_loses": pj < best}
+
+
+TABLE = {"meta": {"k": 5, "n_rows": 4, "conditions": {"natural": {}, "noisy touch": {}},
+                  "computed_at": "2025-01-01 00:00:00", "seconds": 61.0},
+         "rows": [_case("natural", 3, "structured", 2.0, 6.0, 0.8, 0.2, 0.4),
+                  _case("natural", 80, "wild", 7.0, 7.0, 0.2, 0.2, 0.6),
+                  _case("noisy touch", 80, "wild", 1.5, 2.0, 0.4, 0.0, 0.0),
+                  _case("noisy touch", 90, "wild", 9.0, 8.0, 0.0, 0.0, 0.2)]}
+
+
+def test_failure_table_filters_and_views():
+    from app import handlers
+    from ratouch.failures import VIEWS
+
+    v = handlers.failure_view(TABLE, "all", "all", VIEWS["ra_lowest"])
+    assert list(v.cases["#"]) == [80, 3, 80, 90]
+    assert list(v.cases["condition"])[:2] == ["noisy touch", "natural"]
+    assert list(v.cases.columns[:2]) == ["condition", "#"]  # what a row click reads
+    assert "Showing 4 of 4 cases" in v.status and "click a row" in v.status
+    assert list(v.summary["subset"]) == ["all", "structured", "wild", "all"]
+    assert list(v.summary["joint loses"]) == ["50%", "100%", "0%", "50%"]
+    v = handlers.failure_view(TABLE, "wild", "all", VIEWS["joint_loses"])
+    assert list(v.cases["#"]) == [80] and list(v.cases["condition"]) == ["noisy touch"]
+    v = handlers.failure_view(TABLE, "all", "natural", VIEWS["joint_loses"], limit=1)
+    assert list(v.cases["#"]) == [3] and "Showing 1 of 1" in v.status
+    assert set(v.summary["condition"]) == {"natural"}
+    assert handlers.failure_view(TABLE, "indoor", "all", VIEWS["ra_lowest"]).status \
+        .startswith("⛔")
+    none = handlers.failure_view(None, "all", "all", VIEWS["ra_lowest"])
+    assert "not been computed" in none.status and none.cases is None
+
+
+def test_failure_tab_reads_the_cache_and_computes_only_on_request(fake, monkeypatch):
+    from app import handlers
+    from ratouch import failures
+
+    opts = {"k": 5, "conditions": ("natural",), "indices": [0, 1]}
+    shared: dict = {}
+    v = handlers.failures_tab(fake, opts, shared, False, "all", "all",
+                              failures.VIEWS["ra_lowest"])
+    assert "not been computed" in v.status and shared["table"] is None
+    assert fake.calls == []
+    # the fake corpus knows no materials: computing says why instead of raising
+    v = handlers.failures_tab(fake, opts, shared, True, "all", "all",
+                              failures.VIEWS["ra_lowest"])
+    assert "cannot compute the failure table" in v.status and "material" in v.status
+    calls = []
+    monkeypatch.setattr(failures, "load_or_compute",
+                        lambda pipe, **kw: calls.append(kw) or TABLE)
+    v = handlers.failures_tab(fake, opts, shared, True, "all", "all",
+                              failures.VIEWS["ra_lowest"])
+    assert calls[0]["cached_only"] is False and calls[0]["indices"] == [0, 1]
+    assert shared["table"] is TABLE and len(v.cases) == 4
+    handlers.failures_tab(fake, opts, shared, False, "all", "all", failures.VIEWS["ra_lowest"])
+    assert len(calls) == 1  # loaded once per app
+
+
+def test_opening_a_case_brings_its_stressed_inputs_and_label(fake):
+    import gradio as gr
+
+    from app import handlers
+    from ratouch.failures import case_sample
+    from ratouch.world.config import WorldConfig
+
+    visual, preview, tactile, *box, note = handlers.open_case(WorldConfig(),
+                                                             ["noisy touch", 80, "wild"])
+    s = case_sample("noisy touch", 80)
+    assert np.array_equal(tactile, s.tactile) and box == list(s.box)
+    assert visual.label == s.caption and "noisy touch" in visual.title
+    assert "condition **noisy touch**" in note
+    v = handlers.run_query(fake, _thumb, visual, tactile, *box, 5)
+    assert fake.calls[-1]["label"] == s.caption and "judge **" in v.description
+    for bad in (["fog", 1], ["natural", 402], ["natural"], None):
+        with pytest.raises(gr.Error):
+            handlers.open_case(WorldConfig(), bad)
+
+
+# ------------------------------------------------------------------------- benchmarks tab
+
+def _figure_json(title: str) -> str:
+    import plotly.graph_objects as go
+
+    return go.Figure(go.Scatter(x=[1, 2], y=[3, 4]), layout_title_text=title).to_json()
+
+
+def test_benchmarks_tab_without_and_with_a_report(tmp_path):
+    from app import handlers, view
+
+    report, note, *slots = handlers.benchmarks(tmp_path, 3)
+    assert "Not generated yet" in report and "ratouch eval all" in report
+    assert "ratouch bench tradeoff" in report and "ratouch bench tradeoff" in note
+    assert all(u["visible"] is False for u in slots)
+    figs = tmp_path / "figures"
+    figs.mkdir()
+    (figs / "b_recall.json").write_text(_figure_json("recall"))
+    (figs / "tradeoff.json").write_text(_figure_json("speed vs accuracy"))
+    (figs / "broken.json").write_text("{not json")
+    (figs / "tradeoff.data.json").write_text('{"rows": []}')  # raw numbers, not a figure
+    (figs / "tradeoff.html").write_text("<html></html>")
+    (figs / "local.png").write_bytes(_png(np.zeros((4, 4, 3), np.uint8)))
+    (tmp_path / "results.md").write_text(
+        "# Results\n\n![Speed vs accuracy](figures/tradeoff.png) "
+        "([interactive](figures/tradeoff.html))\n\n![local](figures/local.png)\n\n"
+        "![gone](figures/gone.png) [missing](figures/gone.html) [web](https://x.org/a)\n"
+        "| a | b |\n|---|---|\n")
+    assert [p.name for p in view.list_figures(tmp_path)] == [
+        "tradeoff.json", "b_recall.json", "broken.json"]
+    report, note, *slots = handlers.benchmarks(tmp_path, 3)
+    assert "interactive chart **tradeoff** below" in report
+    assert f"/gradio_api/file={(figs / 'local.png').resolve()}" in report
+    assert "gone.png) not found" in report and "| a | b |" in report
+    assert f"[interactive](/gradio_api/file={(figs / 'tradeoff.html').resolve()})" in report
+    assert " missing " in report and "[web](https://x.org/a)" in report
+    assert [u["visible"] for u in slots] == [True, True, False]
+    assert slots[0]["value"].layout.title.text == "speed vs accuracy"
+    assert slots[0]["label"] == "tradeoff" and "broken.json (" in note
+    report, note, *slots = handlers.benchmarks(tmp_path, 1)  # more figures than slots
+    assert "only 1 figures are shown" in note
+
+
+def test_the_report_figures_are_served_and_nothing_else(tmp_path):
+    import urllib.error
+    import urllib.request
+
+    from app.app import build_demo, launch
+
+    (tmp_path / "figures").mkdir()
+    (tmp_path / "figures" / "fig.html").write_text("<html>the figure</html>")
+    demo = build_demo(FakePipeline(), docs=tmp_path)
+    port = free_port()
+    launch(demo, "127.0.0.1", port, block=False)
+    base = f"http://127.0.0.1:{port}/gradio_api/file="
+    try:
+        with urllib.request.urlopen(base + str(tmp_path / "figures" / "fig.html")) as r:
+            assert r.read() == b"<html>the figure</html>"
+        for outside in (Path(__file__).resolve(), Path("/etc/passwd")):
+            with pytest.raises(urllib.error.HTTPError) as e:
+                urllib.request.urlopen(base + str(outside))
+            assert e.value.code in (403, 404)
+    finally:
+        demo.close()
+
+
+# ------------------------------------------------------------------------- start-up and serving
+
+def test_the_app_serves_while_the_pipeline_loads(fake, pair_files):
+    import threading
+
+    from app import handlers
+    from app.app import _header
+    from app.loading import BackgroundPipeline, PipelineNotReady
+
+    go = threading.Event()
+    pending = BackgroundPipeline(lambda: go.wait(30) and fake, "fake-enc")
+    assert not pending.ready() and "loading the models" in _header(pending)
+    with pytest.raises(PipelineNotReady, match="still loading"):
+        pending.get(timeout=0.01)
+    visual = handlers.upload_visual(str(pair_files[0]))[0]
+    threading.Timer(0.2, go.set).start()
+    v = handlers.run_query(pending, _thumb, visual, str(pair_files[1]), None, None, None,
+                           None, 5)  # waits for the models, then answers
+    assert not v.status.startswith("**⛔") and pending.ready()
+    assert "corpus of 60" in _header(pending)
+
+    def broken():
+        raise DataError("assets/generator is missing")
+
+    failed = BackgroundPipeline(broken, "fake-enc")
+    failed._done.wait(5)
+    assert "⛔ failed: assets/generator is missing" in _header(failed)
+    v = handlers.run_query(failed, _thumb, visual, None, None, None, None, None, 5)
+    assert "failed to load: assets/generator is missing" in v.status
+
+
+def test_the_batcher_answers_concurrent_queries_together(monkeypatch):
+    import threading
+
+    from ratouch import serving
+
+    batches = []
+
+    def fake_many(pipe, requests):
+        batches.append(len(requests))
+        time.sleep(0.05)
+        return [DataError(f"bad {r['k']}") if r["k"] == 13 else {"k": r["k"]}
+                for r in requests]
+
+    monkeypatch.setattr(serving, "query_many", fake_many)
+    b = serving.QueryBatcher(SimpleNamespace(corpus="the corpus"), max_batch=4)
+    assert b.corpus == "the corpus"
+    out, errors = {}, {}
+
+    def ask(k):
+        try:
+            out[k] = b.query("visual", k=k)
+        except DataError as e:
+            errors[k] = str(e)
+
+    threads = [threading.Thread(target=ask, args=(k,)) for k in range(1, 11)] + \
+        [threading.Thread(target=ask, args=(13,))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(10)
+    assert out == {k: {"k": k} for k in range(1, 11)} and errors == {13: "bad 13"}
+    assert sum(batches) == 11 and max(batches) <= 4 and len(batches) < 11
 
 
 # ------------------------------------------------------------------------- a real server
@@ -428,3 +659,98 @@ def test_load_sixteen_clients_ten_queries_each(pair_files):
     p50, p95 = np.percentile(latencies, [50, 95])
     print(f"\nload: 160 queries, p50 {p50 * 1000:.0f} ms, p95 {p95 * 1000:.0f} ms; "
           f"RSS {rss0 / 2**20:.0f} -> {rss1 / 2**20:.0f} MiB")
+
+
+def _tie_free(neighbours: dict) -> dict:
+    """Neighbours by mode as (score, caption) multisets per score: entries with the same
+    caption tie exactly, and a batched search may order tied entries differently."""
+    return {m: sorted((n["score"], n["caption"]) for n in ns) for m, ns in neighbours.items()}
+
+
+@pytest.mark.slow
+def test_real_pipeline_batched_queries_match_single_ones(real_pipeline, world):
+    from ratouch.serving import query_many
+
+    samples = [world.sample("test", i) for i in (60, 140, 290)]
+    reqs = [{"visual": s.visual, "tactile": s.tactile, "box": s.box, "k": k, "label": s.caption}
+            for s, k in zip(samples, (5, 5, 3))]
+    reqs += [{"visual": samples[0].visual, "k": 4},  # image-only
+             {"visual": samples[0].visual, "box": (9, 9, 2, 2)},  # a bad box
+             {"visual": samples[0].visual, "k": 0}]  # a bad k
+    many = query_many(real_pipeline, reqs)
+    assert isinstance(many[4], DataError) and "box" in str(many[4])
+    assert isinstance(many[5], Exception) and "k must be" in str(many[5])
+    for req, got in zip(reqs[:4], many[:4]):
+        want = real_pipeline.query(**req)
+        assert _tie_free(got["neighbours"]) == _tie_free(want["neighbours"])
+        assert got["box"] == want["box"]
+        assert got["description"] == want["description"]
+        assert got["warnings"] == want["warnings"]
+        assert [p["role"] for p in got["pca"]["points"]] == \
+            [p["role"] for p in want["pca"]["points"]]
+        xy = lambda r: sorted((p["role"], p["x"], p["y"]) for p in r["pca"]["points"])  # noqa: E731
+        assert np.allclose([p[1:] for p in xy(got)], [p[1:] for p in xy(want)], atol=1e-4)
+        assert got["timings_ms"]["batch_size"] == 4
+
+
+@pytest.mark.slow
+def test_real_pipeline_smoke_two_clients(real_pipeline, pair_files):
+    """The real pipeline behind the batching server: 2 concurrent clients x 2 queries."""
+    import threading
+
+    from gradio_client import Client, handle_file
+
+    from app.app import build_demo, launch
+    from ratouch.serving import QueryBatcher
+
+    batcher = QueryBatcher(real_pipeline)
+    demo = build_demo(batcher)
+    port = free_port()
+    launch(demo, "127.0.0.1", port, block=False)
+    answers, errors = [], []
+
+    def client_run():
+        try:
+            c = Client(f"http://127.0.0.1:{port}/", verbose=False)
+            for _ in range(2):
+                answers.append(c.predict(handle_file(str(pair_files[0])),
+                                         handle_file(str(pair_files[1])), None, None, None,
+                                         None, 5, api_name="/query"))
+        except Exception as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    try:
+        threads = [threading.Thread(target=client_run) for _ in range(2)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=120)
+    finally:
+        demo.close()
+    assert not errors, errors
+    assert len(answers) == 4 and all(a["description"]["ra_touch"] for a in answers)
+    assert sum(batcher.batches) == 4
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(os.environ.get("RATOUCH_LOAD_TEST") != "1",
+                    reason="the real-pipeline load test runs with RATOUCH_LOAD_TEST=1 "
+                           "(or: python scripts/load_test.py)")
+def test_load_real_app_sixteen_clients():
+    """`python -m app` with the real default pipeline: time to ready, single-user p50, then
+    16 clients x 10 queries (scripts/load_test.py). Targets: HTTP-ready <= 15 s, p50 under
+    load <= 2x single-user p50, no failures."""
+    import importlib.util
+
+    if not HAVE_ASSETS:
+        pytest.skip("the trained retriever/generator weights are not in assets/ yet")
+    if not (USER_CACHE / "imagenet-t-10k-seed0" / "manifest.json").is_file():
+        pytest.skip(f"the default corpus is not built in {USER_CACHE} (start the app once)")
+    path = Path(__file__).resolve().parents[1] / "scripts" / "load_test.py"
+    spec = importlib.util.spec_from_file_location("load_test", path)
+    load_test = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(load_test)
+    report = load_test.run(deadline_s=120, env={**os.environ, "RATOUCH_CACHE": str(USER_CACHE)})
+    print("\n" + load_test.format_report(report))
+    assert report["failures"] == 0 and report["not_run"] == 0, report["failure_examples"]
+    assert all(report["targets"].values()), report["targets"]

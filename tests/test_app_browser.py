@@ -1,7 +1,9 @@
 """The app in a real browser: Debian's chromium driven by Playwright against the app served on
 127.0.0.1. Upload a visual/tactile pair, click two corners of the contact box, run the query,
-and check that the galleries, the PCA plot and the description appear. The screenshot is
-kept (tmp_path and /tmp/ratouch_app.png) for a person to look at."""
+and check that the galleries, the PCA plot and the description appear; then compute the
+failure-case table (a small one), open a case from it in Explore, and look at the Benchmarks
+tab. The screenshots are kept (tmp_path, /tmp/ratouch_app.png and /tmp/ratouch_failures.png)
+for a person to look at."""
 
 from __future__ import annotations
 
@@ -15,6 +17,10 @@ from test_app import HAVE_ASSETS, FakePipeline, free_port, load_real_pipeline
 
 CHROMIUM = Path("/usr/bin/chromium")
 SCREENSHOT_COPY = Path("/tmp/ratouch_app.png")
+FAILURES_COPY = Path("/tmp/ratouch_failures.png")
+CASE_COPY = Path("/tmp/ratouch_case.png")
+# a small failure table: two conditions, every 40th test pair (structured and wild)
+FAILURE_OPTIONS = {"conditions": ("natural", "noisy touch"), "indices": list(range(0, 402, 40))}
 
 pytestmark = pytest.mark.slow
 
@@ -24,9 +30,10 @@ def app_url(tmp_path_factory):
     """The app over the real pipeline on a small corpus if the trained assets exist, else
     over the fake pipeline, served on a free port of 127.0.0.1."""
     from app.app import build_demo, launch
+    from ratouch.serving import QueryBatcher
 
-    pipe = load_real_pipeline(tmp_path_factory) if HAVE_ASSETS else FakePipeline()
-    demo = build_demo(pipe)
+    pipe = QueryBatcher(load_real_pipeline(tmp_path_factory)) if HAVE_ASSETS else FakePipeline()
+    demo = build_demo(pipe, failure_options=FAILURE_OPTIONS, docs=tmp_path_factory.mktemp("docs"))
     port = free_port()
     launch(demo, "127.0.0.1", port, block=False)
     yield f"http://127.0.0.1:{port}/"
@@ -95,3 +102,40 @@ def test_upload_mark_box_query_in_chromium(app_url, page, tmp_path, world):
     page.get_by_text("Ground-truth label:").first.wait_for()
     page.locator("#run").click()
     page.locator("#description").get_by_text("Ground-truth label:").wait_for()
+
+
+def test_failure_cases_open_in_explore_in_chromium(app_url, page, tmp_path):
+    if not HAVE_ASSETS:
+        pytest.skip("the failure table needs the real pipeline (trained assets)")
+    page.set_default_timeout(120_000)
+    page.goto(app_url)
+    page.get_by_role("tab", name="Failure cases").click()
+    page.locator("#fail-status").get_by_text("not been computed").wait_for()
+    page.locator("#fail-compute").click()
+    page.locator("#fail-status").get_by_text("click a row").wait_for()
+    grid = page.locator("#fail-cases [role=grid]")
+    assert grid.get_attribute("aria-rowcount") == "23"  # header + 2 conditions x 11 pairs
+    page.get_by_label("condition").first.click()
+    page.get_by_role("option", name="noisy touch").click()
+    page.locator("#fail-status").get_by_text("Showing 11 of 11").wait_for()
+    page.wait_for_timeout(300)
+    shot = tmp_path / "ratouch_failures.png"
+    page.screenshot(path=str(shot), full_page=True)
+    shutil.copy(shot, FAILURES_COPY)
+
+    assert grid.get_attribute("aria-rowcount") == "12"
+    cell = lambda col: page.locator(f"#fail-cases [data-testid=cell-0-{col}]")  # noqa: E731
+    condition, index = (cell(j).inner_text().strip() for j in (0, 1))
+    cell(4).click()  # the first (worst) case's label
+    page.locator("#status").get_by_text(f"failure case #{index} under").wait_for()
+    assert condition == "noisy touch"
+    page.locator("#description").get_by_text("judge").first.wait_for()
+    assert page.locator("#visual img").first.is_visible()  # back in Explore
+    assert page.locator("#gallery-joint img").count() == 5
+    page.locator("#pca .js-plotly-plot").wait_for()
+    page.wait_for_timeout(500)
+    page.screenshot(path=str(tmp_path / "ratouch_case.png"), full_page=True)
+    shutil.copy(tmp_path / "ratouch_case.png", CASE_COPY)
+
+    page.get_by_role("tab", name="Benchmarks").click()
+    page.locator("#bench-report").get_by_text("Not generated yet").wait_for()

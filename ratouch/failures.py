@@ -1,0 +1,361 @@
+"""Failure cases of RA-Touch on the world's test split, under a few named stress conditions.
+
+For every (condition, test sample): the no-retrieval baseline's and RA-Touch's descriptions and
+their offline-judge scores, and the material precision@K of the neighbours that each query mode
+(image / tactile / joint) retrieves. Two questions are asked of the table:
+
+- where does RA-Touch score lowest (and how far below the baseline, `ra_delta`)?
+- where does the joint (Tactile-Guided Retriever) query retrieve worse neighbours than the best
+  single-modality query (`joint_loses`)?
+
+`load_or_compute` caches the table as JSON under ``cache_dir()/failures/`` keyed by the settings
+and the asset manifests, so a second call (or the app) reads it at once; `case_sample` rebuilds
+one case's inputs from (condition, index) so it can be queried again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import threading
+import time
+from dataclasses import asdict
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from ratouch.errors import ConfigError, DataError
+from ratouch.world.config import WorldConfig
+
+log = logging.getLogger(__name__)
+
+FORMAT_VERSION = 1
+
+# name -> stress knobs (`WorldConfig.with_stress`), applied on top of the given world
+CONDITIONS: dict[str, dict[str, Any]] = {
+    "natural": {},
+    "small object + dominant background": {"object_scale": 0.12, "background_dominance": 1.0,
+                                           "clutter": 4},
+    "noisy touch": {"tactile_noise": 0.2},
+    "box offset": {"box_offset": 1.0},
+}
+DEFAULT_CONDITIONS = tuple(CONDITIONS)
+MODES = ("image", "tactile", "joint")
+SUBSETS = ("structured", "wild")
+# view name -> what it shows
+VIEWS = {"ra_lowest": "RA-Touch scores lowest",
+         "joint_loses": "joint query loses to a unimodal one"}
+
+Progress = Callable[[float, str], Any]
+
+
+# --------------------------------------------------------------------------- conditions
+
+def condition_world(world: WorldConfig | None, condition: str) -> WorldConfig:
+    """The world config of a named condition (its stress knobs over `world`'s)."""
+    if condition not in CONDITIONS:
+        raise ConfigError(f"unknown condition {condition!r}; known: {', '.join(CONDITIONS)}")
+    return (world or WorldConfig()).with_stress(**CONDITIONS[condition])
+
+
+def case_sample(condition: str, index: int, world: WorldConfig | None = None):
+    """The test sample `index` of a condition's world (a `ratouch.world.generator.Sample`):
+    its `.visual`, `.tactile`, `.box` and `.caption` are one failure case's query inputs."""
+    from ratouch.world.dataset import world_for
+    from ratouch.world.generator import TEST_SIZE
+
+    try:
+        i = int(index)
+    except (TypeError, ValueError) as e:
+        raise DataError(f"test index must be an integer, got {index!r}") from e
+    if not 0 <= i < TEST_SIZE:
+        raise DataError(f"test index {i} is out of range 0..{TEST_SIZE - 1}")
+    return world_for(condition_world(world, condition)).sample("test", i)
+
+
+def case_inputs(condition: str, index: int, world: WorldConfig | None = None
+                ) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int, int], str]:
+    """(visual image, tactile image, contact box, ground-truth label) of one case."""
+    s = case_sample(condition, index, world)
+    return s.visual, s.tactile, tuple(int(v) for v in s.box), s.caption
+
+
+# --------------------------------------------------------------------------- judging
+
+@lru_cache(maxsize=1)
+def _offline_judge():
+    from ratouch.judge import OfflineJudge
+
+    return OfflineJudge()
+
+
+def judge_scores(label: str | None, descriptions: Mapping[str, str | None]
+                 ) -> dict[str, float | None]:
+    """Offline-judge score (1-10) of each description against the ground-truth label.
+
+    Returns {} without a label; a description that is missing or empty scores None (it was
+    not generated), not the judge's 1."""
+    if not label:
+        return {}
+    judge = _offline_judge()
+    return {name: (round(judge.score(label, text), 2) if text else None)
+            for name, text in descriptions.items()}
+
+
+# --------------------------------------------------------------------------- computing
+
+def material_precision(ids: np.ndarray, materials: Sequence[str], entry_materials: np.ndarray
+                       ) -> np.ndarray:
+    """Per query: the share of its retrieved entries (N, K ids) made of its material."""
+    return (entry_materials[np.asarray(ids)] == np.asarray(materials)[:, None]).mean(1)
+
+
+def failure_cases(pipeline, world: WorldConfig | None = None, k: int = 5,
+                  conditions: Sequence[str] = DEFAULT_CONDITIONS,
+                  indices: Sequence[int] | None = None, judge=None,
+                  progress: Progress | None = None) -> list[dict]:
+    """One row per (condition, test sample) with descriptions, scores and retrieval quality.
+
+    Args:
+        pipeline: a loaded `RATouchPipeline` (encoders, corpus, retriever, both generators).
+        world: the base world (default: seed 0, no stress); each condition adds its knobs.
+        k: neighbours per query (RA-Touch reads the joint query's K neighbours).
+        conditions: names from `CONDITIONS`.
+        indices: test-split indices (default: all 402).
+        judge: scores descriptions (default: the offline judge).
+        progress: called as progress(fraction, what) between steps.
+
+    Returns:
+        Rows {"condition", "index", "subset", "material", "object_scale", "label",
+        "baseline", "ra_touch", "baseline_score", "ra_score", "ra_delta",
+        "precision_image", "precision_tactile", "precision_joint", "best_unimodal",
+        "joint_gap", "joint_loses"}; precisions are material precision@K of each mode's
+        neighbours, `joint_gap` = best unimodal precision - joint precision.
+    """
+    from ratouch.tvl_eval import encode_test_split, retrieve, system_responses
+
+    conditions = _check_conditions(conditions)
+    if not 1 <= int(k) <= len(pipeline.corpus.entries):
+        raise ConfigError(f"k must be in 1..{len(pipeline.corpus.entries)}, got {k}")
+    judge = judge or _offline_judge()
+    entry_mats = np.array([e.material for e in pipeline.corpus.entries])
+    if not entry_mats.size or not all(entry_mats):
+        raise DataError("the corpus entries carry no material: failure cases need a world "
+                        "corpus (ImageNet-T built from the procedural world)")
+    steps, done = 4 * len(conditions), 0
+
+    def step(what: str) -> None:
+        nonlocal done
+        if progress is not None:
+            progress(done / steps, what)
+        done += 1
+
+    rows: list[dict] = []
+    for cond in conditions:
+        step(f"{cond}: rendering and encoding the test split")
+        split = encode_test_split(pipeline.encoders, condition_world(world, cond), indices)
+        step(f"{cond}: baseline descriptions")
+        base, _ = system_responses(pipeline, split, "baseline", k)
+        step(f"{cond}: RA-Touch descriptions")
+        ra, joint_ids = system_responses(pipeline, split, "ra-touch", k)
+        step(f"{cond}: retrieval quality and judging")
+        prec = {"joint": material_precision(joint_ids, split.materials, entry_mats)}
+        for mode in ("image", "tactile"):
+            prec[mode] = material_precision(retrieve(pipeline, split.V, split.T, k, mode),
+                                            split.materials, entry_mats)
+        s_base = judge.score_many(zip(split.labels, base))
+        s_ra = judge.score_many(zip(split.labels, ra))
+        for j, idx in enumerate(split.indices):
+            best = max(float(prec["image"][j]), float(prec["tactile"][j]))
+            pj = float(prec["joint"][j])
+            rows.append({
+                "condition": cond, "index": int(idx), "subset": split.subsets[j],
+                "material": split.materials[j], "object_scale": round(split.object_scale[j], 3),
+                "label": split.labels[j], "baseline": base[j], "ra_touch": ra[j],
+                "baseline_score": round(float(s_base[j]), 3),
+                "ra_score": round(float(s_ra[j]), 3),
+                "ra_delta": round(float(s_ra[j]) - float(s_base[j]), 3),
+                **{f"precision_{m}": round(float(prec[m][j]), 4) for m in MODES},
+                "best_unimodal": round(best, 4), "joint_gap": round(best - pj, 4),
+                "joint_loses": bool(pj < best)})
+    if progress is not None:
+        progress(1.0, "done")
+    return rows
+
+
+def _check_conditions(conditions: Iterable[str]) -> tuple[str, ...]:
+    out = tuple(dict.fromkeys(conditions))
+    if not out:
+        raise ConfigError("give at least one condition")
+    unknown = [c for c in out if c not in CONDITIONS]
+    if unknown:
+        raise ConfigError(f"unknown condition(s) {unknown}; known: {', '.join(CONDITIONS)}")
+    return out
+
+
+# --------------------------------------------------------------------------- the cache
+
+def _file_digest(path: Path) -> str | None:
+    from ratouch.checkpoint import sha256_file
+
+    return sha256_file(path) if path.is_file() else None
+
+
+def asset_manifests(pipeline) -> dict[str, str | None]:
+    """sha256 of every manifest the table depends on: encoder, retriever and generator
+    weights, the corpus and its embeddings (None for one that does not exist)."""
+    from ratouch.encoders.factory import ASSETS
+
+    enc = pipeline.encoders.name
+    files = {f"encoders/{enc}": ASSETS / "encoders" / enc / "manifest.json",
+             f"retriever/{enc}": ASSETS / "retriever" / enc / "manifest.json",
+             f"generator/{enc}/ra": ASSETS / "generator" / enc / "ra" / "manifest.json",
+             f"generator/{enc}/baseline": ASSETS / "generator" / enc / "baseline" / "manifest.json"}
+    out = {name: _file_digest(p) for name, p in files.items()}
+    corpus = pipeline.corpus
+    out["corpus"] = (getattr(corpus, "manifest", None) or {}).get("metadata_sha256")
+    folder = getattr(corpus, "folder", None)
+    if folder is not None:
+        from ratouch.embed import EMBED_MANIFEST, embeddings_dir
+
+        out["embeddings"] = _file_digest(embeddings_dir(folder, enc) / EMBED_MANIFEST)
+    return out
+
+
+def settings(pipeline, world: WorldConfig | None = None, k: int = 5,
+             conditions: Sequence[str] = DEFAULT_CONDITIONS,
+             indices: Sequence[int] | None = None) -> dict:
+    """Everything a cached table depends on (its key is a hash of this)."""
+    conditions = _check_conditions(conditions)
+    return {"version": FORMAT_VERSION, "encoder": pipeline.encoders.name, "k": int(k),
+            "world": asdict(world or WorldConfig()),
+            "conditions": {c: CONDITIONS[c] for c in conditions},
+            "indices": None if indices is None else [int(i) for i in indices],
+            "corpus_size": len(pipeline.corpus.entries),
+            "judge": _offline_judge().params, "assets": asset_manifests(pipeline)}
+
+
+def cache_path(pipeline, world: WorldConfig | None = None, k: int = 5,
+               conditions: Sequence[str] = DEFAULT_CONDITIONS,
+               indices: Sequence[int] | None = None) -> Path:
+    """``cache_dir()/failures/<encoder>-<hash of settings and asset manifests>.json``."""
+    from ratouch.pipeline import cache_dir
+
+    key = json.dumps(settings(pipeline, world, k, conditions, indices), sort_keys=True,
+                     default=str)
+    digest = hashlib.sha256(key.encode()).hexdigest()[:16]
+    return cache_dir() / "failures" / f"{pipeline.encoders.name}-{digest}.json"
+
+
+def load_cached(path: str | Path) -> dict | None:
+    """A cached table ({"rows", "meta"}), or None if there is none (or it is unreadable)."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    try:
+        table = json.loads(path.read_text(encoding="utf-8"))
+        if table.get("meta", {}).get("version") != FORMAT_VERSION or \
+                not isinstance(table.get("rows"), list):
+            raise ValueError("unexpected layout")
+    except (OSError, ValueError, AttributeError) as e:
+        log.warning("ignoring unreadable failure-case cache %s: %s", path, e)
+        return None
+    return table
+
+
+_locks: dict[Path, threading.Lock] = {}
+_locks_guard = threading.Lock()
+
+
+def load_or_compute(pipeline, world: WorldConfig | None = None, k: int = 5,
+                    conditions: Sequence[str] = DEFAULT_CONDITIONS,
+                    indices: Sequence[int] | None = None, progress: Progress | None = None,
+                    cached_only: bool = False, refresh: bool = False) -> dict | None:
+    """The failure-case table for these settings: read from the cache, else computed and
+    cached. Threads asking for the same table compute it once.
+
+    Args:
+        cached_only: return None instead of computing when nothing is cached.
+        refresh: recompute even if a cached table exists.
+
+    Returns:
+        {"rows": [...] (see `failure_cases`), "meta": {settings..., "seconds", "computed_at",
+        "path"}} or None (cached_only and nothing cached).
+    """
+    path = cache_path(pipeline, world, k, conditions, indices)
+    if not refresh and (table := load_cached(path)) is not None:
+        return table
+    if cached_only:
+        return None
+    with _locks_guard:
+        lock = _locks.setdefault(path, threading.Lock())
+    with lock:
+        if not refresh and (table := load_cached(path)) is not None:
+            return table  # another thread computed it while this one waited
+        from ratouch.judge import write_json_atomic
+
+        t0 = time.perf_counter()
+        rows = failure_cases(pipeline, world, k, conditions, indices, progress=progress)
+        meta = settings(pipeline, world, k, conditions, indices)
+        meta.update({"seconds": round(time.perf_counter() - t0, 1),
+                     "computed_at": time.strftime("%Y-%m-%d %H:%M:%S"), "path": str(path),
+                     "n_rows": len(rows)})
+        table = {"meta": meta, "rows": rows}
+        write_json_atomic(path, table)
+        log.info("failure cases: %d rows in %.0f s, cached in %s", len(rows), meta["seconds"],
+                 path)
+        return table
+
+
+# --------------------------------------------------------------------------- reading the table
+
+def select_cases(rows: Sequence[dict], subset: str = "all", condition: str = "all",
+                 view: str = "ra_lowest", limit: int | None = 50) -> list[dict]:
+    """The worst cases of a view, filtered by subset and condition ("all" keeps every one).
+
+    Views:
+        ra_lowest: by RA-Touch's judge score, lowest first (then the largest loss to the
+            baseline).
+        joint_loses: only cases whose joint query's material precision is below the best
+            unimodal one, the largest gap first (then RA-Touch's score, lowest first).
+    """
+    if view not in VIEWS:
+        raise ConfigError(f"view must be one of {list(VIEWS)}, got {view!r}")
+    if subset not in ("all", *SUBSETS):
+        raise ConfigError(f"subset must be 'all' or one of {SUBSETS}, got {subset!r}")
+    if condition != "all" and condition not in CONDITIONS:
+        raise ConfigError(f"unknown condition {condition!r}")
+    out = [r for r in rows if (subset == "all" or r["subset"] == subset)
+           and (condition == "all" or r["condition"] == condition)]
+    if view == "ra_lowest":
+        out.sort(key=lambda r: (r["ra_score"], r["ra_delta"], r["condition"], r["index"]))
+    else:
+        out = [r for r in out if r["joint_loses"]]
+        out.sort(key=lambda r: (-r["joint_gap"], r["ra_score"], r["condition"], r["index"]))
+    return out if limit is None else out[:int(limit)]
+
+
+def summarise(rows: Sequence[dict]) -> list[dict]:
+    """Per condition (in table order) and subset: n, mean baseline / RA-Touch score, mean
+    material precision per mode, and the share of cases where the joint query loses."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in rows:
+        for sub in (r["subset"], "all"):
+            groups.setdefault((r["condition"], sub), []).append(r)
+    out = []
+    for (cond, sub), rs in groups.items():
+        if sub != "all" and len({r["subset"] for r in rows if r["condition"] == cond}) < 2:
+            continue  # one subset only: its row would repeat "all"
+        mean = lambda key: round(float(np.mean([r[key] for r in rs])), 3)  # noqa: E731
+        out.append({"condition": cond, "subset": sub, "n": len(rs),
+                    "baseline_score": mean("baseline_score"), "ra_score": mean("ra_score"),
+                    "ra_delta": mean("ra_delta"),
+                    **{f"precision_{m}": mean(f"precision_{m}") for m in MODES},
+                    "joint_loses": round(float(np.mean([r["joint_loses"] for r in rs])), 3)})
+    order = {c: i for i, c in enumerate(dict.fromkeys(r["condition"] for r in rows))}
+    sub_order = {"all": 0, "structured": 1, "wild": 2}
+    out.sort(key=lambda s: (order[s["condition"]], sub_order[s["subset"]]))
+    return out

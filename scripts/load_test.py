@@ -1,0 +1,326 @@
+"""Load test of the app with the real default pipeline, as a user would start it.
+
+Launches `python -m app --port P` on 127.0.0.1 and measures:
+
+1. time to ready: from launch until the HTTP endpoint answers, and until the first `/query`
+   is answered (the models load in the background, so the second is later);
+2. single-user latency: sequential `/query` calls (`gradio_client`), p50;
+3. under load: N concurrent clients x M queries each, p50 / p95 and failures;
+4. the server's RSS (psutil, with its child processes) before and after the load, and the
+   machine's load average while it ran.
+
+Targets (reported, checked with --check): HTTP-ready <= 15 s; p50 under load <= 2x the
+single-user p50. Bounded in time: queries still waiting at --deadline are counted as not run.
+
+    .venv/bin/python scripts/load_test.py [--clients 16] [--queries 10] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+READY_TARGET_S = 15.0
+LOAD_RATIO_TARGET = 2.0
+PAIRS = (60, 140, 190, 290, 12, 390, 75, 333)  # test-split pairs the clients send, in turn
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def write_pairs(folder: Path) -> list[tuple[str, str, list[int]]]:
+    """Test-split pairs as PNG files (what a client uploads), with their contact boxes."""
+    from PIL import Image
+
+    from ratouch.world.generator import World
+
+    world, out = World(), []
+    for i in PAIRS:
+        s = world.sample("test", i)
+        v, t = folder / f"visual_{i}.png", folder / f"tactile_{i}.png"
+        Image.fromarray(s.visual).save(v)
+        Image.fromarray(s.tactile).save(t)
+        out.append((str(v), str(t), [int(x) for x in s.box]))
+    return out
+
+
+def rss_mib(pid: int) -> float:
+    import psutil
+
+    p = psutil.Process(pid)
+    procs = [p, *p.children(recursive=True)]
+    total = 0
+    for q in procs:
+        try:
+            total += q.memory_info().rss
+        except psutil.Error:
+            pass
+    return round(total / 2**20, 1)
+
+
+def cpu_s(pid: int, children: bool = True) -> float:
+    """User + system CPU seconds of a process (and its children)."""
+    import psutil
+
+    p = psutil.Process(pid)
+    total = 0.0
+    for q in [p, *(p.children(recursive=True) if children else [])]:
+        try:
+            t = q.cpu_times()
+            total += t.user + t.system
+        except psutil.Error:
+            pass
+    return total
+
+
+def busy_s() -> float:
+    """CPU seconds the whole machine has been busy (all cores)."""
+    import psutil
+
+    t = psutil.cpu_times()
+    return sum(t) - t.idle - getattr(t, "iowait", 0.0)
+
+
+def wait_http(url: str, proc: subprocess.Popen, timeout: float) -> None:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if proc.poll() is not None:
+            raise RuntimeError(f"the app exited with code {proc.returncode} before answering")
+        try:
+            with urllib.request.urlopen(url, timeout=2) as r:
+                if r.status == 200:
+                    return
+        except OSError:
+            pass
+        time.sleep(0.1)
+    raise RuntimeError(f"{url} did not answer within {timeout:.0f} s")
+
+
+class LoadAverage(threading.Thread):
+    """Samples os.getloadavg()[0] every second while the load runs."""
+
+    def __init__(self):
+        super().__init__(daemon=True)
+        self.samples: list[float] = []
+        self.stop = threading.Event()
+
+    def run(self) -> None:
+        while not self.stop.is_set():
+            self.samples.append(os.getloadavg()[0])
+            self.stop.wait(1.0)
+
+
+def percentiles(xs: list[float]) -> dict:
+    if not xs:
+        return {"n": 0}
+    p50, p95 = np.percentile(xs, [50, 95])
+    return {"n": len(xs), "p50_s": round(float(p50), 3), "p95_s": round(float(p95), 3),
+            "mean_s": round(float(np.mean(xs)), 3), "max_s": round(float(max(xs)), 3)}
+
+
+def run(clients: int = 16, queries: int = 10, single: int = 8, k: int = 5,
+        deadline_s: float = 120.0, app_args: tuple[str, ...] = (), env: dict | None = None,
+        log=print) -> dict:
+    """Launch the app, measure, stop it. Returns the report (a JSON-ready dict).
+
+    Args:
+        deadline_s: longest load phase: queries not sent by then are counted as not run.
+        app_args: extra `python -m app` arguments.
+        env: the app's environment (default: this process's).
+    """
+    from gradio_client import Client, handle_file
+
+    t_start = time.monotonic()
+    port = free_port()
+    url = f"http://127.0.0.1:{port}/"
+    report: dict = {"clients": clients, "queries_per_client": queries, "k": k,
+                    "app_args": list(app_args),
+                    "cpus": os.cpu_count(), "loadavg_before": [round(x, 2) for x in
+                                                                 os.getloadavg()]}
+    with tempfile.TemporaryDirectory(prefix="ratouch-load-") as tmp:
+        pairs = write_pairs(Path(tmp))
+        server_log = open(Path(tmp) / "server.log", "w")
+        t0 = time.monotonic()
+        proc = subprocess.Popen([sys.executable, "-m", "app", "--host", "127.0.0.1",
+                                 "--port", str(port), *app_args], cwd=REPO, env=env,
+                                stdout=server_log, stderr=subprocess.STDOUT)
+        try:
+            wait_http(url, proc, timeout=120)
+            report["ready_http_s"] = round(time.monotonic() - t0, 2)
+            log(f"HTTP endpoint answers {report['ready_http_s']} s after launch")
+
+            def ask(c: Client, j: int) -> float:
+                v, t, box = pairs[j % len(pairs)]
+                t1 = time.monotonic()
+                out = c.predict(handle_file(v), handle_file(t), *box, k, api_name="/query")
+                if len(out["neighbours"]["joint"]) != k or not out["description"]["ra_touch"]:
+                    raise RuntimeError(f"incomplete answer: {str(out)[:200]}")
+                with lock:
+                    server.append((out["timings_ms"]["total"] / 1000,
+                                   out["timings_ms"].get("batch_size", 1)))
+                return time.monotonic() - t1
+
+            lock = threading.Lock()
+            server: list[tuple[float, int]] = []  # (pipeline seconds, batch size) per answer
+            client = Client(url, verbose=False)
+            ask(client, 0)  # waits for the models
+            report["ready_query_s"] = round(time.monotonic() - t0, 2)
+            log(f"first /query answered {report['ready_query_s']} s after launch")
+            solo = [ask(client, j) for j in range(1, single + 1)]
+            report["single"] = percentiles(solo)
+            report["single"]["pipeline_mean_s"] = round(float(np.mean(
+                [t for t, _ in server[-single:]])), 3)
+            log(f"single user: {report['single']}")
+            report["rss_before_mib"] = rss_mib(proc.pid)
+
+            latencies: list[float] = []
+            failures: list[str] = []
+            not_run = [0]
+            n_solo = len(server)
+
+            def client_run(ci: int) -> None:
+                try:
+                    c = Client(url, verbose=False)
+                except Exception as e:  # noqa: BLE001 - counted and reported
+                    with lock:
+                        failures.extend([f"connect: {type(e).__name__}: {e}"] * queries)
+                    return
+                for q in range(queries):
+                    if time.monotonic() > stop_at:
+                        with lock:
+                            not_run[0] += queries - q
+                        return
+                    try:
+                        dt = ask(c, ci + q)
+                        with lock:
+                            latencies.append(dt)
+                    except Exception as e:  # noqa: BLE001 - counted and reported
+                        with lock:
+                            failures.append(f"{type(e).__name__}: {str(e)[:200]}")
+
+            loadavg = LoadAverage()
+            loadavg.start()
+            cpu0 = (cpu_s(proc.pid), cpu_s(os.getpid(), children=False), busy_s())
+            t_load = time.monotonic()
+            stop_at = t_load + deadline_s
+            threads = [threading.Thread(target=client_run, args=(i,)) for i in range(clients)]
+            for th in threads:
+                th.start()
+            for th in threads:
+                th.join(timeout=max(1.0, stop_at - time.monotonic() + 60))
+            loadavg.stop.set()
+            report["load_wall_s"] = round(time.monotonic() - t_load, 1)
+            n_done = max(1, len(latencies) + len(failures))
+            report["cpu_s_per_query"] = {  # where the machine's time went under load
+                "server": round((cpu_s(proc.pid) - cpu0[0]) / n_done, 3),
+                "clients": round((cpu_s(os.getpid(), children=False) - cpu0[1]) / n_done, 3)}
+            busy = busy_s() - cpu0[2]  # every process on the machine
+            report["machine_busy"] = round(busy / (report["load_wall_s"] * (os.cpu_count() or 1)),
+                                           2)
+            report["cpu_s_per_query"]["other processes"] = round(
+                busy / n_done - sum(report["cpu_s_per_query"].values()), 3)
+            report["under_load"] = percentiles(latencies)
+            loaded = server[n_solo:]
+            if loaded:  # what the pipeline itself took, and how full its batches were
+                report["under_load"]["pipeline_mean_s"] = round(float(np.mean(
+                    [t for t, _ in loaded])), 3)
+                report["under_load"]["mean_batch"] = round(float(np.mean(
+                    [b for _, b in loaded])), 2)
+            report["throughput_qps"] = round(len(latencies) / report["load_wall_s"], 2)
+            report["failures"] = len(failures)
+            report["failure_examples"] = sorted(set(failures))[:5]
+            report["not_run"] = not_run[0]
+            report["rss_after_mib"] = rss_mib(proc.pid)
+            report["loadavg_during"] = {
+                "mean": round(float(np.mean(loadavg.samples)), 2),
+                "max": round(float(max(loadavg.samples)), 2)} if loadavg.samples else None
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+            server_log.close()
+            report["server_log_tail"] = (Path(tmp) / "server.log").read_text(
+                errors="replace").splitlines()[-8:]
+    single_p50 = report.get("single", {}).get("p50_s")
+    load_p50 = report.get("under_load", {}).get("p50_s")
+    report["ratio_p50"] = round(load_p50 / single_p50, 2) if single_p50 and load_p50 else None
+    report["targets"] = {
+        f"ready_http <= {READY_TARGET_S:.0f} s": report.get("ready_http_s", 1e9) <= READY_TARGET_S,
+        f"p50 under load <= {LOAD_RATIO_TARGET:.0f}x single": (report["ratio_p50"] or 1e9)
+        <= LOAD_RATIO_TARGET,
+        "no failures": report.get("failures", 1) == 0 and report.get("not_run", 1) == 0}
+    report["total_s"] = round(time.monotonic() - t_start, 1)
+    return report
+
+
+def format_report(r: dict) -> str:
+    s, u = r.get("single", {}), r.get("under_load", {})
+    lines = [
+        f"machine: {r['cpus']} CPUs, load average before {r['loadavg_before']}, during "
+        f"{r.get('loadavg_during')}",
+        f"ready: HTTP {r.get('ready_http_s')} s, first /query {r.get('ready_query_s')} s "
+        "after launch",
+        f"single user: p50 {s.get('p50_s')} s, p95 {s.get('p95_s')} s ({s.get('n')} queries; "
+        f"the pipeline itself {s.get('pipeline_mean_s')} s on average)",
+        f"{r['clients']} clients x {r['queries_per_client']} queries: p50 {u.get('p50_s')} s, "
+        f"p95 {u.get('p95_s')} s, max {u.get('max_s')} s, {u.get('n')} answered, "
+        f"{r.get('failures')} failed, {r.get('not_run')} not run, "
+        f"{r.get('throughput_qps')} queries/s over {r.get('load_wall_s')} s",
+        f"  the pipeline itself {u.get('pipeline_mean_s')} s per batch on average, batches of "
+        f"{u.get('mean_batch')} queries on average (per answered query)",
+        f"  CPU seconds per query under load: {r.get('cpu_s_per_query')} (the app, the "
+        f"load-generating clients and everything else on the machine); the machine's "
+        f"{r['cpus']} CPUs were {r.get('machine_busy', 0):.0%} busy",
+        f"p50 under load / single-user p50: {r.get('ratio_p50')}",
+        f"server RSS: {r.get('rss_before_mib')} MiB before the load, {r.get('rss_after_mib')} "
+        "MiB after",
+        "targets: " + ", ".join(f"{k}: {'met' if ok else 'NOT met'}"
+                                for k, ok in r["targets"].items()),
+    ]
+    if r.get("failure_examples"):
+        lines.append("failures, e.g.: " + " | ".join(r["failure_examples"]))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--clients", type=int, default=16)
+    p.add_argument("--queries", type=int, default=10, help="queries per client")
+    p.add_argument("--single", type=int, default=8, help="sequential single-user queries")
+    p.add_argument("--deadline", type=float, default=120.0,
+                   help="longest load phase (s): queries not sent by then count as not run")
+    p.add_argument("--max-batch", type=int, default=None,
+                   help="passed to the app (1 answers every query on its own)")
+    p.add_argument("--json", default=None, help="also write the report here")
+    p.add_argument("--check", action="store_true", help="exit 1 when a target is not met")
+    args = p.parse_args(argv)
+    app_args = () if args.max_batch is None else ("--max-batch", str(args.max_batch))
+    r = run(args.clients, args.queries, args.single, deadline_s=args.deadline,
+            app_args=app_args, log=lambda m: print(m, flush=True))
+    print(format_report(r))
+    if args.json:
+        Path(args.json).write_text(json.dumps(r, indent=1) + "\n")
+    return 1 if args.check and not all(r["targets"].values()) else 0
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(REPO))
+    sys.exit(main())
