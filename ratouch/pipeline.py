@@ -169,57 +169,13 @@ class RATouchPipeline:
             "pca": {"points": [{"role", "x", "y", "id"?}], "explained": [..]},
             "timings_ms": {stage: ms, ..., "total": ms}, "warnings": [...], "box": [...]}
         """
-        from ratouch.encoders.preprocess import crop_box, to_rgb_array, tvl_contact_box
+        from ratouch.serving import query_many  # the one implementation, batched or not
 
-        t_start = time.perf_counter()
-        timings: dict[str, float] = {}
-        warnings: list[str] = []
-
-        def lap(stage: str, t0: float) -> float:
-            now = time.perf_counter()
-            timings[stage] = round((now - t0) * 1000, 2)
-            return now
-
-        t = time.perf_counter()
-        image = to_rgb_array(visual, name="visual image")
-        if box is None:
-            box = tvl_contact_box(image.shape[1], image.shape[0])
-            warnings.append(f"no contact box given: used TVL's centred crop {list(box)}")
-        crop = crop_box(image, box)
-        frame = to_rgb_array(tactile, name="tactile image") if tactile is not None else None
-        if frame is None:
-            warnings.append("no tactile image: image-only retrieval; the tactile and joint "
-                            "queries and the RA-Touch description are not available")
-        t = lap("preprocess", t)
-        V = self.encoders.encode_image([crop])
-        t = lap("encode_image", t)
-        queries = {"image": V}
-        if frame is not None:
-            T = self.encoders.encode_tactile([frame])
-            t = lap("encode_tactile", t)
-            queries["tactile"] = T
-            queries["joint"] = self.joint_query(V, T)
-            t = lap("retriever", t)
-        # every mode searches the text index: one batched search for all of them
-        modes = [m for m, (q, _) in MODES.items() if q in queries]
-        scores, ids = self.corpus.search("text", np.concatenate([queries[m] for m in modes]), k)
-        results = {m: (scores[i:i + 1], ids[i:i + 1]) for i, m in enumerate(modes)}
-        t = lap("search", t)
-        if frame is not None:
-            ra = self.describe(V, T, results["joint"][1])[0]
-            t = lap("generate_ra", t)
-            base = self.describe(V, T, None)[0]
-            t = lap("generate_baseline", t)
-        else:
-            ra, base = "", ""
-        points = self._pca_points(queries, results, label)
-        t = lap("pca", t)
-        neighbours = {mode: [self._neighbour(i, s) for s, i in zip(sc[0], ids[0])]
-                      for mode, (sc, ids) in results.items()}
-        timings["total"] = round((time.perf_counter() - t_start) * 1000, 2)
-        return {"neighbours": neighbours, "description": {"ra_touch": ra, "baseline": base},
-                "pca": {"points": points, "explained": list(self.pca.explained)},
-                "timings_ms": timings, "warnings": warnings, "box": [int(v) for v in box]}
+        out = query_many(self, [{"visual": visual, "tactile": tactile, "box": box, "k": k,
+                                 "label": label}])[0]
+        if isinstance(out, Exception):
+            raise out
+        return out
 
     def _neighbour(self, i: int, score: float) -> dict:
         e = self.corpus.entry(int(i))
