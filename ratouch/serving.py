@@ -51,7 +51,7 @@ def _prepare(pipeline, req: Mapping[str, Any]) -> dict:
 
 
 def query_many(pipeline, requests: Sequence[Mapping[str, Any]]) -> list[dict | Exception]:
-    """Several `RATouchPipeline.query` calls at once.
+    """Several `RATouchPipeline.query` calls at once (`query` is this with one request).
 
     Args:
         pipeline: a loaded `RATouchPipeline`.
