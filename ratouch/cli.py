@@ -505,7 +505,9 @@ def _eval_experiments(args: argparse.Namespace) -> int:
     reports = run_experiments(names, cfg, args.out)
     out = Path(args.out)
     doc = out / ("results.md" if args.eval_cmd == "all" else f"{args.eval_cmd}.md")
-    doc.write_text(results_markdown(reports, cfg, time.perf_counter() - t0), encoding="utf-8")
+    doc.write_text(results_markdown(reports, cfg, time.perf_counter() - t0,
+                                    out=out if args.eval_cmd == "all" else None),
+                   encoding="utf-8")
     for rep in reports:
         print(f"## {rep.title}  ({rep.seconds:.0f} s)\n\n{rep.markdown}\n")
     print(f"wrote {doc} and its figures in {out / 'figures'}")

@@ -699,8 +699,36 @@ def run_experiments(names: Sequence[str], cfg: ExperimentConfig, out: str | os.P
     return reports
 
 
+def companion_sections(out: str | os.PathLike) -> str:
+    """The speed-against-accuracy and stress reports that live beside the results, when their
+    commands (`ratouch bench tradeoff`, `ratouch eval stress --out <out>/stress`) made them."""
+    out, parts = Path(out), []
+    trade = out / "figures" / "tradeoff.md"
+    if trade.is_file():
+        stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime(trade.stat().st_mtime))
+        parts += [trade.read_text(encoding="utf-8").strip(), "",
+                  f"Made by `ratouch bench tradeoff` ({stamp}).", ""]
+        if (out / "figures" / "tradeoff.png").is_file():
+            parts += ["![Speed against accuracy](figures/tradeoff.png) "
+                      "([interactive](figures/tradeoff.html))", ""]
+    stress = out / "stress" / "stress.md"
+    if stress.is_file():
+        text = stress.read_text(encoding="utf-8")
+        start = text.find("## Break points")
+        end = text.find("\n## ", start + 1)
+        parts += ["## Stability where methods fail (`ratouch eval stress`)", "",
+                  "The whole sweep, per knob, with the collapse check: "
+                  "[stress/stress.md](stress/stress.md).", ""]
+        if start >= 0:
+            parts += ["#" + text[start:end if end > 0 else None].strip(), ""]
+        for png in ("stress.png", "stress_overlap.png"):
+            if (out / "stress" / png).is_file():
+                parts += [f"![{png}](stress/{png})", ""]
+    return "\n".join(parts)
+
+
 def results_markdown(reports: Sequence[Report], cfg: ExperimentConfig, seconds: float,
-                     header: str = "") -> str:
+                     header: str = "", out: str | os.PathLike | None = None) -> str:
     """The whole report: provenance, then every experiment with its figure."""
     lines = ["# RA-Touch on the world: the paper's experiments",
              "",
@@ -720,4 +748,6 @@ def results_markdown(reports: Sequence[Report], cfg: ExperimentConfig, seconds: 
         if rep.figure is not None:
             png = f"figures/{rep.name}.png"
             lines += [f"![{rep.title}]({png}) ([interactive](figures/{rep.name}.html))", ""]
+    if out is not None:
+        lines.append(companion_sections(out))
     return "\n".join(lines) + "\n"
