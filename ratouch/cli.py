@@ -495,18 +495,20 @@ def _experiment_names() -> set[str]:
 def _eval_experiments(args: argparse.Namespace) -> int:
     import time
 
-    from ratouch.experiments import (EXPERIMENTS, ExperimentConfig, results_markdown,
+    from ratouch.experiments import (EXPERIMENTS, ExperimentConfig, Lab, results_markdown,
                                      run_experiments)
 
     cfg = ExperimentConfig(encoder=args.encoder, steps=args.steps, seed=args.seed,
                            workers=args.workers)
     names = list(EXPERIMENTS) if args.eval_cmd == "all" else [args.eval_cmd]
     t0 = time.perf_counter()
-    reports = run_experiments(names, cfg, args.out)
+    lab = Lab(cfg)
+    reports = run_experiments(names, cfg, args.out, lab)
     out = Path(args.out)
     doc = out / ("results.md" if args.eval_cmd == "all" else f"{args.eval_cmd}.md")
     doc.write_text(results_markdown(reports, cfg, time.perf_counter() - t0,
-                                    out=out if args.eval_cmd == "all" else None),
+                                    out=out if args.eval_cmd == "all" else None,
+                                    counts=lab.counts),
                    encoding="utf-8")
     for rep in reports:
         print(f"## {rep.title}  ({rep.seconds:.0f} s)\n\n{rep.markdown}\n")
