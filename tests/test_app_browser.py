@@ -80,6 +80,11 @@ def test_upload_mark_box_query_in_chromium(app_url, page, tmp_path, world):
     sx, sy = b["width"] / 128, b["height"] / 128
     page.mouse.click(b["x"] + 95.5 * sx, b["y"] + 111.5 * sy)
     page.get_by_text("click the opposite corner").wait_for()
+    # the first click redraws the preview with its marker: click again once it has settled
+    page.wait_for_timeout(800)
+    img = page.locator("#visual img").first
+    b = img.bounding_box()
+    sx, sy = b["width"] / 128, b["height"] / 128
     page.mouse.click(b["x"] + 16.5 * sx, b["y"] + 24.5 * sy)
     page.get_by_text("Contact box [16, 24, 96, 112]").wait_for()
     assert [_field(page, n) for n in ("x0", "y0", "x1", "y1")] == ["16", "24", "96", "112"]
