@@ -20,7 +20,8 @@ import numpy as np
 import torch
 
 from ratouch.errors import ConfigError
-from ratouch.vocabulary import EXTRA_TACTILE, TVL_ADJECTIVES, parse_adjectives
+from ratouch.judge import adjective_f1
+from ratouch.vocabulary import EXTRA_TACTILE, TVL_ADJECTIVES
 
 log = logging.getLogger(__name__)
 
@@ -42,18 +43,6 @@ class GeneratorTrainConfig:
         for name in ("stage1_steps", "stage2_steps", "batch", "k", "hidden", "layers"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
-
-
-def adjective_f1(prediction: str, label: str) -> float:
-    """F1 between the adjective sets of a description and a label (a judge-free score)."""
-    p, g = set(parse_adjectives(prediction)), set(parse_adjectives(label))
-    if not p or not g:
-        return 0.0
-    tp = len(p & g)
-    if tp == 0:
-        return 0.0
-    prec, rec = tp / len(p), tp / len(g)
-    return 2 * prec * rec / (prec + rec)
 
 
 def neighbours_for(pipeline_parts, V: np.ndarray, T: np.ndarray, k: int, batch: int = 1024
@@ -208,7 +197,7 @@ def evaluate_generators(base, ra, V: np.ndarray, T: np.ndarray, Rv: np.ndarray,
             outs["baseline"] += base.describe(v, t)
             outs["ra_touch"] += ra.describe(v, t, torch.from_numpy(Rv[s:s + batch]),
                                             torch.from_numpy(Rl[s:s + batch]))
-    f1 = {k: np.array([adjective_f1(p, g) for p, g in zip(v, labels)]) for k, v in outs.items()}
+    f1 = {k: np.array([adjective_f1(g, p) for p, g in zip(v, labels)]) for k, v in outs.items()}
     test = ttest_rel(f1["ra_touch"], f1["baseline"])
     return {"n": len(labels), "f1_baseline": round(float(f1["baseline"].mean()), 4),
             "f1_ra_touch": round(float(f1["ra_touch"].mean()), 4),
