@@ -1,6 +1,14 @@
-"""Shared fixtures: a default world and a test split written once per session."""
+"""Shared fixtures: a default world and a test split written once per session, a tiny LLaMA
+folder, a pipeline over a small corpus embedded with the shipped encoder, and a local
+OpenAI-compatible server for the LLM recaptioner and judge."""
 
 from __future__ import annotations
+
+import contextlib
+import json
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 
@@ -107,3 +115,74 @@ def pipeline(shipped_corpus):
     from ratouch.pipeline import RATouchPipeline
 
     return RATouchPipeline.load("default-s", corpus=shipped_corpus)
+
+
+class FakeLLM:
+    """State shared with the fake server's handler: what to answer and what was received."""
+
+    def __init__(self, reply: str) -> None:
+        self.reply = reply
+        self.mode = "ok"  # ok | http500 | badjson | sleep | echo
+        self.sleep_s = 1.0
+        self.requests: list[dict] = []
+        self.lock = threading.Lock()
+        self.endpoint = ""
+
+
+def _fake_llm_handler(state: FakeLLM):
+    class Handler(BaseHTTPRequestHandler):
+        def do_POST(self):  # noqa: N802 (http.server API)
+            body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
+            with state.lock:
+                state.requests.append({"path": self.path, "headers": dict(self.headers),
+                                       "body": body})
+            if state.mode == "sleep":
+                time.sleep(state.sleep_s)
+            if state.mode == "http500":
+                self.send_error(500, "boom")
+                return
+            if state.mode == "badjson":
+                data = b"{not json"
+            else:
+                content = state.reply
+                if state.mode == "echo":  # answer depends on the class name in the prompt
+                    prompt = body["messages"][0]["content"]
+                    line = next(x for x in prompt.splitlines() if x.startswith("Class: "))
+                    content = {"pan": "hard, metallic, smooth, rigid, solid",
+                               "bear": "soft, furry, plush, fluffy, cushioned",
+                               "rock": "rough, hard, craggy, uneven, gritty"}[line[len("Class: "):]]
+                message = {"role": "assistant", "content": content}
+                data = json.dumps({"choices": [{"index": 0, "message": message}]}).encode()
+            try:
+                self.send_response(200)
+                self.send_header("Content-Type", "application/json")
+                self.send_header("Content-Length", str(len(data)))
+                self.end_headers()
+                self.wfile.write(data)
+            except OSError:
+                pass  # the client gave up (timeout test)
+
+        def log_message(self, format, *args):  # noqa: A002 - keep test output quiet
+            pass
+
+    return Handler
+
+
+@contextlib.contextmanager
+def serve_fake_llm(monkeypatch, reply: str):
+    """A real OpenAI-compatible chat-completions server on 127.0.0.1 (random port), proxies
+    cleared; yields its `FakeLLM` state (``.endpoint`` is the base URL)."""
+    for var in ("http_proxy", "HTTP_PROXY", "https_proxy", "HTTPS_PROXY", "all_proxy", "ALL_PROXY"):
+        monkeypatch.delenv(var, raising=False)
+    state = FakeLLM(reply)
+    server = ThreadingHTTPServer(("127.0.0.1", 0), _fake_llm_handler(state))
+    server.daemon_threads = True
+    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.02},
+                              daemon=True)
+    thread.start()
+    state.endpoint = f"http://127.0.0.1:{server.server_address[1]}/v1"
+    try:
+        yield state
+    finally:
+        server.shutdown()
+        server.server_close()

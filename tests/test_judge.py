@@ -4,12 +4,11 @@ GPT-4, judge_results, the `ratouch judge` CLI and the LLM judge against a local 
 from __future__ import annotations
 
 import json
-import threading
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import numpy as np
 import pytest
+from conftest import serve_fake_llm
 
 from ratouch import judge as J
 from ratouch.cli import main
@@ -270,60 +269,11 @@ def test_cli_usage_errors(tmp_path, capsys, monkeypatch, argv):
 # --------------------------------------------------------------------------- LLM judge
 
 
-class FakeLLM:
-    """What the local server answers and what it received."""
-
-    def __init__(self) -> None:
-        self.reply = "8\nThe answer matches most of the correct adjectives."
-        self.mode = "ok"  # ok | http500 | sleep
-        self.requests: list[dict] = []
-        self.lock = threading.Lock()
-
-
-def _handler(state: FakeLLM):
-    class Handler(BaseHTTPRequestHandler):
-        def do_POST(self):  # noqa: N802 (http.server API)
-            body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-            with state.lock:
-                state.requests.append({"path": self.path, "headers": dict(self.headers),
-                                       "body": body})
-            if state.mode == "sleep":
-                time.sleep(1.0)
-            if state.mode == "http500":
-                self.send_error(500, "boom")
-                return
-            message = {"role": "assistant", "content": state.reply}
-            data = json.dumps({"choices": [{"index": 0, "message": message}]}).encode()
-            try:
-                self.send_response(200)
-                self.send_header("Content-Type", "application/json")
-                self.send_header("Content-Length", str(len(data)))
-                self.end_headers()
-                self.wfile.write(data)
-            except OSError:
-                pass  # the client gave up (timeout test)
-
-        def log_message(self, format, *args):  # noqa: A002 - keep test output quiet
-            pass
-
-    return Handler
-
-
 @pytest.fixture
 def fake_llm(monkeypatch):
-    for var in ("http_proxy", "HTTP_PROXY", "https_proxy", "HTTPS_PROXY", "all_proxy", "ALL_PROXY"):
-        monkeypatch.delenv(var, raising=False)
     monkeypatch.delenv(KEY_ENV, raising=False)
-    state = FakeLLM()
-    server = ThreadingHTTPServer(("127.0.0.1", 0), _handler(state))
-    server.daemon_threads = True
-    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.02},
-                              daemon=True)
-    thread.start()
-    state.endpoint = f"http://127.0.0.1:{server.server_address[1]}/v1"
-    yield state
-    server.shutdown()
-    server.server_close()
+    with serve_fake_llm(monkeypatch, "8\nThe answer matches most of the correct adjectives.") as state:
+        yield state
 
 
 def _judge(state: FakeLLM, **kw) -> J.LLMJudge:
