@@ -23,7 +23,6 @@ import math
 import os
 import re
 import threading
-import urllib.parse
 from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -32,7 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
-from ratouch.llm_http import REQUEST_ERRORS, chat_completion, chat_url
+from ratouch.llm_http import (REQUEST_ERRORS, chat_completion, chat_url, check_client_settings,
+                              is_http_url)
 from ratouch.vocabulary import parse_adjectives
 
 logger = logging.getLogger(__name__)
@@ -335,24 +335,10 @@ class LLMJudgeConfig:
     temperature: float = 0.0
 
     def __post_init__(self) -> None:
-        parsed = urllib.parse.urlparse(self.endpoint) if isinstance(self.endpoint, str) else None
-        if parsed is None or parsed.scheme not in ("http", "https") or not parsed.netloc:
+        if not is_http_url(self.endpoint):
             raise ConfigError(f"LLM judge endpoint must be an http(s) URL, got {self.endpoint!r} "
                               "(set --endpoint or $RATOUCH_JUDGE_ENDPOINT)")
-        for name in ("model", "api_key_env"):
-            value = getattr(self, name)
-            if not isinstance(value, str) or not value.strip():
-                raise ConfigError(f"LLMJudgeConfig.{name} must be a non-empty string, got {value!r}")
-        if (isinstance(self.timeout_s, bool) or not isinstance(self.timeout_s, (int, float))
-                or not self.timeout_s > 0):
-            raise ConfigError(f"LLMJudgeConfig.timeout_s must be > 0, got {self.timeout_s!r}")
-        if (isinstance(self.max_attempts, bool) or not isinstance(self.max_attempts, int)
-                or self.max_attempts < 1):
-            raise ConfigError(f"LLMJudgeConfig.max_attempts must be an integer >= 1, "
-                              f"got {self.max_attempts!r}")
-        if (isinstance(self.temperature, bool) or not isinstance(self.temperature, (int, float))
-                or not 0.0 <= self.temperature <= 2.0):
-            raise ConfigError(f"LLMJudgeConfig.temperature must be in [0, 2], got {self.temperature!r}")
+        check_client_settings("LLMJudgeConfig", self)
 
     @classmethod
     def from_env(cls, endpoint: str | None = None, model: str | None = None,

@@ -9,13 +9,46 @@ from __future__ import annotations
 
 import http.client
 import json
+import math
 import os
 import urllib.error
+import urllib.parse
 import urllib.request
+
+from ratouch.errors import ConfigError
 
 # Failures of one request: OSError covers URLError/HTTPError, timeouts and refused connections;
 # ValueError covers malformed JSON; Key/Index/TypeError a reply without choices[0].message.content.
 REQUEST_ERRORS = (OSError, http.client.HTTPException, ValueError, KeyError, IndexError, TypeError)
+
+
+def is_http_url(text: object) -> bool:
+    """True for an http(s) URL with a host."""
+    if not isinstance(text, str):
+        return False
+    parsed = urllib.parse.urlparse(text)
+    return parsed.scheme in ("http", "https") and bool(parsed.netloc)
+
+
+def check_client_settings(owner: str, settings) -> None:
+    """Raise ConfigError unless the request settings of an LLM client config are usable:
+    non-empty `model` and `api_key_env`, `timeout_s` > 0, integer `max_attempts` >= 1 and
+    `temperature` in [0, 2]. Messages name the field as ``{owner}.{field}``."""
+    for name in ("model", "api_key_env"):
+        value = getattr(settings, name)
+        if not isinstance(value, str) or not value.strip():
+            raise ConfigError(f"{owner}.{name} must be a non-empty string, got {value!r}")
+    timeout, attempts, temp = settings.timeout_s, settings.max_attempts, settings.temperature
+    if not _is_number(timeout) or not timeout > 0:
+        raise ConfigError(f"{owner}.timeout_s must be > 0, got {timeout!r}")
+    if not isinstance(attempts, int) or isinstance(attempts, bool) or attempts < 1:
+        raise ConfigError(f"{owner}.max_attempts must be an integer >= 1, got {attempts!r}")
+    if not _is_number(temp) or not 0.0 <= temp <= 2.0:
+        raise ConfigError(f"{owner}.temperature must be in [0, 2], got {temp!r}")
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def chat_url(endpoint: str) -> str:

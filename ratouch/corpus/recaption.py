@@ -13,14 +13,14 @@ import logging
 import math
 import re
 import threading
-import urllib.parse
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from types import MappingProxyType
 
 from ratouch.errors import ConfigError, DataError
-from ratouch.llm_http import REQUEST_ERRORS, chat_completion, chat_url
+from ratouch.llm_http import (REQUEST_ERRORS, chat_completion, chat_url, check_client_settings,
+                              is_http_url)
 from ratouch.vocabulary import EXTRA_TACTILE, TACTILE_WORDS, TVL_ADJECTIVES, banned_category
 
 logger = logging.getLogger(__name__)
@@ -252,29 +252,13 @@ class RecaptionConfig:
         if self.backend not in BACKENDS:
             raise ConfigError(f"RecaptionConfig.backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.endpoint is not None:
-            parsed = urllib.parse.urlparse(self.endpoint) if isinstance(self.endpoint, str) else None
-            if parsed is None or parsed.scheme not in ("http", "https") or not parsed.netloc:
+            if not is_http_url(self.endpoint):
                 raise ConfigError(
                     f"RecaptionConfig.endpoint must be an http(s) URL, got {self.endpoint!r}"
                 )
         elif self.backend == "llm":
             raise ConfigError("RecaptionConfig.endpoint is required for backend 'llm', got None")
-        for name in ("model", "api_key_env"):
-            value = getattr(self, name)
-            if not isinstance(value, str) or not value.strip():
-                raise ConfigError(f"RecaptionConfig.{name} must be a non-empty string, got {value!r}")
-        if not _is_number(self.timeout_s) or not self.timeout_s > 0:
-            raise ConfigError(f"RecaptionConfig.timeout_s must be > 0, got {self.timeout_s!r}")
-        if not _is_int(self.max_attempts) or self.max_attempts < 1:
-            raise ConfigError(
-                f"RecaptionConfig.max_attempts must be an integer >= 1, got {self.max_attempts!r}"
-            )
-        if not _is_number(self.temperature) or not 0.0 <= self.temperature <= 2.0:
-            raise ConfigError(f"RecaptionConfig.temperature must be in [0, 2], got {self.temperature!r}")
-
-
-def _is_number(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        check_client_settings("RecaptionConfig", self)
 
 
 def _is_int(value: object) -> bool:
