@@ -23,8 +23,7 @@ def split_queries(world_cfg: WorldConfig, n: int = TEST_SIZE) -> dict:
     crops, tacs, bgs, mats, labels = [], [], [], [], []
     for i in range(n):
         s = world.sample("test", i)
-        x0, y0, x1, y1 = s.box
-        crops.append(s.visual[y0:y1, x0:x1])
+        crops.append(s.crop)
         tacs.append(s.tactile)
         bgs.append(world.background_image(s.sensor))
         mats.append(s.material)

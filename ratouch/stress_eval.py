@@ -205,7 +205,7 @@ class _Renderer:
         for j, i in enumerate(indices):
             w = self._world({**(knobs or {}), **per_sample[j]}) if per_sample else shared
             samples.append(w.sample("test", i))
-        crops = [s.visual[s.box[1]:s.box[3], s.box[0]:s.box[2]] for s in samples]
+        crops = [s.crop for s in samples]
         return TestSplit(
             V=encoders.encode_image(crops), T=encoders.encode_tactile([s.tactile for s in samples]),
             labels=[s.caption for s in samples], subsets=[s.subset for s in samples],

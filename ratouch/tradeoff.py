@@ -131,13 +131,8 @@ def _raw_pairs(test, picks) -> tuple[list, list]:
     from ratouch.world.dataset import world_for
 
     world = world_for(test.world)
-    crops, frames = [], []
-    for i in picks:
-        s = world.sample("test", test.indices[int(i)])
-        x0, y0, x1, y1 = s.box
-        crops.append(s.visual[y0:y1, x0:x1])
-        frames.append(s.tactile)
-    return crops, frames
+    samples = [world.sample("test", test.indices[int(i)]) for i in picks]
+    return [s.crop for s in samples], [s.tactile for s in samples]
 
 
 def _encoder_points(encoders: Sequence[str], test, lab, n_latency: int, progress: bool) -> list:
@@ -187,7 +182,6 @@ def pareto(points: Sequence[dict], key: str) -> list[dict]:
 
 def tradeoff_figure(result: dict):
     """One chart: latency (log x) against the judge score, and against precision@5."""
-    import plotly.graph_objects as go
     from plotly.subplots import make_subplots
 
     fig = make_subplots(rows=1, cols=2, subplot_titles=(

@@ -67,7 +67,7 @@ def encode_test_split(encoders, world: WorldConfig | None = None,
     gen = world_for(world)
     idx = list(range(TEST_SIZE)) if indices is None else [int(i) for i in indices]
     samples = [gen.sample("test", i) for i in idx]
-    crops = [s.visual[s.box[1]:s.box[3], s.box[0]:s.box[2]] for s in samples]
+    crops = [s.crop for s in samples]
     return TestSplit(
         V=encoders.encode_image(crops), T=encoders.encode_tactile([s.tactile for s in samples]),
         labels=[s.caption for s in samples], subsets=[s.subset for s in samples],

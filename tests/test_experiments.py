@@ -48,7 +48,7 @@ def lab(pipeline, world):
     samples = [world.sample("train", i) for i in range(48)]
     enc = pipeline.encoders
     lab.__dict__["train"] = {
-        "V": enc.encode_image([s.visual[s.box[1]:s.box[3], s.box[0]:s.box[2]] for s in samples]),
+        "V": enc.encode_image([s.crop for s in samples]),
         "T": enc.encode_tactile([s.tactile for s in samples]),
         "labels": [s.caption for s in samples], "materials": [s.material for s in samples]}
     lab.__dict__["test"] = encode_test_split(enc, indices=range(0, 402, 20))

@@ -53,6 +53,12 @@ class Sample:
     def caption(self) -> str:
         return ", ".join(self.label)
 
+    @property
+    def crop(self) -> np.ndarray:
+        """The visual image inside the contact box as given (`box`), what encoders see."""
+        x0, y0, x1, y1 = self.box
+        return self.visual[y0:y1, x0:x1]
+
 
 @dataclass(frozen=True)
 class CorpusRecord:
