@@ -57,21 +57,11 @@ def _neighbour_embeddings(corpus, encoder, ids: np.ndarray) -> tuple[np.ndarray,
             np.asarray(txt)[flat].reshape(*ids.shape, -1))
 
 
-def test_split_embeddings(model, world_seed: int = 0) -> tuple[dict, list[str]]:
-    """V, T and labels of the world's 402-sample test split."""
-    from ratouch.retrieval_eval import split_queries
-    from ratouch.world.config import WorldConfig
-
-    q = split_queries(WorldConfig(seed=world_seed))
-    emb = {"V": model.encode_image(q["crops"]), "T": model.encode_tactile(q["tactiles"])}
-    world_labels = [", ".join(sorted(lbl)) for lbl in q["labels"]]
-    return emb, world_labels
-
-
 def generator_recipe(encoder: str = "default-s", seed: int = 0, progress: bool = True,
                      **train_overrides) -> dict:
     """Train the baseline and RA-Touch generators, save both, evaluate on the test split."""
     from ratouch.generator import save_generator
+    from ratouch.tvl_eval import encode_test_split
     from ratouch.train_generator import (GeneratorTrainConfig, evaluate_generators,
                                          neighbours_for, train_generators)
 
@@ -84,10 +74,10 @@ def generator_recipe(encoder: str = "default-s", seed: int = 0, progress: bool =
     ids = neighbours_for((tgr, index), emb["V"], emb["T"], tc.k)
     rv, rl = _neighbour_embeddings(corpus, encoder, ids)
     base, ra, report = train_generators(emb, list(data["labels"]), rv, rl, model.dim, tc)
-    test, labels = test_split_embeddings(model)
-    tids = neighbours_for((tgr, index), test["V"], test["T"], tc.k)
+    test = encode_test_split(model)
+    tids = neighbours_for((tgr, index), test.V, test.T, tc.k)
     trv, trl = _neighbour_embeddings(corpus, encoder, tids)
-    report["test"] = evaluate_generators(base, ra, test["V"], test["T"], trv, trl, labels)
+    report["test"] = evaluate_generators(base, ra, test.V, test.T, trv, trl, test.labels)
     report["seconds"] = round(time.perf_counter() - t0, 1)
     # shipped weights are stored as float16 (identical test F1 measured; assets stay < 40 MB)
     save_generator(generator_weights(encoder, "baseline"), base, {"encoder": encoder, **report},
