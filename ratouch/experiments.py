@@ -542,7 +542,6 @@ def table1_main(lab: Lab) -> Report:
 
 def fig5_loss_pca(lab: Lab) -> Report:
     """Figure 5: PCA of the joint queries, alignment loss only vs alignment + stability."""
-    import plotly.graph_objects as go
     import torch
     from plotly.subplots import make_subplots
 

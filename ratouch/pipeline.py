@@ -15,7 +15,6 @@ import torch
 from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
 from ratouch.embed import EMBED_MANIFEST, embed_corpus, embeddings_dir, load_embeddings
 from ratouch.encoders.factory import ASSETS, create_model
-from ratouch.errors import DataError, DataNotFoundError
 from ratouch.index import IndexConfig
 from ratouch.pca import PCA2D
 from ratouch.retrieval import CorpusIndex, Retriever

@@ -10,7 +10,6 @@ judge's per-subset means are SSVTP / HCT / overall as in the paper's Table 1.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -200,6 +199,3 @@ def format_ttest(result: dict, name_a: str = "A", name_b: str = "B") -> str:
                      f"{r['diff']:>+8.3f}{r['t']:>8.2f}{r['p']:>11.2e}")
     return "\n".join(lines)
 
-
-def results_path(folder: str | os.PathLike, system: str) -> str:
-    return os.path.join(folder, f"tvl_{system.replace('-', '_')}.json")
