@@ -664,14 +664,23 @@ def write_report(rep: Report, folder: str | os.PathLike, png: bool = True) -> di
     return out
 
 
-def save_png(fig, path: Path) -> Path | None:
-    """PNG through kaleido and the local Chromium, or None where that does not work."""
+def png_bytes(fig) -> tuple[bytes | None, str]:
+    """A figure as PNG through kaleido and the local Chromium: (bytes, "") or, where that does
+    not work offline, (None, why)."""
     try:
-        fig.write_image(str(path), scale=1)
-        return path
-    except Exception as e:  # noqa: BLE001 - any exporter failure means "no PNG", said in the log
-        log.warning("no PNG for %s (%s: %s)", path.name, type(e).__name__, e)
+        return fig.to_image(format="png", scale=1), ""
+    except Exception as e:  # noqa: BLE001 - any exporter failure means "no PNG", said by callers
+        return None, f"{type(e).__name__}: {e}"
+
+
+def save_png(fig, path: Path) -> Path | None:
+    """Write the figure's PNG to `path`; None (and a logged reason) where no exporter works."""
+    data, why = png_bytes(fig)
+    if data is None:
+        log.warning("no PNG for %s (%s)", path.name, why)
         return None
+    path.write_bytes(data)
+    return path
 
 
 def git_commit() -> str:

@@ -811,18 +811,18 @@ def write_report(result: dict, out: str | os.PathLike, png: bool = True) -> dict
              "fig": out / "stress_fig.json", "overlap_fig": out / "stress_overlap_fig.json"}
     png_name, note = None, "not requested."
     if png:
-        try:
-            import kaleido  # noqa: F401
+        from ratouch.experiments import png_bytes
 
-            images = [quality.to_image(format="png"), stability.to_image(format="png")]
-            for name, data in zip(("stress.png", "stress_overlap.png"), images):
+        (q_png, why), (s_png, why2) = png_bytes(quality), png_bytes(stability)
+        if q_png is not None and s_png is not None:
+            for name, data in (("stress.png", q_png), ("stress_overlap.png", s_png)):
                 _write_bytes(out / name, data)
             png_name = "stress.png"
             paths["png"] = out / "stress.png"
             paths["overlap_png"] = out / "stress_overlap.png"
-        except Exception as e:  # noqa: BLE001 - no kaleido or no browser: no PNG, said in the md
+        else:
             note = (f"not written: static export needs kaleido and a Chrome/Chromium, not usable "
-                    f"here ({type(e).__name__}: {e}); open stress.html instead.")
+                    f"here ({why or why2}); open stress.html instead.")
     _write_text(paths["json"], json.dumps(result, indent=1) + "\n")
     _write_text(paths["html"], _html([quality, stability]))
     write_plotly_js(out)
