@@ -442,7 +442,8 @@ def _run_eval(args: argparse.Namespace) -> int:
 
 
 def _eval_tvl(args: argparse.Namespace) -> int:
-    from ratouch.judge import format_summary, write_json_atomic
+    from ratouch.files import write_json_atomic
+    from ratouch.judge import format_summary
     from ratouch.pipeline import RATouchPipeline
     from ratouch.tvl_eval import run_tvl
 
@@ -589,6 +590,7 @@ def _run_bench(args: argparse.Namespace) -> int:
 
 def _run_judge(args: argparse.Namespace) -> int:
     from ratouch import judge as J
+    from ratouch.files import write_json_atomic
 
     if not (args.file or args.validate or args.fit):
         raise _usage("judge needs FILE --out SCORED.json, --validate or --fit")
@@ -606,7 +608,7 @@ def _run_judge(args: argparse.Namespace) -> int:
     if args.validate:
         report["validation"] = J.validate_judge()
     if scored is not None:
-        J.write_json_atomic(args.out, scored)
+        write_json_atomic(args.out, scored)
         report["out"] = str(args.out)
     if args.json:
         print(json.dumps(report, indent=1))

@@ -326,7 +326,7 @@ class Lab:
             return None
 
     def _save(self, v: Variant, result: dict) -> None:
-        from ratouch.judge import write_json_atomic
+        from ratouch.files import write_json_atomic
 
         write_json_atomic(self._path(v), result)
 
@@ -646,7 +646,7 @@ EXPERIMENTS: dict[str, Callable[[Lab], Report]] = {
 def write_report(rep: Report, folder: str | os.PathLike, png: bool = True) -> dict[str, Path]:
     """``<name>.md``, ``<name>.html`` (self-contained), ``<name>.json`` (plotly figure JSON, for
     the app) and ``<name>.png`` when a static exporter works offline."""
-    from ratouch.judge import write_json_atomic
+    from ratouch.files import write_json_atomic
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

@@ -295,7 +295,7 @@ def load_or_compute(pipeline, world: WorldConfig | None = None, k: int = 5,
     with lock:
         if not refresh and (table := load_cached(path)) is not None:
             return table  # another thread computed it while this one waited
-        from ratouch.judge import write_json_atomic
+        from ratouch.files import write_json_atomic
 
         t0 = time.perf_counter()
         rows = failure_cases(pipeline, world, k, conditions, indices, progress=progress)

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.files import write_json_atomic
 from ratouch.llm_http import (REQUEST_ERRORS, chat_completion, chat_url, check_client_settings,
                               is_http_url)
 from ratouch.vocabulary import parse_adjectives
@@ -514,19 +515,6 @@ def format_summary(summary: dict) -> str:
                      f"unparseable {summary['n_unparseable']}, "
                      f"fallbacks to the offline judge {summary['n_fallbacks']}")
     return "\n".join(lines)
-
-
-def write_json_atomic(path: str | os.PathLike, obj) -> Path:
-    """Write JSON to a temporary file beside `path`, then rename it over `path`."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.partial")
-    try:
-        tmp.write_text(json.dumps(obj, indent=1) + "\n", encoding="utf-8")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
 
 
 # --------------------------------------------------------------------------- protocol: fit / validate

@@ -57,6 +57,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ratouch.errors import ConfigError
+from ratouch.files import write_atomic
 from ratouch.tvl_eval import QUERY_MODES, SYSTEMS, TestSplit, describe, retrieve
 from ratouch.vocabulary import parse_adjectives
 from ratouch.world.config import WorldConfig
@@ -776,7 +777,7 @@ def write_plotly_js(folder: Path) -> None:
 
     js = folder / "plotly.min.js"
     if not js.is_file():
-        _write_text(js, get_plotlyjs())
+        write_atomic(js, get_plotlyjs())
 
 
 def _html(figs) -> str:
@@ -787,17 +788,6 @@ def _html(figs) -> str:
             + "\n".join(parts) + "\n</body></html>\n")
 
 
-def _write_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.partial")
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def _write_text(path: Path, text: str) -> None:
-    _write_bytes(path, text.encode("utf-8"))
 
 
 def write_report(result: dict, out: str | os.PathLike, png: bool = True) -> dict[str, str]:
@@ -816,17 +806,17 @@ def write_report(result: dict, out: str | os.PathLike, png: bool = True) -> dict
         (q_png, why), (s_png, why2) = png_bytes(quality), png_bytes(stability)
         if q_png is not None and s_png is not None:
             for name, data in (("stress.png", q_png), ("stress_overlap.png", s_png)):
-                _write_bytes(out / name, data)
+                write_atomic(out / name, data)
             png_name = "stress.png"
             paths["png"] = out / "stress.png"
             paths["overlap_png"] = out / "stress_overlap.png"
         else:
             note = (f"not written: static export needs kaleido and a Chrome/Chromium, not usable "
                     f"here ({why or why2}); open stress.html instead.")
-    _write_text(paths["json"], json.dumps(result, indent=1) + "\n")
-    _write_text(paths["html"], _html([quality, stability]))
+    write_atomic(paths["json"], json.dumps(result, indent=1) + "\n")
+    write_atomic(paths["html"], _html([quality, stability]))
     write_plotly_js(out)
-    _write_text(paths["fig"], quality.to_json())
-    _write_text(paths["overlap_fig"], stability.to_json())
-    _write_text(paths["md"], format_markdown(result, png_name, note))
+    write_atomic(paths["fig"], quality.to_json())
+    write_atomic(paths["overlap_fig"], stability.to_json())
+    write_atomic(paths["md"], format_markdown(result, png_name, note))
     return {kk: str(v) for kk, v in paths.items()}
