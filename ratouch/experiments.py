@@ -129,6 +129,7 @@ class Lab:
         self.cfg = cfg or ExperimentConfig()
         self._results: dict[Variant, dict] = {}
         self.counts = {"trained": 0, "from_cache": 0}  # variants, for the report's provenance
+        self._corpus_emb: dict[str, np.ndarray] = {}
 
     @cached_property
     def pipeline(self):
@@ -161,19 +162,28 @@ class Lab:
 
         return OfflineJudge()
 
-    @cached_property
-    def corpus_emb(self) -> dict[str, np.ndarray]:
-        """Corpus embeddings: "image", "tactile_caption" (the indexed text), and the class
-        names' and visual descriptions' text embeddings (Table 3)."""
-        p = self.pipeline
-        entries = p.corpus.entries
-        names = sorted({e.class_name for e in entries})
-        name_emb = p.encoders.encode_text(names)
-        row = {n: i for i, n in enumerate(names)}
-        return {"image": np.asarray(p._image_emb, np.float32),
-                "tactile_caption": np.asarray(p._text_emb, np.float32),
-                "class_name": name_emb[[row[e.class_name] for e in entries]],
-                "visual_description": p.encoders.encode_text([e.description for e in entries])}
+    def corpus_emb(self, kind: str) -> np.ndarray:
+        """Corpus embeddings of one kind: "image", "tactile_caption" (the indexed text), or the
+        text embeddings of the entries' "class_name" or "visual_description" (Table 3, encoded
+        on first use only)."""
+        if kind not in self._corpus_emb:
+            p = self.pipeline
+            entries = p.corpus.entries
+            if kind == "image":
+                emb = np.asarray(p._image_emb, np.float32)
+            elif kind == "tactile_caption":
+                emb = np.asarray(p._text_emb, np.float32)
+            elif kind == "class_name":
+                names = sorted({e.class_name for e in entries})
+                row = {n: i for i, n in enumerate(names)}
+                emb = p.encoders.encode_text(names)[[row[e.class_name] for e in entries]]
+            elif kind == "visual_description":
+                emb = p.encoders.encode_text([e.description for e in entries])
+            else:
+                raise ConfigError(f"corpus embeddings: unknown kind {kind!r}; one of image, "
+                                  f"{', '.join(CAPTION_TYPES)}")
+            self._corpus_emb[kind] = emb
+        return self._corpus_emb[kind]
 
     def subset_ids(self, size: int) -> np.ndarray:
         """A class-stratified subset of the corpus: each class's first entries, round robin."""
@@ -235,15 +245,13 @@ class Lab:
 
     def neighbours(self, v: Variant, V: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, ...]:
         """(ids, Rv, Rl) of a variant's retrieval for queries (V, T), by exact search."""
-        emb = self.corpus_emb
         q = {"image": V, "tactile": T}.get(v.mode)
         if q is None:
             q = self.pipeline.joint_query(V, T)
-        keys = emb["image"] if v.key == "image" else emb[v.caption]
+        keys = self.corpus_emb("image" if v.key == "image" else v.caption)
         ids_all = self.subset_ids(v.corpus_size)
-        ids = exact_topk(q, keys[ids_all], v.k)
-        ids = ids_all[ids]
-        return ids, emb["image"][ids], emb[v.caption][ids]
+        ids = ids_all[exact_topk(q, keys[ids_all], v.k)]
+        return ids, self.corpus_emb("image")[ids], self.corpus_emb(v.caption)[ids]
 
     def evaluate(self, variants: Sequence[Variant]) -> dict[Variant, dict]:
         """Train (or load from the disk cache) and judge variants; returns their results."""
@@ -566,7 +574,7 @@ def fig5_loss_pca(lab: Lab) -> Report:
             q = tgr(V, T).query
         stats = collapse_stats(q)
         qn = q.numpy()
-        ids = exact_topk(qn, lab.corpus_emb["tactile_caption"], 5)
+        ids = exact_topk(qn, lab.corpus_emb("tactile_caption"), 5)
         prec = material_precision(ids, lab.test.materials, lab.pipeline.corpus)
         xy = PCA2D.fit(qn).project(qn)
         for j, m in enumerate(uniq):

@@ -34,7 +34,7 @@ def _subset_index(lab, kind: str, size: int):
     from ratouch.index import IndexConfig, VectorIndex
 
     ids = lab.subset_ids(size)
-    emb = np.ascontiguousarray(lab.corpus_emb["tactile_caption"][ids])
+    emb = np.ascontiguousarray(lab.corpus_emb("tactile_caption")[ids])
     return ids, VectorIndex.build(emb, IndexConfig(kind=kind))
 
 
@@ -105,7 +105,7 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
                           f"({time.perf_counter() - t0:.0f} s)", flush=True)
 
     # the upstream recipe (torch re-normalisation + full matmul + topk) on the whole corpus
-    corpus_t = torch.from_numpy(np.ascontiguousarray(lab.corpus_emb["tactile_caption"]))
+    corpus_t = torch.from_numpy(np.ascontiguousarray(lab.corpus_emb("tactile_caption")))
     up_times = timed_query(lambda q: upstream_retrieve(corpus_t, torch.from_numpy(q), 5)
                            .numpy().reshape(1, -1))
     flat = next((q for q in points if q["index"] == "flat" and q["corpus"] == len(p.corpus)
