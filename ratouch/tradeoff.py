@@ -60,11 +60,9 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
     joint = p.joint_query(test.V, test.T)
     points = []
 
-    search_times: list[float] = []
-
-    def timed_query(search) -> list[float]:
-        times = []
-        search_times.clear()
+    def timed_query(search) -> tuple[list[float], list[float]]:
+        """Seconds per whole query and per search alone, the first (warm-up) query left out."""
+        times, search_times = [], []
         for j, (crop, frame) in enumerate(zip(crops, frames)):
             t0 = time.perf_counter()
             V = p.encoders.encode_image([crop])
@@ -78,7 +76,7 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
             p.generator_ra.describe(*(torch.from_numpy(x) for x in (V, T, rv, rl)))
             if j:  # the first query warms caches
                 times.append(time.perf_counter() - t0)
-        return times
+        return times, search_times
 
     for kind in indexes:
         for size in sizes:
@@ -90,7 +88,7 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
                 responses = describe(p.generator_ra, test.V, test.T, rv, rl)
                 _, summary = judge_results(records_for(test, responses, "ra-touch"), lab.judge)
                 ids5 = ids_map[index.search(joint, 5)[1]]
-                times = timed_query(lambda q: ids_map[index.search(q, k)[1]])
+                times, search_times = timed_query(lambda q: ids_map[index.search(q, k)[1]])
                 pt = {"encoder": lab.cfg.encoder, "index": kind, "corpus": len(ids_map), "k": k,
                       "p50_ms": _p(times, 50), "p95_ms": _p(times, 95),
                       "search_p50_ms": _p(search_times, 50),
@@ -106,8 +104,8 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
 
     # the upstream recipe (torch re-normalisation + full matmul + topk) on the whole corpus
     corpus_t = torch.from_numpy(np.ascontiguousarray(lab.corpus_emb("tactile_caption")))
-    up_times = timed_query(lambda q: upstream_retrieve(corpus_t, torch.from_numpy(q), 5)
-                           .numpy().reshape(1, -1))
+    up_times, search_times = timed_query(
+        lambda q: upstream_retrieve(corpus_t, torch.from_numpy(q), 5).numpy().reshape(1, -1))
     flat = next((q for q in points if q["index"] == "flat" and q["corpus"] == len(p.corpus)
                  and q["k"] == 5), None)
     upstream = {"encoder": lab.cfg.encoder, "index": "upstream", "corpus": len(p.corpus),
