@@ -1,4 +1,4 @@
-"""RA-Touch Explorer: the Gradio app over `ratouch.pipeline.RATouchPipeline`.
+"""RA-Touch Explorer: the Gradio app over `ratouch.serve.pipeline.RATouchPipeline`.
 
 Upload a visual and a tactile image (or pick a pair from the world's test split), mark the
 contact box, and compare the neighbours that image, tactile and joint queries retrieve, where
@@ -23,7 +23,8 @@ import gradio as gr  # noqa: E402
 
 from app import handlers, view  # noqa: E402
 from app.box import PREVIEW_SIDE  # noqa: E402
-from ratouch.serving import QueryBatcher  # noqa: E402
+from ratouch.paths import DOCS  # noqa: E402
+from ratouch.serve.batcher import QueryBatcher  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +46,6 @@ CSS = """
 
 MAX_FIGURES = 12  # plot slots of the Benchmarks tab
 FAILURE_ROWS = 50  # worst cases shown at once
-DOCS = Path(__file__).resolve().parents[1] / "docs"
 
 FAILURES_ABOUT = """### Failure cases
 Every pair of the world's test split (46 structured close-ups + 356 wild scenes) under a few
@@ -65,11 +65,11 @@ def build_demo(pipeline, world=None, failure_options: dict | None = None,
         pipeline: a `RATouchPipeline` (or an object with the same `query()`, `corpus` and
             `encoders`), or an `app.loading.BackgroundPipeline` still loading one.
         world: the `World` whose test split gives the examples (default: the default world).
-        failure_options: `ratouch.failures.load_or_compute`'s k / conditions / indices
+        failure_options: `ratouch.eval.failures.load_or_compute`'s k / conditions / indices
             (default: K=5, every condition, the whole test split, on `world`'s config).
         docs: the folder holding `results.md` and `figures/*.json` (default: the repo's docs/).
     """
-    from ratouch import failures
+    from ratouch.eval import failures  # heavy (torch): imported when the page is built
     from ratouch.world.generator import World
 
     world = world or World()
@@ -108,7 +108,7 @@ def _header(pipeline) -> str:
 
 def _layout(pipeline, world, conditions) -> SimpleNamespace:
     """Place the components; returns them by name."""
-    from ratouch import failures
+    from ratouch.eval import failures  # heavy (torch): imported when the page is built
     from ratouch.world.generator import TEST_SIZE
 
     ui = SimpleNamespace(state=gr.State(None, time_to_live=SESSION_TTL_S))
@@ -287,9 +287,11 @@ def main(argv: list[str] | None = None) -> None:
                    help="most concurrent queries answered in one batch (default 16)")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    # heavy (torch, faiss, transformers): imported here, after the arguments are parsed, and
+    # the models loaded in the background, so that the server answers at once
     from app.loading import BackgroundPipeline
     from ratouch.errors import RATouchError
-    from ratouch.pipeline import RATouchPipeline
+    from ratouch.serve.pipeline import RATouchPipeline
 
     # serve at once; the models load meanwhile and a query waits for them. Concurrent
     # queries are answered in batches (one model pass for all of them).

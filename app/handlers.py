@@ -19,8 +19,8 @@ from PIL import Image
 from app import box as boxes
 from app import view
 from app.plot import pca_figure
-from ratouch import failures
 from ratouch.errors import DataError, RATouchError
+from ratouch.eval import failures
 
 log = logging.getLogger(__name__)
 
@@ -243,7 +243,7 @@ class FailureView(NamedTuple):
 
 def failure_table(pipe, options: dict, compute: bool, progress=None) -> dict | None:
     """The failure-case table for the app's settings: cached, else computed (`compute`) or
-    None. `options` are `ratouch.failures.load_or_compute`'s world/k/conditions/indices."""
+    None. `options` are `ratouch.eval.failures.load_or_compute`'s world/k/conditions/indices."""
     report = None if progress is None else (lambda f, what: progress(f, desc=what))
     return failures.load_or_compute(pipe, progress=report, cached_only=not compute, **options)
 

@@ -12,7 +12,9 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-MODES = ("image", "tactile", "joint")
+from ratouch.search.retrieval import QUERY_MODES
+
+MODES = QUERY_MODES
 MODE_TITLE = {"image": "Image query", "tactile": "Tactile query",
               "joint": "Joint query (Tactile-Guided Retriever)"}
 MODE_COLOUR = {"image": "#1f77b4", "tactile": "#ff7f0e", "joint": "#2ca02c"}
@@ -152,7 +154,7 @@ def cases_frame(rows: Sequence[dict]):
 
 
 def summary_frame(summary: Sequence[dict]):
-    """`ratouch.failures.summarise` as a table; 'joint loses' as a percentage."""
+    """`ratouch.eval.failures.summarise` as a table; 'joint loses' as a percentage."""
     rows = [{**s, "joint_loses": f"{s['joint_loses']:.0%}"} for s in summary]
     return _frame(rows, SUMMARY_COLUMNS)
 

@@ -2,6 +2,10 @@
 
 Every subcommand is `main(argv)`-callable. User errors print one line and exit with code 2,
 and leave nothing half-written behind.
+
+Imports of the library's model-side modules sit inside the subcommand that needs them, on
+purpose: they load torch, faiss and transformers (about 2-3 s), which `ratouch --help`, a
+usage error or `ratouch judge` should not pay. The library itself imports at module top.
 """
 
 from __future__ import annotations
@@ -15,6 +19,9 @@ from pathlib import Path
 from typing import Sequence
 
 from ratouch.errors import RATouchError
+from ratouch.eval.catalog import EXPERIMENT_HELP
+from ratouch.files import write_json_atomic
+from ratouch.paths import APP_FILE, retriever_weights
 
 
 class _Parser(argparse.ArgumentParser):
@@ -89,6 +96,7 @@ def _add_stress(p: argparse.ArgumentParser) -> None:
 
 
 def _world_cfg(args: argparse.Namespace):
+
     from ratouch.world.config import StressConfig, WorldConfig
 
     stress = StressConfig(
@@ -187,12 +195,11 @@ def _add_eval(sub) -> None:
     st.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
     st.add_argument("--out", default="reports/stress", help="report folder")
     st.add_argument("--json", action="store_true", help="print the result as JSON")
-    from ratouch.experiments import EXPERIMENTS
 
-    for name, fn in [*EXPERIMENTS.items(), ("all", None)]:
-        e = esub.add_parser(name, help=(fn.__doc__ or "").split("\n")[0] if fn else
-                            "every paper experiment; regenerates docs/results.md")
-        e.add_argument("--out", default="docs" if fn is None else "reports",
+    for name, about in [*EXPERIMENT_HELP.items(),
+                        ("all", "every paper experiment; regenerates docs/results.md")]:
+        e = esub.add_parser(name, help=about)
+        e.add_argument("--out", default="docs" if name == "all" else "reports",
                        help="folder for the markdown and figures (figures/ inside it)")
         e.add_argument("--steps", type=_pos_int, default=300,
                        help="stage-2 training steps of every generator variant")
@@ -216,7 +223,8 @@ def _add_judge_options(p: argparse.ArgumentParser) -> None:
 
 
 def _make_judge(args: argparse.Namespace):
-    from ratouch import judge as J
+
+    from ratouch.eval import judge as J
 
     if args.judge == "llm":
         return J.LLMJudge(J.LLMJudgeConfig.from_env(args.endpoint, args.model, args.api_key_env))
@@ -307,16 +315,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_world(args: argparse.Namespace) -> int:
+    from ratouch.world.config import WorldConfig
+    from ratouch.world.dataset import check_writable, write_split
+    from ratouch.world.generator import TEST_SIZE, World
+    from ratouch.world.preview import contact_sheet
+    from ratouch.world.probe import ProbeConfig, format_probe, run_probe
+
     cfg = _world_cfg(args) if args.world_cmd != "probe" else None
     if args.world_cmd == "build":
-        from ratouch.world.dataset import write_split
 
         counts = write_split(cfg, args.out, args.split, args.n, workers=args.workers)
         print(json.dumps({"out": str(args.out), "split": args.split, **counts}))
     elif args.world_cmd == "preview":
-        from ratouch.world.dataset import check_writable
-        from ratouch.world.generator import TEST_SIZE, World
-        from ratouch.world.preview import contact_sheet
 
         out = Path(args.out)
         if out.suffix.lower() != ".png":
@@ -334,8 +344,6 @@ def _run_world(args: argparse.Namespace) -> int:
         os.replace(tmp, out)
         print(f"wrote {out} ({len(idx)} samples, {sheet.size[0]}x{sheet.size[1]})")
     else:
-        from ratouch.world.config import WorldConfig
-        from ratouch.world.probe import ProbeConfig, format_probe, run_probe
 
         result = run_probe(WorldConfig(seed=args.seed),
                            ProbeConfig(n_train=args.n_train, n_test=args.n_test,
@@ -345,14 +353,15 @@ def _run_world(args: argparse.Namespace) -> int:
 
 
 def _run_corpus(args: argparse.Namespace) -> int:
+
     from ratouch.corpus.imagenet_t import build_corpus
     from ratouch.corpus.recaption import RecaptionConfig
+    from ratouch.serve.pipeline import embed_and_index
 
     rc = RecaptionConfig(backend=args.captioner, endpoint=args.endpoint, model=args.model)
     manifest = build_corpus(args.out, args.size, seed=args.seed, recaption=rc,
                             image_list=args.from_list)
     if not args.no_embed:
-        from ratouch.pipeline import embed_and_index
 
         manifest = {**manifest, **embed_and_index(args.out, args.encoder, args.index,
                                                   workers=args.workers)}
@@ -361,7 +370,8 @@ def _run_corpus(args: argparse.Namespace) -> int:
 
 
 def _run_train(args: argparse.Namespace) -> int:
-    from ratouch import recipes
+
+    from ratouch.train import recipes
 
     if args.train_cmd == "retriever":
         report = recipes.retriever_recipe(args.encoder, args.seed, args.strategy,
@@ -384,8 +394,9 @@ def _run_train(args: argparse.Namespace) -> int:
 
 
 def _train_encoders(args: argparse.Namespace) -> int:
+
     from ratouch.encoders.factory import shipped_weights
-    from ratouch.train_encoders import STEPS, TrainConfig, train_encoders
+    from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
 
     models = args.model or ["default-tiny", "default-s", "default-b"]
     shared: dict = {}  # rendered data, shared by models with the same input sizes
@@ -399,7 +410,8 @@ def _train_encoders(args: argparse.Namespace) -> int:
 
 
 def _run_query(args: argparse.Namespace) -> int:
-    from ratouch.pipeline import RATouchPipeline
+
+    from ratouch.serve.pipeline import RATouchPipeline
 
     for path in (args.vision, args.tactile):
         if path is not None and not Path(path).is_file():
@@ -411,6 +423,10 @@ def _run_query(args: argparse.Namespace) -> int:
 
 
 def _run_eval(args: argparse.Namespace) -> int:
+    from ratouch.eval.retrieval import evaluate_retrieval, format_retrieval_eval
+    from ratouch.serve.pipeline import RATouchPipeline, default_corpus, open_retriever
+    from ratouch.world.config import WorldConfig
+
     if args.eval_cmd == "tvl":
         return _eval_tvl(args)
     if args.eval_cmd in _experiment_names():
@@ -419,33 +435,24 @@ def _run_eval(args: argparse.Namespace) -> int:
         return _eval_ttest(args)
     if args.eval_cmd == "stress":
         return _eval_stress(args)
-    from ratouch.pipeline import default_corpus, open_retriever
-    from ratouch.retrieval_eval import evaluate_retrieval, format_retrieval_eval
-    from ratouch.world.config import WorldConfig
 
-    from ratouch.pipeline import load_tgr, retriever_weights
 
     corpus = args.corpus or default_corpus(args.encoder)
-    retriever = open_retriever(corpus, args.encoder, args.index)
-    joint_fn = None
     if (retriever_weights(args.encoder) / "manifest.json").is_file():
-        import torch
-
-        tgr = load_tgr(args.encoder)
-
-        def joint_fn(V, T):
-            with torch.no_grad():
-                return tgr(torch.from_numpy(V), torch.from_numpy(T)).query.numpy()
+        p = RATouchPipeline.load(args.encoder, corpus, args.index, generators=False)
+        retriever, joint_fn = p.retriever, p.joint_query
+    else:
+        retriever, joint_fn = open_retriever(corpus, args.encoder, args.index), None
     r = evaluate_retrieval(retriever, WorldConfig(seed=args.seed), joint_fn=joint_fn)
     print(json.dumps(r, indent=1) if args.json else format_retrieval_eval(r))
     return 0
 
 
 def _eval_tvl(args: argparse.Namespace) -> int:
-    from ratouch.files import write_json_atomic
-    from ratouch.judge import format_summary
-    from ratouch.pipeline import RATouchPipeline
-    from ratouch.tvl_eval import run_tvl
+
+    from ratouch.eval.judge import format_summary
+    from ratouch.eval.tvl import run_tvl
+    from ratouch.serve.pipeline import RATouchPipeline
 
     judge = _make_judge(args)  # configuration errors before any work
     pipeline = RATouchPipeline.load(args.encoder)
@@ -461,8 +468,9 @@ def _eval_tvl(args: argparse.Namespace) -> int:
 
 
 def _eval_stress(args: argparse.Namespace) -> int:
-    from ratouch import stress_eval as S
-    from ratouch.pipeline import RATouchPipeline
+
+    from ratouch.eval import stress as S
+    from ratouch.serve.pipeline import RATouchPipeline
     from ratouch.world.config import WorldConfig
     from ratouch.world.dataset import check_writable
 
@@ -488,16 +496,20 @@ def _eval_stress(args: argparse.Namespace) -> int:
 
 
 def _experiment_names() -> set[str]:
-    from ratouch.experiments import EXPERIMENTS
-
-    return set(EXPERIMENTS) | {"all"}
+    return set(EXPERIMENT_HELP) | {"all"}
 
 
 def _eval_experiments(args: argparse.Namespace) -> int:
     import time
 
-    from ratouch.experiments import (EXPERIMENTS, ExperimentConfig, Lab, results_markdown,
-                                     run_experiments)
+    from ratouch.eval.experiments import (
+        EXPERIMENTS,
+        ExperimentConfig,
+        Lab,
+        results_markdown,
+        run_experiments,
+    )
+
 
     cfg = ExperimentConfig(encoder=args.encoder, steps=args.steps, seed=args.seed,
                            workers=args.workers)
@@ -525,8 +537,9 @@ def _csv(text: str, conv=str) -> list:
 
 
 def _bench_tradeoff(args: argparse.Namespace) -> int:
-    from ratouch.experiments import Report, write_report
-    from ratouch.tradeoff import bench_tradeoff, format_tradeoff, tradeoff_figure
+
+    from ratouch.bench.tradeoff import bench_tradeoff, format_tradeoff, tradeoff_figure
+    from ratouch.eval.experiments import Report, write_report
 
     bad = set(_csv(args.indexes)) - {"flat", "hnsw", "ivfpq"}
     if bad:
@@ -543,8 +556,9 @@ def _bench_tradeoff(args: argparse.Namespace) -> int:
 
 
 def _eval_ttest(args: argparse.Namespace) -> int:
-    from ratouch.judge import read_records
-    from ratouch.tvl_eval import format_ttest, paired_ttest
+
+    from ratouch.eval.judge import read_records
+    from ratouch.eval.tvl import format_ttest, paired_ttest
 
     r = paired_ttest(read_records(args.a), read_records(args.b))
     print(json.dumps(r, indent=1) if args.json else format_ttest(r, args.a, args.b))
@@ -552,19 +566,19 @@ def _eval_ttest(args: argparse.Namespace) -> int:
 
 
 def _run_bench(args: argparse.Namespace) -> int:
-    from ratouch.bench import bench_world
+
+    from ratouch.bench.index import bench_retrieval, bench_scale, format_bench
+    from ratouch.bench.query import bench_query, bench_world
     from ratouch.corpus.imagenet_t import parse_size
 
     if args.bench_cmd == "tradeoff":
         return _bench_tradeoff(args)
     if args.bench_cmd == "query":
-        from ratouch.bench import bench_query
 
         r = bench_query(args.encoder, args.corpus, n=args.n)
         print(json.dumps(r, indent=None if args.json else 1))
         return 0
     if args.bench_cmd == "retrieval":
-        from ratouch.retrieval_bench import bench_retrieval, bench_scale, format_bench
 
         r = bench_retrieval(n=args.n, dim=args.dim, n_queries=args.queries)
         if args.scale:
@@ -589,8 +603,8 @@ def _run_bench(args: argparse.Namespace) -> int:
 
 
 def _run_judge(args: argparse.Namespace) -> int:
-    from ratouch import judge as J
-    from ratouch.files import write_json_atomic
+
+    from ratouch.eval import judge as J
 
     if not (args.file or args.validate or args.fit):
         raise _usage("judge needs FILE --out SCORED.json, --validate or --fit")
@@ -627,7 +641,7 @@ def _run_judge(args: argparse.Namespace) -> int:
 
 
 def _run_app(args: argparse.Namespace) -> int:
-    app_file = Path(__file__).resolve().parents[1] / "app" / "app.py"
+    app_file = APP_FILE
     if not app_file.is_file():
         raise _usage(f"the app is not found at {app_file} (run from a checkout of the repo)")
     os.execv(sys.executable, [sys.executable, str(app_file), "--host", args.host,

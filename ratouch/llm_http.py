@@ -1,6 +1,6 @@
 """One chat-completions request to an OpenAI-compatible endpoint, standard library only.
 
-Shared by the LLM recaptioner (`ratouch.corpus.recaption`) and the LLM judge (`ratouch.judge`).
+Shared by the LLM recaptioner (`ratouch.corpus.recaption`) and the LLM judge (`ratouch.eval.judge`).
 The API key is read from an environment variable at request time; it is never passed as an
 argument, stored or logged.
 """

@@ -10,6 +10,8 @@ allowed, so ImageNet-T captions and TVL labels share one vocabulary.
 
 from __future__ import annotations
 
+import re
+
 # Frequency order of the TVL test labels (derived once from the published result files).
 TVL_ADJECTIVES: tuple[str, ...] = (
     "uneven", "hard", "textured", "smooth", "glossy", "firm", "rigid", "lined", "soft",
@@ -72,6 +74,13 @@ BANNED_WORDS: dict[str, frozenset[str]] = {
 }
 
 
+_MODIFIERS = frozenset({
+    "slightly", "very", "somewhat", "quite", "a", "bit", "little", "mostly", "rather", "fairly",
+    "and", "or", "the", "but", "with", "also", "extremely", "highly", "relatively",
+})
+_STRIP = " \t.!?\"'`()[]*:"
+
+
 def banned_category(word: str) -> str | None:
     """Return the banned category ("colour", "visual", ...) of a word, or None if allowed."""
     w = word.strip().lower()
@@ -81,7 +90,34 @@ def banned_category(word: str) -> str | None:
     return None
 
 
-def parse_adjectives(text: str) -> list[str]:
-    """Split a TVL-style caption ("hard, smooth, flat.") into lower-case adjectives."""
+def _split(text: str) -> list[str]:
     cleaned = text.replace("\n", ",").replace(".", "").replace(";", ",").lower()
     return [w.strip() for w in cleaned.split(",") if w.strip()]
+
+
+def parse_adjectives(text: str | None) -> list[str]:
+    """Distinct lower-case adjectives of a caption, in order.
+
+    The one parser of adjective lists, for TVL-style captions ("hard, smooth, flat.") and for
+    free answers alike: splits on commas, new lines, ";", "/", "and", "or" and "&", lower-cases,
+    strips quotes and punctuation and drops modifiers ("slightly squishy" -> "squishy").
+    """
+    if not isinstance(text, str):
+        return []
+    text = re.sub(r"\s+(?:and|or|&)\s+", ", ", text.replace("/", ","), flags=re.I)
+    out: list[str] = []
+    for chunk in _split(text):
+        words = [w.strip(_STRIP) for w in chunk.split()]
+        words = [w for w in words if w and w not in _MODIFIERS]
+        word = " ".join(words)
+        if word and word not in out:
+            out.append(word)
+    return out
+
+
+def adjective_f1(label: str, response: str | None) -> float:
+    """Plain adjective-set F1 (exact words), the baseline the offline judge is compared with."""
+    lab, pred = set(parse_adjectives(label)), set(parse_adjectives(response))
+    if not lab or not pred:
+        return 0.0
+    return 2 * len(lab & pred) / (len(lab) + len(pred))

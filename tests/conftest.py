@@ -44,7 +44,7 @@ def debug_encoders():
 def small_corpus(tmp_path_factory, debug_encoders):
     """A 240-entry world corpus embedded with the debug encoders."""
     from ratouch.corpus.imagenet_t import build_corpus
-    from ratouch.embed import embed_corpus
+    from ratouch.corpus.embed import embed_corpus
 
     folder = tmp_path_factory.mktemp("corpus") / "c"
     build_corpus(folder, 240, seed=0, progress=False)
@@ -73,7 +73,7 @@ def write_tiny_llama(folder) -> None:
     from tokenizers import Tokenizer, models, pre_tokenizers
     from transformers import LlamaConfig, LlamaForCausalLM, PreTrainedTokenizerFast
 
-    from ratouch.decoder import PROMPT
+    from ratouch.model.decoder import PROMPT
     from ratouch.vocabulary import TVL_ADJECTIVES
 
     words = (["<unk>", "<s>", "</s>", "<pad>", ",", "?", "."] + PROMPT[:-1].split()
@@ -102,7 +102,7 @@ def tiny_llama(tmp_path_factory):
 def shipped_corpus(tmp_path_factory):
     """A 600-entry world corpus embedded with the shipped default encoder."""
     from ratouch.corpus.imagenet_t import build_corpus
-    from ratouch.pipeline import embed_and_index
+    from ratouch.serve.pipeline import embed_and_index
 
     folder = tmp_path_factory.mktemp("shipped") / "c600"
     build_corpus(folder, 600, seed=0, progress=False)
@@ -112,7 +112,7 @@ def shipped_corpus(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def pipeline(shipped_corpus):
-    from ratouch.pipeline import RATouchPipeline
+    from ratouch.serve.pipeline import RATouchPipeline
 
     return RATouchPipeline.load("default-s", corpus=shipped_corpus)
 

@@ -168,7 +168,7 @@ def test_example_pair_brings_its_box_label_and_tactile(fake, world):
     assert fake.calls[-1]["label"] == s.caption
     assert f"Ground-truth label:** {s.caption}" in v.description
     # both descriptions carry the offline judge's score against the label
-    from ratouch.failures import judge_scores
+    from ratouch.eval.failures import judge_scores
 
     scores = judge_scores(s.caption, {"ra_touch": "soft and grainy", "baseline": "smooth"})
     assert f"soft and grainy · judge **{scores['ra_touch']:.1f}**/10" in v.description
@@ -328,7 +328,7 @@ TABLE = {"meta": {"k": 5, "n_rows": 4, "conditions": {"natural": {}, "noisy touc
 
 def test_failure_table_filters_and_views():
     from app import handlers
-    from ratouch.failures import VIEWS
+    from ratouch.eval.failures import VIEWS
 
     v = handlers.failure_view(TABLE, "all", "all", VIEWS["ra_lowest"])
     assert list(v.cases["#"]) == [80, 3, 80, 90]
@@ -350,7 +350,7 @@ def test_failure_table_filters_and_views():
 
 def test_failure_tab_reads_the_cache_and_computes_only_on_request(fake, monkeypatch):
     from app import handlers
-    from ratouch import failures
+    from ratouch.eval import failures
 
     opts = {"k": 5, "conditions": ("natural",), "indices": [0, 1]}
     shared: dict = {}
@@ -377,7 +377,7 @@ def test_opening_a_case_brings_its_stressed_inputs_and_label(fake):
     import gradio as gr
 
     from app import handlers
-    from ratouch.failures import case_sample
+    from ratouch.eval.failures import case_sample
     from ratouch.world.config import WorldConfig
 
     visual, preview, tactile, *box, note = handlers.open_case(WorldConfig(),
@@ -493,18 +493,18 @@ def test_the_app_serves_while_the_pipeline_loads(fake, pair_files):
 def test_the_batcher_answers_concurrent_queries_together(monkeypatch):
     import threading
 
-    from ratouch import serving
+    from ratouch.serve import batcher as serving
 
     batches = []
 
-    def fake_many(pipe, requests):
+    def fake_many(requests):
         batches.append(len(requests))
         time.sleep(0.05)
         return [DataError(f"bad {r['k']}") if r["k"] == 13 else {"k": r["k"]}
                 for r in requests]
 
-    monkeypatch.setattr(serving, "query_many", fake_many)
-    b = serving.QueryBatcher(SimpleNamespace(corpus="the corpus"), max_batch=4)
+    b = serving.QueryBatcher(SimpleNamespace(corpus="the corpus", query_many=fake_many),
+                             max_batch=4)
     assert b.corpus == "the corpus"
     out, errors = {}, {}
 
@@ -582,7 +582,7 @@ def load_real_pipeline(tmp_path_factory):
     """The real pipeline on a 600-entry world corpus, built once per test session (the
     browser test uses it too)."""
     from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
-    from ratouch.pipeline import RATouchPipeline, embed_and_index
+    from ratouch.serve.pipeline import RATouchPipeline, embed_and_index
 
     folder = tmp_path_factory.getbasetemp() / "app-corpus-600"
     if not (folder / MANIFEST).is_file():
@@ -669,15 +669,13 @@ def _tie_free(neighbours: dict) -> dict:
 
 @pytest.mark.slow
 def test_real_pipeline_batched_queries_match_single_ones(real_pipeline, world):
-    from ratouch.serving import query_many
-
     samples = [world.sample("test", i) for i in (60, 140, 290)]
     reqs = [{"visual": s.visual, "tactile": s.tactile, "box": s.box, "k": k, "label": s.caption}
             for s, k in zip(samples, (5, 5, 3))]
     reqs += [{"visual": samples[0].visual, "k": 4},  # image-only
              {"visual": samples[0].visual, "box": (9, 9, 2, 2)},  # a bad box
              {"visual": samples[0].visual, "k": 0}]  # a bad k
-    many = query_many(real_pipeline, reqs)
+    many = real_pipeline.query_many(reqs)
     assert isinstance(many[4], DataError) and "box" in str(many[4])
     assert isinstance(many[5], Exception) and "k must be" in str(many[5])
     for req, got in zip(reqs[:4], many[:4]):
@@ -701,7 +699,7 @@ def test_real_pipeline_smoke_two_clients(real_pipeline, pair_files):
     from gradio_client import Client, handle_file
 
     from app.app import build_demo, launch
-    from ratouch.serving import QueryBatcher
+    from ratouch.serve.batcher import QueryBatcher
 
     batcher = QueryBatcher(real_pipeline)
     demo = build_demo(batcher)

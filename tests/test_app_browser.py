@@ -30,7 +30,7 @@ def app_url(tmp_path_factory):
     """The app over the real pipeline on a small corpus if the trained assets exist, else
     over the fake pipeline, served on a free port of 127.0.0.1."""
     from app.app import build_demo, launch
-    from ratouch.serving import QueryBatcher
+    from ratouch.serve.batcher import QueryBatcher
 
     pipe = QueryBatcher(load_real_pipeline(tmp_path_factory)) if HAVE_ASSETS else FakePipeline()
     demo = build_demo(pipe, failure_options=FAILURE_OPTIONS, docs=tmp_path_factory.mktemp("docs"))

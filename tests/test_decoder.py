@@ -12,7 +12,7 @@ import json
 import pytest
 import torch
 
-from ratouch.decoder import (PROMPT, Decoder, DecoderConfig, TactileTokenizer,
+from ratouch.model.decoder import (PROMPT, Decoder, DecoderConfig, TactileTokenizer,
                              build_small_decoder, clean_description, load_hf_decoder)
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.vocabulary import TVL_ADJECTIVES

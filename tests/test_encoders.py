@@ -99,7 +99,7 @@ def test_shipped_weights_load_and_are_small(name):
 
 
 def test_training_reduces_the_loss(tmp_path):
-    from ratouch.train_encoders import TrainConfig, train_encoders
+    from ratouch.train.encoders import TrainConfig, train_encoders
 
     model, report = train_encoders(TrainConfig(model="debug", n_pairs=120, n_corpus=120,
                                                steps=25, batch=32, workers=1),

@@ -9,14 +9,15 @@ import pytest
 import torch
 
 from ratouch.errors import ConfigError
-from ratouch.experiments import (BASELINE, RA_TOUCH, ExperimentConfig, Lab, Variant, exact_topk,
-                                 make_integrator, results_markdown, run_experiments)
+from ratouch.eval.experiments import (BASELINE, RA_TOUCH, ExperimentConfig, Lab, Variant,
+                                      make_integrator, results_markdown, run_experiments)
+from ratouch.search.index import exact_topk
 
 
 def test_exact_topk_matches_a_full_sort():
     rng = np.random.default_rng(0)
     q, keys = rng.normal(size=(7, 16)), rng.normal(size=(50, 16))
-    ids = exact_topk(q, keys, 5, batch=3)
+    ids = exact_topk(q, keys, 5, max_bytes=3 * 4 * len(keys))  # 3 queries per chunk
     full = np.argsort(-(q @ keys.T), axis=1)[:, :5]
     assert (ids == full).all()
     assert exact_topk(q, keys[:3], 5).shape == (7, 3)  # K larger than the corpus
@@ -41,7 +42,7 @@ def test_unknown_integration_and_bad_config_are_refused():
 @pytest.fixture(scope="module")
 def lab(pipeline, world):
     """A lab over the small shipped-encoder corpus, with 48 training pairs and 21 test pairs."""
-    from ratouch.tvl_eval import encode_test_split
+    from ratouch.world.splits import encode_test_split
 
     lab = Lab(ExperimentConfig(steps=2, batch=8, workers=1, ks=(1, 3), corpus_sizes=(100, 600)))
     lab.__dict__["pipeline"] = pipeline

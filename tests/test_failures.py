@@ -1,4 +1,4 @@
-"""Failure cases (`ratouch.failures`): the table over a fake pipeline with a known retrieval
+"""Failure cases (`ratouch.eval.failures`): the table over a fake pipeline with a known retrieval
 (precision, `joint_loses`, judge scores checked by hand), the stress conditions, the cache, the
 filters; and (slow, when the trained assets exist) a few cases with the real pipeline."""
 
@@ -11,9 +11,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ratouch import failures
+from ratouch.eval import failures
 from ratouch.errors import ConfigError, DataError
-from ratouch.judge import OfflineJudge
+from ratouch.eval.judge import OfflineJudge
 from ratouch.world.config import WorldConfig
 from ratouch.world.material import MATERIALS
 

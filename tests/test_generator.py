@@ -9,9 +9,9 @@ import pytest
 import torch
 from torch import nn
 
-from ratouch.decoder import DecoderConfig, build_small_decoder, load_hf_decoder
+from ratouch.model.decoder import DecoderConfig, build_small_decoder, load_hf_decoder
 from ratouch.errors import ConfigError, DataError
-from ratouch.generator import (BaselinePrompt, PromptConfig, RATouchGenerator, load_generator,
+from ratouch.model.generator import (BaselinePrompt, PromptConfig, RATouchGenerator, load_generator,
                                save_generator, trainable_parameters)
 from ratouch.vocabulary import TVL_ADJECTIVES
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
-from ratouch.index import IndexConfig, VectorIndex
-from ratouch.retrieval_bench import clustered_vectors
+from ratouch.search.index import IndexConfig, VectorIndex
+from ratouch.bench.index import clustered_vectors
 
 N, DIM = 2000, 64
 
@@ -81,7 +81,7 @@ def test_one_dimensional_query_and_properties(data, flat):
 
 def test_queries_and_vectors_are_normalised(data, caplog):
     corpus, queries = data
-    with caplog.at_level(logging.WARNING, logger="ratouch.index"):
+    with caplog.at_level(logging.WARNING, logger="ratouch.search.index"):
         scaled = VectorIndex.build(corpus * 7.0, IndexConfig())
     assert "not unit norm" in caplog.text
     s1, i1 = scaled.search(queries[:3] * 0.01, 4)

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from ratouch.errors import ConfigError, DataError
-from ratouch.integrator import IntegratorConfig, TextureAwareIntegrator
+from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 
 B, K, D, DP = 3, 5, 16, 24
 

@@ -1,4 +1,4 @@
-"""Tests for ratouch.judge: score parsing, the offline judge and its held-out validation against
+"""Tests for ratouch.eval.judge: score parsing, the offline judge and its held-out validation against
 GPT-4, judge_results, the `ratouch judge` CLI and the LLM judge against a local HTTP server."""
 
 from __future__ import annotations
@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from conftest import serve_fake_llm
 
-from ratouch import judge as J
+from ratouch.eval import judge as J
 from ratouch.cli import main
 from ratouch.errors import ConfigError, DataError
+from ratouch.vocabulary import adjective_f1, parse_adjectives
 
 KEY_ENV = "RATOUCH_TEST_JUDGE_KEY"
 HAVE_DATA = all((J.judge_data_dir() / f"{m}.json").is_file() for m in J.MODELS)
@@ -63,7 +64,7 @@ def test_parse_gpt_score(text, expected):
     ("  . ", []),
 ])
 def test_adjectives(text, expected):
-    assert J.adjectives(text) == expected
+    assert parse_adjectives(text) == expected
 
 
 # --------------------------------------------------------------------------- offline judge
@@ -107,7 +108,7 @@ def test_similarity_and_antonyms():
     assert J.similarity("soft", "hard") == 0.0
     assert J.antonymy("soft", "hard") == 1.0 and J.antonymy("smooth", "rough") == 1.0
     assert J.antonymy("flexible", "rigid") == 1.0 and J.antonymy("soft", "plush") == 0.0
-    assert J.adjective_f1("hard, smooth", "hard, rigid") == pytest.approx(0.5)
+    assert adjective_f1("hard, smooth", "hard, rigid") == pytest.approx(0.5)
 
 
 @pytest.mark.parametrize("params, fragment", [

@@ -9,9 +9,9 @@ import torch
 import torch.nn.functional as F
 
 from ratouch.errors import ConfigError, DataError
-from ratouch.loss import (STRATEGIES, RetrieverLossConfig, diversity_term, infonce_term,
+from ratouch.model.loss import (STRATEGIES, RetrieverLossConfig, diversity_term, infonce_term,
                           mse_term, retriever_loss)
-from ratouch.retriever import RetrieverConfig, TactileGuidedRetriever
+from ratouch.model.retriever import RetrieverConfig, TactileGuidedRetriever
 
 
 def _unit(*shape: int, seed: int) -> torch.Tensor:

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ratouch.embed import embed_corpus, load_embeddings
+from ratouch.corpus.embed import embed_corpus, load_embeddings
 from ratouch.errors import ConfigError, DataError
-from ratouch.retrieval import CorpusIndex, Retriever
-from ratouch.retrieval_eval import evaluate_retrieval, split_queries
+from ratouch.search.retrieval import CorpusIndex, CorpusSearch
+from ratouch.eval.retrieval import evaluate_retrieval, split_queries
 from ratouch.world.config import WorldConfig
 
 
@@ -24,7 +24,7 @@ def test_interrupted_embedding_resumes_to_the_same_result(tmp_path, small_corpus
                                                           monkeypatch):
     import shutil
 
-    from ratouch import embed as emb
+    from ratouch.corpus import embed as emb
 
     folder = tmp_path / "c"
     shutil.copytree(small_corpus, folder, ignore=shutil.ignore_patterns("embeddings", "index"))
@@ -50,7 +50,7 @@ def test_interrupted_embedding_resumes_to_the_same_result(tmp_path, small_corpus
 
 
 def test_retrieval_in_all_four_encoder_settings(small_corpus, debug_encoders, world):
-    r = Retriever(debug_encoders, CorpusIndex(small_corpus, "debug", 384))
+    r = CorpusSearch(debug_encoders, CorpusIndex(small_corpus, "debug", 384))
     s = world.sample("test", 80)
     q = r.embed_queries([s.visual[s.box[1]:s.box[3], s.box[0]:s.box[2]]], [s.tactile],
                         [world.background_image(s.sensor)])
@@ -79,11 +79,11 @@ def test_index_is_reused_and_a_mismatched_encoder_refused(small_corpus, debug_en
         name, dim = "default-s", 384
 
     with pytest.raises(DataError, match="embedded with"):
-        Retriever(Other(), CorpusIndex(small_corpus, "debug", 384))
+        CorpusSearch(Other(), CorpusIndex(small_corpus, "debug", 384))
 
 
 def test_retrieval_eval_reports_every_setting(small_corpus, debug_encoders):
-    r = Retriever(debug_encoders, CorpusIndex(small_corpus, "debug", 384))
+    r = CorpusSearch(debug_encoders, CorpusIndex(small_corpus, "debug", 384))
     q = split_queries(WorldConfig(), n=60)
     out = evaluate_retrieval(r, queries=q, ks=(1, 5))
     assert set(out["settings"]) == {"image_image", "image_text", "tactile_image", "tactile_text"}

@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from ratouch.errors import ConfigError
-from ratouch.index import IndexConfig, VectorIndex
-from ratouch.retrieval_bench import bench_retrieval, bench_scale, clustered_vectors, \
-    exact_topk, format_bench, upstream_retrieve
+from ratouch.bench.index import bench_retrieval, bench_scale, clustered_vectors, format_bench, \
+    upstream_retrieve
+from ratouch.search.index import IndexConfig, VectorIndex, exact_topk
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +50,7 @@ def test_upstream_and_flat_agree_on_top1():
     up = torch.stack([upstream_retrieve(torch.from_numpy(corpus), torch.from_numpy(q), 5)
                       for q in queries]).numpy()
     np.testing.assert_array_equal(up[:, 0], ids[:, 0])
-    np.testing.assert_array_equal(exact_topk(corpus, queries, 5)[:, 0], ids[:, 0])
+    np.testing.assert_array_equal(exact_topk(queries, corpus, 5)[:, 0], ids[:, 0])
 
 
 def test_clustered_vectors_are_unit_and_reproducible():

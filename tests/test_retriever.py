@@ -7,8 +7,8 @@ import torch
 import torch.nn.functional as F
 
 from ratouch.errors import ConfigError, DataError
-from ratouch.loss import RetrieverLossConfig, retriever_loss
-from ratouch.retriever import (RetrieverConfig, RetrieverOutput, TactileGuidedRetriever,
+from ratouch.model.loss import RetrieverLossConfig, retriever_loss
+from ratouch.model.retriever import (RetrieverConfig, RetrieverOutput, TactileGuidedRetriever,
                                collapse_stats)
 
 D = 32

@@ -33,16 +33,16 @@ class FakeGenerator:
 def fake_pipeline(debug_encoders, small_corpus):
     import torch
 
-    from ratouch.index import IndexConfig
-    from ratouch.pipeline import RATouchPipeline
-    from ratouch.retrieval import CorpusIndex, Retriever
-    from ratouch.retriever import RetrieverConfig, TactileGuidedRetriever
+    from ratouch.search.index import IndexConfig
+    from ratouch.serve.pipeline import RATouchPipeline
+    from ratouch.search.retrieval import CorpusIndex, CorpusSearch
+    from ratouch.model.retriever import RetrieverConfig, TactileGuidedRetriever
 
     torch.manual_seed(0)
     tgr = TactileGuidedRetriever(RetrieverConfig(dim=debug_encoders.dim, cross_residual=True))
     index = CorpusIndex(small_corpus, debug_encoders.name, debug_encoders.dim,
                         IndexConfig(kind="flat"))
-    return RATouchPipeline(Retriever(debug_encoders, index), tgr.eval(), FakeGenerator(True),
+    return RATouchPipeline(CorpusSearch(debug_encoders, index), tgr.eval(), FakeGenerator(True),
                            FakeGenerator(False))
 
 
@@ -50,8 +50,8 @@ def fake_pipeline(debug_encoders, small_corpus):
 def result(fake_pipeline):
     import torch
 
-    from ratouch.retriever import RetrieverConfig, TactileGuidedRetriever
-    from ratouch.stress_eval import build_sweeps, run_stress
+    from ratouch.model.retriever import RetrieverConfig, TactileGuidedRetriever
+    from ratouch.eval.stress import build_sweeps, run_stress
 
     torch.manual_seed(1)
     align = TactileGuidedRetriever(RetrieverConfig(dim=384, cross_residual=True)).eval()
@@ -137,7 +137,7 @@ def test_scale_bins_and_collapse(result):
 def test_report_files(result, tmp_path):
     import plotly.io as pio
 
-    from ratouch.stress_eval import format_table, write_report
+    from ratouch.eval.stress import format_table, write_report
 
     paths = write_report(result, tmp_path / "rep", png=False)  # kaleido + Chromium: slow
     for kind in ("json", "md", "html", "fig", "overlap_fig"):
@@ -157,7 +157,7 @@ def test_report_files(result, tmp_path):
 
 
 def test_sweep_definitions_and_indices():
-    from ratouch.stress_eval import KNOBS, build_sweeps, stratified_indices
+    from ratouch.eval.stress import KNOBS, build_sweeps, stratified_indices
 
     sweeps = build_sweeps()
     assert list(sweeps) == list(KNOBS)

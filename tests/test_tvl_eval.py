@@ -7,8 +7,9 @@ import json
 import pytest
 
 from ratouch.errors import ConfigError, DataError
-from ratouch.judge import subset_of
-from ratouch.tvl_eval import encode_test_split, paired_ttest, run_tvl
+from ratouch.eval.judge import subset_of
+from ratouch.eval.tvl import paired_ttest, run_tvl
+from ratouch.world.splits import encode_test_split
 
 
 @pytest.fixture(scope="module")

@@ -28,7 +28,7 @@ from tqdm import tqdm
 from ratouch.corpus.recaption import RecaptionConfig, create_recaptioner
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.world.config import WorldConfig
-from ratouch.world.dataset import check_writable
+from ratouch.world.dataset import _fork_context, check_writable, world_for
 from ratouch.world.generator import CORPUS_POOL_PER_CLASS, World
 from ratouch.world.material import MATERIALS
 from ratouch.world.objects import OBJECT_CLASSES
@@ -277,7 +277,6 @@ def parse_world_source(source: str) -> tuple[int, int, int]:
 
 
 def _render_chunk(args: tuple[WorldConfig, list[tuple[int, int]], int]) -> list[np.ndarray]:
-    from ratouch.world.dataset import world_for
 
     cfg, ids, thumb = args
     world = world_for(cfg)
@@ -298,7 +297,6 @@ def render_world_images(ids: Sequence[tuple[int, int]], cfg: WorldConfig, worker
     in chunks of `chunk` images as (n, S, S, 3) uint8 arrays."""
     from concurrent.futures import ProcessPoolExecutor
 
-    from ratouch.world.dataset import _fork_context, world_for
 
     jobs = [(cfg, list(ids[k:k + chunk]), thumb) for k in range(0, len(ids), chunk)]
     bar = tqdm(total=len(ids), desc="render corpus", unit="img", disable=not progress)

@@ -19,9 +19,19 @@ from dataclasses import dataclass
 from types import MappingProxyType
 
 from ratouch.errors import ConfigError, DataError
-from ratouch.llm_http import (REQUEST_ERRORS, chat_completion, chat_url, check_client_settings,
-                              is_http_url)
-from ratouch.vocabulary import EXTRA_TACTILE, TACTILE_WORDS, TVL_ADJECTIVES, banned_category
+from ratouch.llm_http import (
+    REQUEST_ERRORS,
+    chat_completion,
+    chat_url,
+    check_client_settings,
+    is_http_url,
+)
+from ratouch.vocabulary import (
+    EXTRA_TACTILE,
+    TACTILE_WORDS,
+    TVL_ADJECTIVES,
+    banned_category,
+)
 
 logger = logging.getLogger(__name__)
 

@@ -19,8 +19,8 @@ import torch.nn.functional as F
 from PIL import Image
 from scipy.ndimage import gaussian_filter
 
-from ratouch.errors import ConfigError
 from ratouch.encoders.text import MINILM_DIM, MiniLM, TextCache
+from ratouch.errors import ConfigError
 
 
 @dataclass(frozen=True)

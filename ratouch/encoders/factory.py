@@ -16,10 +16,11 @@ from typing import Mapping
 
 from ratouch.checkpoint import load_into, read_checkpoint
 from ratouch.encoders.default import DefaultConfig, DefaultEncoders
+from ratouch.encoders.tvl import TVLConfig, load_tvl
 from ratouch.errors import ConfigError, DataNotFoundError
+from ratouch.paths import encoder_weights
 
 DEFAULT_ENCODER = "default-s"
-ASSETS = Path(__file__).resolve().parents[2] / "assets"
 
 
 def _scan() -> Mapping[str, dict]:
@@ -46,7 +47,7 @@ def model_config(name: str) -> dict:
 
 def shipped_weights(name: str) -> Path:
     """Folder of the shipped weights of a default-backend encoder."""
-    return ASSETS / "encoders" / name
+    return encoder_weights(name)
 
 
 def default_config(cfg: dict) -> DefaultConfig:
@@ -87,7 +88,6 @@ def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | di
 
 
 def _create_tvl(cfg: dict, pretrained):
-    from ratouch.encoders.tvl import TVLConfig, load_tvl
 
     if pretrained in (None, "shipped"):
         raise ConfigError(f"encoder {cfg['name']!r} needs local TVL weights: pass "

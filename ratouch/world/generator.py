@@ -15,9 +15,19 @@ from ratouch.errors import ConfigError
 from ratouch.world.caption import tactile_label, visual_description
 from ratouch.world.config import SPLITS, WorldConfig
 from ratouch.world.material import MATERIALS, Material, material
-from ratouch.world.objects import CLASS_INDEX, OBJECT_CLASSES, ObjectClass, classes_with_material
+from ratouch.world.objects import (
+    CLASS_INDEX,
+    OBJECT_CLASSES,
+    ObjectClass,
+    classes_with_material,
+)
 from ratouch.world.scene import Box, ScenePlan, plan_scene, render_scene
-from ratouch.world.tactile import TactilePlan, plan_tactile, render_tactile, sensor_background
+from ratouch.world.tactile import (
+    TactilePlan,
+    plan_tactile,
+    render_tactile,
+    sensor_background,
+)
 from ratouch.world.texture import PatternSpec, make_tile, mip_pyramid
 
 TEST_STRUCTURED = 46  # like SSVTP's share of the TVL test set

@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from ratouch.errors import ConfigError
 from ratouch.world.config import WorldConfig
+from ratouch.world.dataset import _fork_context, world_for
 from ratouch.world.material import MATERIAL_INDEX, MATERIALS, groups
 
 
@@ -107,7 +108,6 @@ def tactile_features(tactile: np.ndarray, background: np.ndarray) -> np.ndarray:
 
 
 def _features_chunk(args: tuple[WorldConfig, str, list[int]]):
-    from ratouch.world.dataset import world_for
 
     cfg, split, indices = args
     world = world_for(cfg)
@@ -121,7 +121,6 @@ def _features_chunk(args: tuple[WorldConfig, str, list[int]]):
 
 
 def _collect(cfg: WorldConfig, start: int, n: int, workers: int, progress: bool):
-    from ratouch.world.dataset import _fork_context, world_for
 
     idx = list(range(start, start + n))
     chunks = [(cfg, "probe", idx[k:k + 100]) for k in range(0, n, 100)]

@@ -7,9 +7,9 @@ any process regenerates the exact same bytes. Patterns return float32 tiles in [
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 from functools import lru_cache
-import hashlib
 
 import numpy as np
 

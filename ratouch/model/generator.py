@@ -34,9 +34,14 @@ import torch
 from torch import Tensor, nn
 
 from ratouch.checkpoint import load_into, read_checkpoint, save_checkpoint
-from ratouch.decoder import (Decoder, DecoderConfig, TactileTokenizer, build_decoder,
-                             clean_description)
 from ratouch.errors import ConfigError, DataError
+from ratouch.model.decoder import (
+    Decoder,
+    DecoderConfig,
+    TactileTokenizer,
+    build_decoder,
+    clean_description,
+)
 
 logger = logging.getLogger(__name__)
 

@@ -20,8 +20,15 @@ import numpy as np
 import torch
 
 from ratouch.errors import ConfigError
-from ratouch.judge import adjective_f1
-from ratouch.vocabulary import EXTRA_TACTILE, TVL_ADJECTIVES
+from ratouch.model.decoder import DecoderConfig, build_small_decoder
+from ratouch.model.generator import (
+    BaselinePrompt,
+    PromptConfig,
+    RATouchGenerator,
+    trainable_parameters,
+)
+from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
+from ratouch.vocabulary import EXTRA_TACTILE, TVL_ADJECTIVES, adjective_f1
 
 log = logging.getLogger(__name__)
 
@@ -43,18 +50,6 @@ class GeneratorTrainConfig:
         for name in ("stage1_steps", "stage2_steps", "batch", "k", "hidden", "layers"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
-
-
-def neighbours_for(pipeline_parts, V: np.ndarray, T: np.ndarray, k: int, batch: int = 1024
-                   ) -> np.ndarray:
-    """Top-k corpus ids of the joint (Tactile-Guided Retriever) query for each pair."""
-    tgr, corpus = pipeline_parts
-    ids = []
-    with torch.no_grad():
-        for s in range(0, len(V), batch):
-            q = tgr(torch.from_numpy(V[s:s + batch]), torch.from_numpy(T[s:s + batch])).query
-            ids.append(corpus.search("text", q.numpy(), k)[1])
-    return np.concatenate(ids)
 
 
 def _steps(gen, params, V, T, labels, rv, rl, steps: int, batch: int, lr: float, seed: int,
@@ -117,7 +112,6 @@ def train_stage2(stage1, integrator, V, T, labels: list[str], rv, rl,
     Returns:
         (the trained generator in eval mode, loss history)
     """
-    from ratouch.generator import trainable_parameters
 
     torch.manual_seed(tc.seed)
     gen = copy.deepcopy(stage1)
@@ -135,8 +129,6 @@ def train_stage2(stage1, integrator, V, T, labels: list[str], rv, rl,
 def train_stage1(V, T, labels: list[str], dim: int, tc: GeneratorTrainConfig):
     """Stage 1 (TVL-LLaMA): the prompt projection p = Linear(V + T) and the small decoder,
     from scratch. Returns (generator without LoRA, loss history)."""
-    from ratouch.decoder import DecoderConfig, build_small_decoder
-    from ratouch.generator import BaselinePrompt, PromptConfig, RATouchGenerator, trainable_parameters
 
     torch.manual_seed(tc.seed)
     decoder = build_small_decoder(DecoderConfig(hidden=tc.hidden, layers=tc.layers),
@@ -163,7 +155,6 @@ def train_generators(emb: dict[str, np.ndarray], labels: list[str], Rv: np.ndarr
     Returns:
         (baseline generator, RA-Touch generator, report)
     """
-    from ratouch.integrator import IntegratorConfig, TextureAwareIntegrator
 
     torch.set_num_threads(tc.threads)
     t0 = time.perf_counter()

@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ratouch.errors import ConfigError, DataError
-from ratouch.retriever import RetrieverOutput
+from ratouch.model.retriever import RetrieverOutput
 
 STRATEGIES: tuple[str, ...] = ("align", "align_mse", "align_div_nce", "full")
 

@@ -18,7 +18,13 @@ from PIL import Image
 from tqdm import tqdm
 
 from ratouch.checkpoint import sha256_file
-from ratouch.corpus.imagenet_t import CorpusEntry, load_corpus, parse_world_source
+from ratouch.corpus.imagenet_t import (
+    CorpusEntry,
+    load_corpus,
+    parse_world_source,
+    render_world_images,
+)
+from ratouch.encoders.preprocess import to_rgb_array
 from ratouch.errors import DataError, DataNotFoundError
 from ratouch.world.config import WorldConfig
 
@@ -37,7 +43,6 @@ def corpus_images(entries: Sequence[CorpusEntry], start: int, batch: int, worker
     their ids (in parallel), real entries read from their paths."""
     rest = entries[start:]
     if rest and rest[0].source.startswith("world:"):
-        from ratouch.corpus.imagenet_t import render_world_images
 
         seeds = {parse_world_source(e.source)[0] for e in rest}
         if len(seeds) != 1:
@@ -46,7 +51,6 @@ def corpus_images(entries: Sequence[CorpusEntry], start: int, batch: int, worker
         yield from render_world_images(ids, WorldConfig(seed=seeds.pop()), workers=workers,
                                        chunk=batch, progress=progress)
         return
-    from ratouch.encoders.preprocess import to_rgb_array
 
     for k in tqdm(range(0, len(rest), batch), desc="read corpus images", disable=not progress):
         out = []

@@ -9,7 +9,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ratouch.retrieval import Retriever
+from ratouch.search.retrieval import CorpusSearch
 from ratouch.vocabulary import parse_adjectives
 from ratouch.world.config import WorldConfig
 from ratouch.world.generator import TEST_SIZE, World
@@ -32,24 +32,29 @@ def split_queries(world_cfg: WorldConfig, n: int = TEST_SIZE) -> dict:
             "labels": labels}
 
 
-def material_precision(ids: np.ndarray, materials: Sequence[str], corpus) -> float:
-    """Share of retrieved corpus entries (ids: (N, K)) whose material is the query's."""
-    entry_mats = np.array([e.material for e in corpus.entries])
-    return float((entry_mats[ids] == np.asarray(materials)[:, None]).mean())
+def entry_materials(corpus) -> np.ndarray:
+    """The world material of every corpus entry, by id."""
+    return np.array([e.material for e in corpus.entries])
 
 
-def _metrics(ids: np.ndarray, mats: Sequence[str], labels: Sequence[set], entry_mats: np.ndarray,
+def material_precision(ids: np.ndarray, materials: Sequence[str], entry_mats: np.ndarray
+                       ) -> np.ndarray:
+    """Material precision@K per query: the share of its retrieved entries (ids: (N, K)) made
+    of the query's material (`entry_mats` from `entry_materials`). Its mean is P@K."""
+    return (entry_mats[np.asarray(ids)] == np.asarray(materials)[:, None]).mean(1)
+
+
+def retrieval_metrics(ids: np.ndarray, mats: Sequence[str], labels: Sequence[set], entry_mats: np.ndarray,
              entry_words: list[set], k: int, sel: np.ndarray) -> dict:
     top = ids[sel, :k]
-    qm = np.asarray(mats)[sel]
-    prec = float((entry_mats[top] == qm[:, None]).mean())
+    prec = float(material_precision(top, np.asarray(mats)[sel], entry_mats).mean())
     lab = [labels[i] for i in np.nonzero(sel)[0]]
     overlap = float(np.mean([np.mean([len(l & entry_words[j]) / len(l) for j in row])
                              for l, row in zip(lab, top)]))
     return {"material_precision": round(prec, 4), "adjective_overlap": round(overlap, 4)}
 
 
-def evaluate_retrieval(retriever: Retriever, world_cfg: WorldConfig | None = None,
+def evaluate_retrieval(retriever: CorpusSearch, world_cfg: WorldConfig | None = None,
                        ks: Sequence[int] = (1, 5, 7), queries: dict | None = None,
                        joint_fn=None) -> dict:
     """Quality of every available setting at each K.
@@ -72,7 +77,7 @@ def evaluate_retrieval(retriever: Retriever, world_cfg: WorldConfig | None = Non
     kmax = max(ks)
     results = retriever.retrieve(emb, kmax)
     entries = retriever.corpus.entries
-    entry_mats = np.array([e.material for e in entries])
+    entry_mats = entry_materials(retriever.corpus)
     entry_words = [set(parse_adjectives(e.caption)) for e in entries]
     mats = q["materials"]
     subsets = {
@@ -83,13 +88,13 @@ def evaluate_retrieval(retriever: Retriever, world_cfg: WorldConfig | None = Non
     out: dict = {"n_queries": len(mats), "corpus_size": len(entries), "settings": {}}
     for name, (_, ids) in results.items():
         out["settings"][name] = {
-            sub: {str(k): _metrics(ids, mats, q["labels"], entry_mats, entry_words, k, sel)
+            sub: {str(k): retrieval_metrics(ids, mats, q["labels"], entry_mats, entry_words, k, sel)
                   for k in ks}
             for sub, sel in subsets.items() if sel.any()}
     # chance: K random corpus entries
     rng = np.random.default_rng(0)
     rand = rng.integers(len(entries), size=(len(mats), kmax))
-    out["chance"] = {str(k): _metrics(rand, mats, q["labels"], entry_mats, entry_words, k,
+    out["chance"] = {str(k): retrieval_metrics(rand, mats, q["labels"], entry_mats, entry_words, k,
                                       subsets["all"]) for k in ks}
     return out
 

@@ -16,11 +16,18 @@ from typing import Sequence
 import numpy as np
 from PIL import Image
 
+from ratouch.corpus.embed import load_embeddings
 from ratouch.corpus.imagenet_t import CorpusEntry, load_corpus, parse_world_source
-from ratouch.embed import load_embeddings
 from ratouch.errors import ConfigError, DataError
-from ratouch.index import IndexConfig, VectorIndex
+from ratouch.search.index import IndexConfig, VectorIndex
+from ratouch.world.config import WorldConfig
+from ratouch.world.dataset import world_for
 
+#: The three query modes: the visual crop's embedding, the tactile frame's, and the
+#: Tactile-Guided Retriever's joint query made from both.
+QUERY_MODES = ("image", "tactile", "joint")
+
+#: The paper's five retrieval settings (Table 4): query mode -> key modality.
 SETTINGS: dict[str, tuple[str, str]] = {
     "image_image": ("image", "image"),
     "image_text": ("image", "text"),
@@ -87,8 +94,6 @@ class CorpusIndex:
         """The entry's image, re-rendered (world) or read (real corpus), as a thumbnail."""
         e = self.entries[i]
         if e.source.startswith("world:"):
-            from ratouch.world.dataset import world_for
-            from ratouch.world.config import WorldConfig
 
             seed, c, inst = parse_world_source(e.source)
             img = Image.fromarray(world_for(WorldConfig(seed=seed)).corpus_image(c, inst))
@@ -99,7 +104,7 @@ class CorpusIndex:
         return np.asarray(img)
 
 
-class Retriever:
+class CorpusSearch:
     """Encoders + a corpus index: queries in, neighbours per setting out."""
 
     def __init__(self, encoders, corpus_index: CorpusIndex):

@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 
 from ratouch.errors import ConfigError
-from ratouch.index import KINDS, IndexConfig, VectorIndex
+from ratouch.search.index import KINDS, IndexConfig, VectorIndex, exact_topk
 
 logger = logging.getLogger(__name__)
 
@@ -72,16 +72,6 @@ def clustered_vectors(n: int, dim: int, seed: int = 0, n_centres: int = 1000,
         rows += centres[crng.integers(0, n_centres, len(rows))]
         rows /= np.linalg.norm(rows, axis=1, keepdims=True)
     return out
-
-
-def exact_topk(corpus: np.ndarray, queries: np.ndarray, k: int) -> np.ndarray:
-    """Brute-force (Q, k) ids of the largest inner products, best first (numpy)."""
-    sims = np.empty((len(queries), len(corpus)), dtype=np.float32)
-    for start in range(0, len(corpus), 4 * _CHUNK):
-        sims[:, start:start + 4 * _CHUNK] = queries @ corpus[start:start + 4 * _CHUNK].T
-    top = np.argpartition(-sims, k - 1, axis=1)[:, :k]
-    order = np.argsort(-np.take_along_axis(sims, top, axis=1), axis=1, kind="stable")
-    return np.take_along_axis(top, order, axis=1)
 
 
 def recall_at(ids: np.ndarray, truth: np.ndarray, k: int) -> float:
@@ -169,7 +159,7 @@ def bench_retrieval(n: int = 150_000, dim: int = 768, k: int = 5, n_queries: int
     data = clustered_vectors(n + n_queries, dim, seed=seed)
     corpus, queries = data[:n], data[n:]
     say("data: %d x %d corpus, %d queries", n, dim, n_queries)
-    truth = exact_topk(corpus, queries, max(k, 5))
+    truth = exact_topk(queries, corpus, max(k, 5))
     results: dict[str, dict] = {}
     if "upstream" in methods:
         corpus_t = torch.from_numpy(corpus)
@@ -252,7 +242,7 @@ def bench_scale(n: int = 1_000_000, dim: int = 768, kind: str = "ivfpq",
     say = logger.info if progress else logger.debug
     data = clustered_vectors(n + n_queries, dim, seed=seed)
     corpus, queries = data[:n], data[n:]
-    truth = exact_topk(corpus, queries, 5)
+    truth = exact_topk(queries, corpus, 5)
     own = folder is None
     target = Path(tempfile.mkdtemp(prefix="ratouch-index-")) if own else Path(folder)
     try:

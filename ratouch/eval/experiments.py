@@ -19,7 +19,6 @@ import json
 import logging
 import multiprocessing as mp
 import os
-import subprocess
 import time
 from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
@@ -28,7 +27,28 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ratouch.checkpoint import sha256_file
 from ratouch.errors import ConfigError
+from ratouch.eval.catalog import EXPERIMENT_HELP
+from ratouch.eval.judge import OfflineJudge, judge_results
+from ratouch.eval.report import git_commit, save_png
+from ratouch.eval.retrieval import entry_materials, material_precision
+from ratouch.eval.tvl import describe, records_for
+from ratouch.files import write_json_atomic
+from ratouch.model.generator import load_generator, save_generator
+from ratouch.model.integrator import (
+    IntegratorConfig,
+    SumIntegrator,
+    TextureAwareIntegrator,
+)
+from ratouch.model.retriever import collapse_stats
+from ratouch.paths import cache_dir, generator_weights, retriever_weights
+from ratouch.search.index import exact_topk
+from ratouch.search.pca import PCA2D
+from ratouch.serve.pipeline import RATouchPipeline
+from ratouch.train.generator import GeneratorTrainConfig, train_stage1, train_stage2
+from ratouch.train.recipes import align_only_tgr, training_pairs
+from ratouch.world.splits import encode_test_split
 
 log = logging.getLogger(__name__)
 
@@ -129,61 +149,31 @@ class Lab:
         self.cfg = cfg or ExperimentConfig()
         self._results: dict[Variant, dict] = {}
         self.counts = {"trained": 0, "from_cache": 0}  # variants, for the report's provenance
-        self._corpus_emb: dict[str, np.ndarray] = {}
 
     @cached_property
     def pipeline(self):
-        from ratouch.pipeline import RATouchPipeline
 
         return RATouchPipeline.load(self.cfg.encoder)
 
     @cached_property
     def train(self) -> dict:
-        from ratouch.recipes import training_pairs
 
         return training_pairs(self.pipeline.encoders, self.cfg.seed)
 
     @cached_property
     def test(self):
-        from ratouch.tvl_eval import encode_test_split
 
         return encode_test_split(self.pipeline.encoders)
 
     @cached_property
     def stage1(self):
-        from ratouch.generator import load_generator
-        from ratouch.pipeline import generator_weights
 
         return load_generator(generator_weights(self.cfg.encoder, "ra"), stage1=True)
 
     @cached_property
     def judge(self):
-        from ratouch.judge import OfflineJudge
 
         return OfflineJudge()
-
-    def corpus_emb(self, kind: str) -> np.ndarray:
-        """Corpus embeddings of one kind: "image", "tactile_caption" (the indexed text), or the
-        text embeddings of the entries' "class_name" or "visual_description" (Table 3, encoded
-        on first use only)."""
-        if kind not in self._corpus_emb:
-            p = self.pipeline
-            entries = p.corpus.entries
-            if kind == "image":
-                emb = np.asarray(p._image_emb, np.float32)
-            elif kind == "tactile_caption":
-                emb = np.asarray(p._text_emb, np.float32)
-            elif kind == "class_name":
-                names = sorted({e.class_name for e in entries})
-                row = {n: i for i, n in enumerate(names)}
-                emb = p.encoders.encode_text(names)[[row[e.class_name] for e in entries]]
-            elif kind == "visual_description":
-                emb = p.encoders.encode_text([e.description for e in entries])
-            else:
-                raise ConfigError(f"corpus embeddings: unknown kind {kind!r}; one of image, "
-                                  f"{', '.join(CAPTION_TYPES)}")
-            self._corpus_emb[kind] = emb
-        return self._corpus_emb[kind]
 
     def subset_ids(self, size: int) -> np.ndarray:
         """A class-stratified subset of the corpus: each class's first entries, round robin."""
@@ -222,9 +212,6 @@ class Lab:
         the shipped stage-1 recipe, then cached on disk)."""
         if n == 0:
             return self.stage1
-        from ratouch.generator import load_generator, save_generator
-        from ratouch.pipeline import cache_dir
-        from ratouch.train_generator import GeneratorTrainConfig, train_stage1
 
         tc = GeneratorTrainConfig(seed=self.cfg.seed, threads=2,
                                   stage1_steps=self.cfg.stage1_steps)
@@ -248,10 +235,10 @@ class Lab:
         q = {"image": V, "tactile": T}.get(v.mode)
         if q is None:
             q = self.pipeline.joint_query(V, T)
-        keys = self.corpus_emb("image" if v.key == "image" else v.caption)
+        keys = self.pipeline.corpus_embeddings("image" if v.key == "image" else v.caption)
         ids_all = self.subset_ids(v.corpus_size)
         ids = ids_all[exact_topk(q, keys[ids_all], v.k)]
-        return ids, self.corpus_emb("image")[ids], self.corpus_emb(v.caption)[ids]
+        return ids, self.pipeline.corpus_embeddings("image")[ids], self.pipeline.corpus_embeddings(v.caption)[ids]
 
     def evaluate(self, variants: Sequence[Variant]) -> dict[Variant, dict]:
         """Train (or load from the disk cache) and judge variants; returns their results."""
@@ -291,8 +278,6 @@ class Lab:
         return rv, rl, trv, trl
 
     def _judge(self, v: Variant, responses: list[str], seconds: float) -> dict:
-        from ratouch.judge import judge_results
-        from ratouch.tvl_eval import records_for
 
         records, summary = judge_results(records_for(self.test, responses, v.label()),
                                          self.judge)
@@ -304,8 +289,6 @@ class Lab:
     # -- disk cache ----------------------------------------------------------------------
 
     def _key(self, v: Variant) -> str:
-        from ratouch.checkpoint import sha256_file
-        from ratouch.pipeline import generator_weights, retriever_weights
 
         # fields added after results were cached keep the old keys while at their defaults
         vd = {k: x for k, x in asdict(v).items() if not (k in _LATER_FIELDS and x == 0)}
@@ -320,7 +303,6 @@ class Lab:
         return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()[:20]
 
     def _path(self, v: Variant) -> Path:
-        from ratouch.pipeline import cache_dir
 
         return cache_dir() / "experiments" / f"{self._key(v)}.json"
 
@@ -334,7 +316,6 @@ class Lab:
             return None
 
     def _save(self, v: Variant, result: dict) -> None:
-        from ratouch.files import write_json_atomic
 
         write_json_atomic(self._path(v), result)
 
@@ -346,8 +327,6 @@ def _run_variant(job):
     """Train one variant's stage 2 and describe the test split (runs in a worker)."""
     import torch
 
-    from ratouch.tvl_eval import describe
-    from ratouch.train_generator import GeneratorTrainConfig, train_stage2
 
     stage1, train, test, cfg, v, inputs = job
     torch.set_num_threads(1 if cfg.workers > 1 else 2)
@@ -366,7 +345,6 @@ def _run_variant(job):
 
 
 def make_integrator(v: Variant, dim: int, out_dim: int):
-    from ratouch.integrator import IntegratorConfig, SumIntegrator, TextureAwareIntegrator
 
     if v.integration == "sum":
         return SumIntegrator(dim, out_dim)
@@ -376,18 +354,6 @@ def make_integrator(v: Variant, dim: int, out_dim: int):
     return TextureAwareIntegrator(IntegratorConfig(
         dim=dim, out_dim=out_dim, use_image=v.integration in ("image", "both"),
         use_text=v.integration in ("text", "both")))
-
-
-def exact_topk(q: np.ndarray, keys: np.ndarray, k: int, batch: int = 2048) -> np.ndarray:
-    """Top-k rows of `keys` by inner product for each query (exact; ties by lower index)."""
-    k = min(k, len(keys))
-    out = np.empty((len(q), k), np.int64)
-    for s in range(0, len(q), batch):
-        sims = q[s:s + batch] @ keys.T                                   # (b, N)
-        part = np.argpartition(-sims, k - 1, axis=1)[:, :k]
-        order = np.argsort(-np.take_along_axis(sims, part, 1), axis=1, kind="stable")
-        out[s:s + batch] = np.take_along_axis(part, order, 1)
-    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -470,14 +436,13 @@ def table3_caption_type(lab: Lab) -> Report:
 
 def table4_query_key(lab: Lab) -> Report:
     """Table 4: retrieval query x key."""
-    from ratouch.retrieval_eval import material_precision
 
     rows = [(f"{m} -> {k}", replace(RA_TOUCH, mode=m, key=k)) for m, k in QUERY_KEY]
     rep = _simple(lab, "table4", "Table 4 - retrieval query x key", rows)
     prec = []
     for name, v in rows:
         ids, _, _ = lab.neighbours(v, lab.test.V, lab.test.T)
-        prec.append([name, f"{material_precision(ids, lab.test.materials, lab.pipeline.corpus):.3f}"])
+        prec.append([name, f"{material_precision(ids, lab.test.materials, entry_materials(lab.pipeline.corpus)).mean():.3f}"])
     rep.markdown += ("\n\nMaterial precision@5 of the neighbours each setting feeds the "
                      "integrator (test split):\n\n" + _table(["setting", "P@5"], prec))
     rep.data["material_precision@5"] = dict(prec)
@@ -553,10 +518,6 @@ def fig5_loss_pca(lab: Lab) -> Report:
     import torch
     from plotly.subplots import make_subplots
 
-    from ratouch.pca import PCA2D
-    from ratouch.retrieval_eval import material_precision
-    from ratouch.retriever import collapse_stats
-    from ratouch.stress_eval import align_only_tgr
 
     t0 = time.perf_counter()
     tgrs = {"alignment only": align_only_tgr(lab.cfg.encoder, seed=lab.cfg.seed)[0],
@@ -574,8 +535,8 @@ def fig5_loss_pca(lab: Lab) -> Report:
             q = tgr(V, T).query
         stats = collapse_stats(q)
         qn = q.numpy()
-        ids = exact_topk(qn, lab.corpus_emb("tactile_caption"), 5)
-        prec = material_precision(ids, lab.test.materials, lab.pipeline.corpus)
+        ids = exact_topk(qn, lab.pipeline.corpus_embeddings("tactile_caption"), 5)
+        prec = float(material_precision(ids, lab.test.materials, entry_materials(lab.pipeline.corpus)).mean())
         xy = PCA2D.fit(qn).project(qn)
         for j, m in enumerate(uniq):
             sel = mats == m
@@ -645,6 +606,7 @@ EXPERIMENTS: dict[str, Callable[[Lab], Report]] = {
     "table4": table4_query_key, "table5": table5_integration, "fig3": fig3_corpus_size,
     "fig6": fig6_top_k, "fig5": fig5_loss_pca, "table6": table6_withheld,
 }
+assert list(EXPERIMENTS) == list(EXPERIMENT_HELP), "ratouch.eval.catalog lists the experiments"
 
 
 # --------------------------------------------------------------------------------------------
@@ -654,7 +616,6 @@ EXPERIMENTS: dict[str, Callable[[Lab], Report]] = {
 def write_report(rep: Report, folder: str | os.PathLike, png: bool = True) -> dict[str, Path]:
     """``<name>.md``, ``<name>.html`` (self-contained), ``<name>.json`` (plotly figure JSON, for
     the app) and ``<name>.png`` when a static exporter works offline."""
-    from ratouch.files import write_json_atomic
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -670,37 +631,6 @@ def write_report(rep: Report, folder: str | os.PathLike, png: bool = True) -> di
         if path is not None:
             out["png"] = path
     return out
-
-
-def png_bytes(fig) -> tuple[bytes | None, str]:
-    """A figure as PNG through kaleido and the local Chromium: (bytes, "") or, where that does
-    not work offline, (None, why)."""
-    try:
-        return fig.to_image(format="png", scale=1), ""
-    except Exception as e:  # noqa: BLE001 - any exporter failure means "no PNG", said by callers
-        return None, f"{type(e).__name__}: {e}"
-
-
-def save_png(fig, path: Path) -> Path | None:
-    """Write the figure's PNG to `path`; None (and a logged reason) where no exporter works."""
-    data, why = png_bytes(fig)
-    if data is None:
-        log.warning("no PNG for %s (%s)", path.name, why)
-        return None
-    path.write_bytes(data)
-    return path
-
-
-def git_commit() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                             text=True, cwd=Path(__file__).resolve().parents[1], timeout=10)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10,
-                               cwd=Path(__file__).resolve().parents[1]).stdout.strip()
-        return out.stdout.strip() + ("+changes" if dirty else "") or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
 
 
 def run_experiments(names: Sequence[str], cfg: ExperimentConfig, out: str | os.PathLike,

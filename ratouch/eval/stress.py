@@ -6,7 +6,7 @@ the corpus's text index) and by both generators (the no-retrieval baseline and R
 sweep point reports
 
 * retrieval, per mode: material precision@K and label-adjective overlap@K (the metrics of
-  `ratouch.retrieval_eval`), and the top-K overlap |ids ∩ ids_ref| / K with the unperturbed
+  `ratouch.eval.retrieval`), and the top-K overlap |ids ∩ ids_ref| / K with the unperturbed
   answer for the same sample;
 * generators, per system: mean offline-judge score (1-10), the share of descriptions identical
   to the unperturbed one, and the mean adjective Jaccard with it.
@@ -49,7 +49,6 @@ import html
 import json
 import math
 import os
-import sys
 import time
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -57,10 +56,18 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ratouch.errors import ConfigError
+from ratouch.eval.judge import OfflineJudge
+from ratouch.eval.report import png_bytes, write_plotly_js
+from ratouch.eval.retrieval import entry_materials, retrieval_metrics
+from ratouch.eval.tvl import SYSTEMS, describe, retrieve
 from ratouch.files import write_atomic
-from ratouch.tvl_eval import QUERY_MODES, SYSTEMS, TestSplit, describe, retrieve
+from ratouch.model.retriever import collapse_stats
+from ratouch.search.retrieval import QUERY_MODES
+from ratouch.train.recipes import align_only_tgr
 from ratouch.vocabulary import parse_adjectives
-from ratouch.world.config import WorldConfig
+from ratouch.world.config import StressConfig, WorldConfig
+from ratouch.world.generator import TEST_SIZE, TEST_STRUCTURED, World
+from ratouch.world.splits import TestSplit
 
 # knobs whose fixed value replaces a per-sample random draw (see "Pairing" above)
 PER_SAMPLE = ("object_scale", "clutter", "background_dominance", "tactile_noise", "tactile_blur")
@@ -151,7 +158,6 @@ def stratified_indices(n: int | None, total: int | None = None,
                        structured: int | None = None) -> list[int]:
     """`n` test indices, evenly spaced within the structured and the wild subset, in
     proportion to their sizes (all of them when n is None or >= the split size)."""
-    from ratouch.world.generator import TEST_SIZE, TEST_STRUCTURED
 
     total = TEST_SIZE if total is None else total
     structured = TEST_STRUCTURED if structured is None else structured
@@ -175,7 +181,6 @@ class _Renderer:
     sensor backgrounds depend only on pattern specs and the tactile size, never on stress)."""
 
     def __init__(self, world: WorldConfig):
-        from ratouch.world.generator import World
 
         self.world = world
         self.base = World(world)
@@ -221,7 +226,7 @@ class _Context:
 
     def __init__(self, pipeline, k: int, judge):
         entries = pipeline.corpus.entries
-        self.entry_mats = np.array([e.material for e in entries])
+        self.entry_mats = entry_materials(pipeline.corpus)
         self.entry_words = [set(parse_adjectives(e.caption)) for e in entries]
         self.k = k
         self.judge = judge
@@ -242,11 +247,10 @@ def _answers(pipeline, split: TestSplit, k: int, fallback_image: bool) -> dict:
 
 def _retrieval_metrics(ids: np.ndarray, split: TestSplit, ctx: _Context,
                        sel: np.ndarray | None = None) -> dict:
-    from ratouch.retrieval_eval import _metrics
 
     labels = [set(parse_adjectives(lbl)) for lbl in split.labels]
     sel = np.ones(len(labels), bool) if sel is None else sel
-    return _metrics(ids, split.materials, labels, ctx.entry_mats, ctx.entry_words, ctx.k, sel)
+    return retrieval_metrics(ids, split.materials, labels, ctx.entry_mats, ctx.entry_words, ctx.k, sel)
 
 
 def _judge_scores(split: TestSplit, desc: dict, ctx: _Context) -> dict[str, np.ndarray]:
@@ -337,33 +341,6 @@ def break_points(points: list[dict], k: int, drop: float) -> dict[str, dict]:
 
 # ------------------------------------------------------------------------- collapse
 
-def align_retriever_folder(encoder: str, epochs: int, seed: int = 0) -> Path:
-    from ratouch.pipeline import cache_dir
-
-    return cache_dir() / f"retriever-align-{encoder}-e{epochs}-s{seed}"
-
-
-def align_only_tgr(encoder: str, epochs: int = 12, seed: int = 0, progress: bool = False):
-    """The Tactile-Guided Retriever trained with the alignment loss only (Fig. 5's ablation),
-    trained into the cache on first use. Returns (retriever, {"align_folder", "trained_s"?})."""
-    from ratouch.pipeline import load_tgr
-
-    info: dict[str, Any] = {}
-    folder = align_retriever_folder(encoder, epochs, seed)
-    if not (folder / "manifest.json").is_file():
-        from ratouch.recipes import retriever_recipe
-
-        t0 = time.perf_counter()
-        if progress:
-            print(f"training the align-only retriever ({epochs} epochs) into {folder}",
-                  file=sys.stderr, flush=True)
-        retriever_recipe(encoder, seed, strategy="align", epochs=epochs, out=folder,
-                         progress=progress)
-        info["trained_s"] = round(time.perf_counter() - t0, 1)
-    info["align_folder"] = str(folder)
-    return load_tgr(encoder, folder=folder), info
-
-
 def collapse_report(pipeline, split: TestSplit, ctx: _Context, encoder: str,
                     epochs: int = 12, seed: int = 0, align_tgr=None,
                     progress: bool = False) -> dict:
@@ -372,7 +349,6 @@ def collapse_report(pipeline, split: TestSplit, ctx: _Context, encoder: str,
     trained with alignment only (cached; trained on first use, `epochs` epochs)."""
     import torch
 
-    from ratouch.retriever import collapse_stats
 
     info: dict[str, Any] = {"epochs_align": epochs}
     if align_tgr is None:
@@ -434,8 +410,6 @@ def run_stress(pipeline, sweeps: dict[str, list[dict]] | None = None, k: int = 5
         align_tgr: an align-only retriever to compare with (skips loading/training it).
         progress: called with one line per finished point.
     """
-    from ratouch.judge import OfflineJudge
-    from ratouch.world.config import StressConfig
 
     t_start = time.perf_counter()
     sweeps = build_sweeps() if sweeps is None else sweeps
@@ -771,15 +745,6 @@ def format_markdown(result: dict, png: str | None, png_note: str) -> str:
     return "\n".join(out)
 
 
-def write_plotly_js(folder: Path) -> None:
-    """plotly.min.js beside the HTML figures that reference it (one copy per folder)."""
-    from plotly.offline import get_plotlyjs
-
-    js = folder / "plotly.min.js"
-    if not js.is_file():
-        write_atomic(js, get_plotlyjs())
-
-
 def _html(figs) -> str:
     parts = [f.to_html(full_html=False, include_plotlyjs="directory" if i == 0 else False)
              for i, f in enumerate(figs)]
@@ -801,8 +766,6 @@ def write_report(result: dict, out: str | os.PathLike, png: bool = True) -> dict
              "fig": out / "stress_fig.json", "overlap_fig": out / "stress_overlap_fig.json"}
     png_name, note = None, "not requested."
     if png:
-        from ratouch.experiments import png_bytes
-
         (q_png, why), (s_png, why2) = png_bytes(quality), png_bytes(stability)
         if q_png is not None and s_png is not None:
             for name, data in (("stress.png", q_png), ("stress_overlap.png", s_png)):

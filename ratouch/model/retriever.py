@@ -17,7 +17,7 @@ decoder-style residual, q = T' + CA(T', V', V'), which lets the tactile path rea
 as a multi-token sequence (B, N, D), N > 1, T steers the attention weights in either mode.
 
 The module only maps embeddings to queries: searching the corpus is the index's job and the
-training losses live in `ratouch.loss`.
+training losses live in `ratouch.model.loss`.
 """
 
 from __future__ import annotations

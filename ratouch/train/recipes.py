@@ -6,17 +6,27 @@ from __future__ import annotations
 
 import logging
 import time
+from pathlib import Path
+from typing import Any
 
-import numpy as np
-
-from ratouch.embed import load_embeddings
 from ratouch.encoders.factory import create_model
-from ratouch.loss import RetrieverLossConfig
-from ratouch.pipeline import default_corpus, generator_weights, load_tgr, retriever_weights
-from ratouch.retrieval import CorpusIndex
-from ratouch.retriever import RetrieverConfig
-from ratouch.train_encoders import TrainConfig, training_data
-from ratouch.train_retriever import RetrieverTrainConfig, paired_embeddings, train_retriever
+from ratouch.model.generator import save_generator
+from ratouch.model.loss import RetrieverLossConfig
+from ratouch.model.retriever import RetrieverConfig
+from ratouch.paths import cache_dir, generator_weights, retriever_weights
+from ratouch.serve.pipeline import RATouchPipeline, load_tgr
+from ratouch.train.encoders import TrainConfig, training_data
+from ratouch.train.generator import (
+    GeneratorTrainConfig,
+    evaluate_generators,
+    train_generators,
+)
+from ratouch.train.retriever import (
+    RetrieverTrainConfig,
+    paired_embeddings,
+    train_retriever,
+)
+from ratouch.world.splits import encode_test_split
 
 log = logging.getLogger(__name__)
 
@@ -50,33 +60,18 @@ def retriever_recipe(encoder: str = "default-s", seed: int = 0, strategy: str = 
     return report
 
 
-def _neighbour_embeddings(corpus, encoder, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    img, txt, _ = load_embeddings(corpus, encoder, verify=False)
-    flat = ids.reshape(-1)
-    return (np.asarray(img)[flat].reshape(*ids.shape, -1),
-            np.asarray(txt)[flat].reshape(*ids.shape, -1))
-
-
 def generator_recipe(encoder: str = "default-s", seed: int = 0, progress: bool = True,
                      **train_overrides) -> dict:
     """Train the baseline and RA-Touch generators, save both, evaluate on the test split."""
-    from ratouch.generator import save_generator
-    from ratouch.tvl_eval import encode_test_split
-    from ratouch.train_generator import (GeneratorTrainConfig, evaluate_generators,
-                                         neighbours_for, train_generators)
 
     t0 = time.perf_counter()
     model, data, emb = _pairs(encoder, seed, progress)
-    corpus = default_corpus(encoder, progress=progress)
-    index = CorpusIndex(corpus, model.name, model.dim)
-    tgr = load_tgr(encoder)
+    retrieval = RATouchPipeline.load(encoder, progress=progress, generators=False)
     tc = GeneratorTrainConfig(seed=seed, **train_overrides)
-    ids = neighbours_for((tgr, index), emb["V"], emb["T"], tc.k)
-    rv, rl = _neighbour_embeddings(corpus, encoder, ids)
+    rv, rl = retrieval.neighbour_embeddings(retrieval.joint_neighbours(emb["V"], emb["T"], tc.k))
     base, ra, report = train_generators(emb, list(data["labels"]), rv, rl, model.dim, tc)
     test = encode_test_split(model)
-    tids = neighbours_for((tgr, index), test.V, test.T, tc.k)
-    trv, trl = _neighbour_embeddings(corpus, encoder, tids)
+    trv, trl = retrieval.neighbour_embeddings(retrieval.joint_neighbours(test.V, test.T, tc.k))
     report["test"] = evaluate_generators(base, ra, test.V, test.T, trv, trl, test.labels)
     report["seconds"] = round(time.perf_counter() - t0, 1)
     # shipped weights are stored as float16 (identical test F1 measured; assets stay < 40 MB)
@@ -84,3 +79,22 @@ def generator_recipe(encoder: str = "default-s", seed: int = 0, progress: bool =
                    half=True)
     save_generator(generator_weights(encoder, "ra"), ra, {"encoder": encoder, **report}, half=True)
     return report
+
+
+def align_retriever_folder(encoder: str, epochs: int, seed: int = 0) -> Path:
+    return cache_dir() / f"retriever-align-{encoder}-e{epochs}-s{seed}"
+
+
+def align_only_tgr(encoder: str, epochs: int = 12, seed: int = 0, progress: bool = False):
+    """The Tactile-Guided Retriever trained with the alignment loss only (Fig. 5's ablation),
+    trained into the cache on first use. Returns (retriever, {"align_folder", "trained_s"?})."""
+    info: dict[str, Any] = {}
+    folder = align_retriever_folder(encoder, epochs, seed)
+    if not (folder / "manifest.json").is_file():
+        t0 = time.perf_counter()
+        log.info("training the align-only retriever (%d epochs) into %s", epochs, folder)
+        retriever_recipe(encoder, seed, strategy="align", epochs=epochs, out=folder,
+                         progress=progress)
+        info["trained_s"] = round(time.perf_counter() - t0, 1)
+    info["align_folder"] = str(folder)
+    return load_tgr(encoder, folder=folder), info

@@ -8,10 +8,16 @@ import shutil
 import tempfile
 import time
 
-from ratouch.corpus.imagenet_t import build_corpus, load_corpus, parse_world_source, \
-    render_world_images
+from ratouch.corpus.imagenet_t import (
+    build_corpus,
+    load_corpus,
+    parse_world_source,
+    render_world_images,
+)
+from ratouch.serve.pipeline import RATouchPipeline, default_corpus
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import write_split
+from ratouch.world.generator import World
 
 
 def bench_world(corpus_size: int = 10_000, workers: int = 2, seed: int = 0,
@@ -63,8 +69,6 @@ def bench_query(encoder: str = "default-s", corpus: str | None = None, n: int = 
     retrievals, retriever, integrator, both generations, PCA) on world test pairs."""
     import numpy as np
 
-    from ratouch.pipeline import RATouchPipeline, default_corpus
-    from ratouch.world.generator import World
 
     corpus = corpus or str(default_corpus(encoder, progress=False))  # built outside the timing
     t0 = time.perf_counter()

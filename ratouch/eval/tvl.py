@@ -2,7 +2,7 @@
 
 Describe each test pair with a system (the no-retrieval baseline or RA-Touch), write the
 answers in the TVL results format (a list of objects with ``image_fp``, ``tactile_fp``,
-``label``, ``generated response``, ``prompt``), score them with a judge (`ratouch.judge`), and
+``label``, ``generated response``, ``prompt``), score them with a judge (`ratouch.eval.judge`), and
 compare two systems with a paired t-test over the same samples. Image paths follow the world's
 TVL layout (``ssvtp/...`` for the structured subset, ``hct/data1/...`` for the wild one), so the
 judge's per-subset means are SSVTP / HCT / overall as in the paper's Table 1.
@@ -10,68 +10,24 @@ judge's per-subset means are SSVTP / HCT / overall as in the paper's Table 1.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 import torch
 
 from ratouch.errors import ConfigError, DataError
-from ratouch.judge import (RESPONSE_KEY, TVL_QUESTION, OfflineJudge, judge_results, subset_of)
+from ratouch.eval.judge import (
+    RESPONSE_KEY,
+    TVL_QUESTION,
+    OfflineJudge,
+    judge_results,
+    subset_of,
+)
+from ratouch.search.retrieval import QUERY_MODES
 from ratouch.world.config import WorldConfig
+from ratouch.world.splits import TestSplit, encode_test_split
 
 SYSTEMS = ("baseline", "ra-touch")
-QUERY_MODES = ("image", "tactile", "joint")
-
-
-@dataclass
-class TestSplit:
-    """The encoded test split of a world.
-
-    Attributes:
-        V, T: (N, D) visual (contact-box crop) and tactile embeddings.
-        labels: ground-truth captions as written in the data set.
-        subsets: "structured" / "wild" per sample.
-        materials: the world's ground-truth material per sample.
-        indices: sample indices in the test split.
-        object_scale: object size / frame side per sample (a failure-mode axis).
-        world: the world config (seed and stress knobs) the split was rendered with.
-    """
-
-    V: np.ndarray
-    T: np.ndarray
-    labels: list[str]
-    subsets: list[str]
-    materials: list[str]
-    indices: list[int]
-    object_scale: list[float]
-    world: WorldConfig
-
-    def image_fp(self, i: int) -> str:
-        from ratouch.world.dataset import SUBSET_DIRS
-
-        return f"{SUBSET_DIRS[self.subsets[i]]}/vision/test_{self.indices[i]:06d}.png"
-
-    def tactile_fp(self, i: int) -> str:
-        return self.image_fp(i).replace("/vision/", "/tactile/")
-
-
-def encode_test_split(encoders, world: WorldConfig | None = None,
-                      indices: Sequence[int] | None = None) -> TestSplit:
-    """Render and encode the test split (all 402 pairs unless `indices` are given)."""
-    from ratouch.world.dataset import world_for
-    from ratouch.world.generator import TEST_SIZE
-
-    world = world or WorldConfig()
-    gen = world_for(world)
-    idx = list(range(TEST_SIZE)) if indices is None else [int(i) for i in indices]
-    samples = [gen.sample("test", i) for i in idx]
-    crops = [s.crop for s in samples]
-    return TestSplit(
-        V=encoders.encode_image(crops), T=encoders.encode_tactile([s.tactile for s in samples]),
-        labels=[s.caption for s in samples], subsets=[s.subset for s in samples],
-        materials=[s.material for s in samples], indices=idx,
-        object_scale=[float(s.object_scale) for s in samples], world=world)
 
 
 def retrieve(pipeline, V: np.ndarray, T: np.ndarray, k: int, mode: str = "joint",

@@ -23,6 +23,16 @@ from typing import Sequence
 
 import numpy as np
 
+from ratouch.bench.index import upstream_retrieve
+from ratouch.eval.experiments import Lab
+from ratouch.eval.judge import judge_results
+from ratouch.eval.retrieval import entry_materials, material_precision
+from ratouch.eval.tvl import describe, records_for
+from ratouch.search.index import IndexConfig, VectorIndex
+from ratouch.serve.pipeline import default_corpus, open_retriever
+from ratouch.world.dataset import world_for
+from ratouch.world.splits import encode_test_split
+
 log = logging.getLogger(__name__)
 
 
@@ -31,10 +41,9 @@ def _p(times: list[float], q: float) -> float:
 
 
 def _subset_index(lab, kind: str, size: int):
-    from ratouch.index import IndexConfig, VectorIndex
 
     ids = lab.subset_ids(size)
-    emb = np.ascontiguousarray(lab.corpus_emb("tactile_caption")[ids])
+    emb = np.ascontiguousarray(lab.pipeline.corpus_embeddings("tactile_caption")[ids])
     return ids, VectorIndex.build(emb, IndexConfig(kind=kind))
 
 
@@ -45,11 +54,6 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
     """Measure every point; returns {"points": [...], "upstream": {...}, "settings": {...}}."""
     import torch
 
-    from ratouch.experiments import Lab
-    from ratouch.judge import judge_results
-    from ratouch.retrieval_bench import upstream_retrieve
-    from ratouch.retrieval_eval import material_precision
-    from ratouch.tvl_eval import describe, records_for
 
     lab = lab or Lab()
     p, test = lab.pipeline, lab.test
@@ -93,8 +97,7 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
                       "p50_ms": _p(times, 50), "p95_ms": _p(times, 95),
                       "search_p50_ms": _p(search_times, 50),
                       "judge": round(summary["subsets"]["overall"]["mean"], 4),
-                      "precision_at_5": round(material_precision(ids5, test.materials,
-                                                                 p.corpus), 4),
+                      "precision_at_5": round(material_precision(ids5, test.materials, entry_materials(p.corpus)).mean(), 4),
                       "system": "RA-Touch"}
                 points.append(pt)
                 if progress:
@@ -103,7 +106,7 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
                           f"({time.perf_counter() - t0:.0f} s)", flush=True)
 
     # the upstream recipe (torch re-normalisation + full matmul + topk) on the whole corpus
-    corpus_t = torch.from_numpy(np.ascontiguousarray(lab.corpus_emb("tactile_caption")))
+    corpus_t = torch.from_numpy(np.ascontiguousarray(lab.pipeline.corpus_embeddings("tactile_caption")))
     up_times, search_times = timed_query(
         lambda q: upstream_retrieve(corpus_t, torch.from_numpy(q), 5).numpy().reshape(1, -1))
     flat = next((q for q in points if q["index"] == "flat" and q["corpus"] == len(p.corpus)
@@ -126,7 +129,6 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
 
 
 def _raw_pairs(test, picks) -> tuple[list, list]:
-    from ratouch.world.dataset import world_for
 
     world = world_for(test.world)
     samples = [world.sample("test", test.indices[int(i)]) for i in picks]
@@ -135,9 +137,6 @@ def _raw_pairs(test, picks) -> tuple[list, list]:
 
 def _encoder_points(encoders: Sequence[str], test, lab, n_latency: int, progress: bool) -> list:
     """Retrieval-only points for encoders without a trained retriever / generators."""
-    from ratouch.pipeline import default_corpus, open_retriever
-    from ratouch.retrieval_eval import material_precision
-    from ratouch.tvl_eval import encode_test_split
 
     out = []
     for name in encoders:
@@ -157,8 +156,7 @@ def _encoder_points(encoders: Sequence[str], test, lab, n_latency: int, progress
         pt = {"encoder": name, "index": "flat", "corpus": len(retriever.corpus), "k": 5,
               "p50_ms": _p(times, 50), "p95_ms": _p(times, 95), "search_p50_ms": None,
               "judge": None,
-              "precision_at_5": round(material_precision(ids, split.materials,
-                                                         retriever.corpus), 4),
+              "precision_at_5": round(material_precision(ids, split.materials, entry_materials(retriever.corpus)).mean(), 4),
               "system": "retrieval only (tactile->text)"}
         out.append(pt)
         if progress:

@@ -27,8 +27,24 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from ratouch.checkpoint import sha256_file
+from ratouch.corpus.embed import EMBED_MANIFEST, embeddings_dir
 from ratouch.errors import ConfigError, DataError
+from ratouch.eval.judge import OfflineJudge
+from ratouch.eval.retrieval import entry_materials, material_precision
+from ratouch.eval.tvl import retrieve, system_responses
+from ratouch.files import write_json_atomic
+from ratouch.paths import (
+    cache_dir,
+    encoder_weights,
+    generator_weights,
+    retriever_weights,
+)
+from ratouch.search.retrieval import QUERY_MODES
 from ratouch.world.config import WorldConfig
+from ratouch.world.dataset import world_for
+from ratouch.world.generator import TEST_SIZE
+from ratouch.world.splits import encode_test_split
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +59,7 @@ CONDITIONS: dict[str, dict[str, Any]] = {
     "box offset": {"box_offset": 1.0},
 }
 DEFAULT_CONDITIONS = tuple(CONDITIONS)
-MODES = ("image", "tactile", "joint")
+MODES = QUERY_MODES
 SUBSETS = ("structured", "wild")
 # view name -> what it shows
 VIEWS = {"ra_lowest": "RA-Touch scores lowest",
@@ -64,8 +80,6 @@ def condition_world(world: WorldConfig | None, condition: str) -> WorldConfig:
 def case_sample(condition: str, index: int, world: WorldConfig | None = None):
     """The test sample `index` of a condition's world (a `ratouch.world.generator.Sample`):
     its `.visual`, `.tactile`, `.box` and `.caption` are one failure case's query inputs."""
-    from ratouch.world.dataset import world_for
-    from ratouch.world.generator import TEST_SIZE
 
     try:
         i = int(index)
@@ -87,7 +101,6 @@ def case_inputs(condition: str, index: int, world: WorldConfig | None = None
 
 @lru_cache(maxsize=1)
 def _offline_judge():
-    from ratouch.judge import OfflineJudge
 
     return OfflineJudge()
 
@@ -106,12 +119,6 @@ def judge_scores(label: str | None, descriptions: Mapping[str, str | None]
 
 
 # --------------------------------------------------------------------------- computing
-
-def material_precision(ids: np.ndarray, materials: Sequence[str], entry_materials: np.ndarray
-                       ) -> np.ndarray:
-    """Per query: the share of its retrieved entries (N, K ids) made of its material."""
-    return (entry_materials[np.asarray(ids)] == np.asarray(materials)[:, None]).mean(1)
-
 
 def failure_cases(pipeline, world: WorldConfig | None = None, k: int = 5,
                   conditions: Sequence[str] = DEFAULT_CONDITIONS,
@@ -135,13 +142,12 @@ def failure_cases(pipeline, world: WorldConfig | None = None, k: int = 5,
         "joint_gap", "joint_loses"}; precisions are material precision@K of each mode's
         neighbours, `joint_gap` = best unimodal precision - joint precision.
     """
-    from ratouch.tvl_eval import encode_test_split, retrieve, system_responses
 
     conditions = _check_conditions(conditions)
     if not 1 <= int(k) <= len(pipeline.corpus.entries):
         raise ConfigError(f"k must be in 1..{len(pipeline.corpus.entries)}, got {k}")
     judge = judge or _offline_judge()
-    entry_mats = np.array([e.material for e in pipeline.corpus.entries])
+    entry_mats = entry_materials(pipeline.corpus)
     if not entry_mats.size or not all(entry_mats):
         raise DataError("the corpus entries carry no material: failure cases need a world "
                         "corpus (ImageNet-T built from the procedural world)")
@@ -199,7 +205,6 @@ def _check_conditions(conditions: Iterable[str]) -> tuple[str, ...]:
 # --------------------------------------------------------------------------- the cache
 
 def _file_digest(path: Path) -> str | None:
-    from ratouch.checkpoint import sha256_file
 
     return sha256_file(path) if path.is_file() else None
 
@@ -207,19 +212,16 @@ def _file_digest(path: Path) -> str | None:
 def asset_manifests(pipeline) -> dict[str, str | None]:
     """sha256 of every manifest the table depends on: encoder, retriever and generator
     weights, the corpus and its embeddings (None for one that does not exist)."""
-    from ratouch.encoders.factory import ASSETS
-
     enc = pipeline.encoders.name
-    files = {f"encoders/{enc}": ASSETS / "encoders" / enc / "manifest.json",
-             f"retriever/{enc}": ASSETS / "retriever" / enc / "manifest.json",
-             f"generator/{enc}/ra": ASSETS / "generator" / enc / "ra" / "manifest.json",
-             f"generator/{enc}/baseline": ASSETS / "generator" / enc / "baseline" / "manifest.json"}
+    files = {f"encoders/{enc}": encoder_weights(enc) / "manifest.json",
+             f"retriever/{enc}": retriever_weights(enc) / "manifest.json",
+             f"generator/{enc}/ra": generator_weights(enc, "ra") / "manifest.json",
+             f"generator/{enc}/baseline": generator_weights(enc, "baseline") / "manifest.json"}
     out = {name: _file_digest(p) for name, p in files.items()}
     corpus = pipeline.corpus
     out["corpus"] = (getattr(corpus, "manifest", None) or {}).get("metadata_sha256")
     folder = getattr(corpus, "folder", None)
     if folder is not None:
-        from ratouch.embed import EMBED_MANIFEST, embeddings_dir
 
         out["embeddings"] = _file_digest(embeddings_dir(folder, enc) / EMBED_MANIFEST)
     return out
@@ -242,7 +244,6 @@ def cache_path(pipeline, world: WorldConfig | None = None, k: int = 5,
                conditions: Sequence[str] = DEFAULT_CONDITIONS,
                indices: Sequence[int] | None = None) -> Path:
     """``cache_dir()/failures/<encoder>-<hash of settings and asset manifests>.json``."""
-    from ratouch.pipeline import cache_dir
 
     key = json.dumps(settings(pipeline, world, k, conditions, indices), sort_keys=True,
                      default=str)
@@ -295,7 +296,6 @@ def load_or_compute(pipeline, world: WorldConfig | None = None, k: int = 5,
     with lock:
         if not refresh and (table := load_cached(path)) is not None:
             return table  # another thread computed it while this one waited
-        from ratouch.files import write_json_atomic
 
         t0 = time.perf_counter()
         rows = failure_cases(pipeline, world, k, conditions, indices, progress=progress)

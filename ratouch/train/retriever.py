@@ -20,8 +20,12 @@ import torch
 
 from ratouch.checkpoint import save_checkpoint
 from ratouch.errors import ConfigError
-from ratouch.loss import RetrieverLossConfig, retriever_loss
-from ratouch.retriever import RetrieverConfig, TactileGuidedRetriever, collapse_stats
+from ratouch.model.loss import RetrieverLossConfig, retriever_loss
+from ratouch.model.retriever import (
+    RetrieverConfig,
+    TactileGuidedRetriever,
+    collapse_stats,
+)
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +50,7 @@ class RetrieverTrainConfig:
 
 
 def paired_embeddings(encoders, data: dict, batch: int = 512) -> dict[str, np.ndarray]:
-    """V, T, L of the cached training pairs (see `ratouch.train_encoders.training_data`)."""
+    """V, T, L of the cached training pairs (see `ratouch.train.encoders.training_data`)."""
     encoders.eval()
     vs, ts = [], []
     with torch.no_grad():

@@ -21,12 +21,14 @@ from PIL import Image
 from tqdm import tqdm
 
 from ratouch.checkpoint import save_checkpoint
-from ratouch.corpus.imagenet_t import stratified_world_ids
+from ratouch.corpus.imagenet_t import stratified_world_ids, world_lexicon
 from ratouch.corpus.recaption import OfflineRecaptioner
 from ratouch.encoders.default import DefaultEncoders, tactile_tensor
 from ratouch.encoders.factory import create_model, model_config
 from ratouch.errors import ConfigError
+from ratouch.paths import cache_dir
 from ratouch.world.config import WorldConfig
+from ratouch.world.dataset import _fork_context, world_for
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +63,6 @@ class TrainConfig:
 # data: rendered once, in parallel, kept in memory
 
 def _pair_chunk(args):
-    from ratouch.world.dataset import world_for
 
     wcfg, indices, vsize, tsize = args
     world = world_for(wcfg)
@@ -78,7 +79,6 @@ def _pair_chunk(args):
 
 
 def _corpus_chunk(args):
-    from ratouch.world.dataset import world_for
 
     wcfg, ids, vsize = args
     world = world_for(wcfg)
@@ -92,7 +92,6 @@ def _corpus_chunk(args):
 def training_data(tc: TrainConfig, vsize, tsize, progress: bool = True) -> dict:
     """The rendered training data, cached on disk (`$RATOUCH_CACHE/train-data-*.npz`) so that
     later stages (retriever, generator) and re-runs reuse it instead of re-rendering."""
-    from ratouch.pipeline import cache_dir
 
     tag = f"s{tc.seed}-p{tc.n_pairs}-c{tc.n_corpus}-v{vsize[0]}x{vsize[1]}-t{tsize[0]}x{tsize[1]}"
     path = cache_dir() / f"train-data-{tag}.npz"
@@ -112,8 +111,6 @@ def training_data(tc: TrainConfig, vsize, tsize, progress: bool = True) -> dict:
 
 def render_training_data(tc: TrainConfig, vsize, tsize, progress: bool = True) -> dict:
     """Render the paired crops / tactile tensors and the corpus images used for training."""
-    from ratouch.corpus.imagenet_t import world_lexicon
-    from ratouch.world.dataset import _fork_context, world_for
 
     wcfg = WorldConfig(seed=tc.seed)
     world_for(wcfg).warm()

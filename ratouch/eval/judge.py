@@ -32,9 +32,15 @@ import numpy as np
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_json_atomic
-from ratouch.llm_http import (REQUEST_ERRORS, chat_completion, chat_url, check_client_settings,
-                              is_http_url)
-from ratouch.vocabulary import parse_adjectives
+from ratouch.llm_http import (
+    REQUEST_ERRORS,
+    chat_completion,
+    chat_url,
+    check_client_settings,
+    is_http_url,
+)
+from ratouch.paths import CONFIGS, TVL_JUDGE_ENV, tvl_judge_dir
+from ratouch.vocabulary import adjective_f1, parse_adjectives
 
 logger = logging.getLogger(__name__)
 
@@ -44,17 +50,12 @@ TVL_QUESTION = "This image gives tactile feelings of?"
 MODELS = ("tvl_llama_vits", "tvl_llama_vits_bgs", "tvl_llama_vittiny")
 SUBSETS = ("SSVTP", "HCT")
 GPT4_INTERRUN_SPEARMAN = 0.89  # reference agreement of two GPT-4 judging runs (quoted, not measured)
-DATA_DIR_ENV = "RATOUCH_TVL_JUDGE_DIR"
-CONFIG_PATH = Path(__file__).resolve().parent / "configs" / "judge" / "offline.json"
+DATA_DIR_ENV = TVL_JUDGE_ENV
+CONFIG_PATH = CONFIGS / "judge" / "offline.json"
 
 # --------------------------------------------------------------------------- parsing
 
 _SCORE_RE = re.compile(r"^\s*(?:\*\*)?\s*(?:score\s*[:=]?\s*)?(\d{1,2}(?:\.\d+)?)(?!\d)", re.I)
-_MODIFIERS = frozenset({
-    "slightly", "very", "somewhat", "quite", "a", "bit", "little", "mostly", "rather", "fairly",
-    "and", "or", "the", "but", "with", "also", "extremely", "highly", "relatively",
-})
-_STRIP = " \t.!?\"'`()[]*:"
 
 
 def parse_gpt_score(evaluation: str | None) -> float | None:
@@ -71,26 +72,6 @@ def parse_gpt_score(evaluation: str | None) -> float | None:
         return None
     value = float(m.group(1))
     return value if MIN_SCORE <= value <= MAX_SCORE else None
-
-
-def adjectives(text: str | None) -> list[str]:
-    """Distinct lower-case adjectives of a caption, in order.
-
-    Builds on `ratouch.vocabulary.parse_adjectives` (comma split, lower case, no periods) and
-    also splits on "and", "/" and ";", strips quotes and punctuation and drops modifiers
-    ("slightly squishy" -> "squishy").
-    """
-    if not isinstance(text, str):
-        return []
-    text = re.sub(r"\s+(?:and|or|&)\s+", ", ", text.replace("/", ","), flags=re.I)
-    out: list[str] = []
-    for chunk in parse_adjectives(text):
-        words = [w.strip(_STRIP) for w in chunk.split()]
-        words = [w for w in words if w and w not in _MODIFIERS]
-        word = " ".join(words)
-        if word and word not in out:
-            out.append(word)
-    return out
 
 
 # --------------------------------------------------------------------------- lexicon
@@ -193,16 +174,8 @@ def judge_features(label: Sequence[str], predicted: Sequence[str]) -> list[float
             non_tactile]
 
 
-def adjective_f1(label: str, response: str | None) -> float:
-    """Plain adjective-set F1 (exact words), the baseline the offline judge is compared with."""
-    lab, pred = set(adjectives(label)), set(adjectives(response))
-    if not lab or not pred:
-        return 0.0
-    return 2 * len(lab & pred) / (len(lab) + len(pred))
-
-
 def _is_failed(response: object) -> bool:
-    return not adjectives(response if isinstance(response, str) else None)
+    return not parse_adjectives(response if isinstance(response, str) else None)
 
 
 # --------------------------------------------------------------------------- offline judge
@@ -233,7 +206,7 @@ class OfflineJudge:
 
     def explain(self, label: str, response: str | None) -> dict:
         """Parsed adjectives, features and score of one answer (for people reading a score)."""
-        lab, pred = adjectives(label), adjectives(response)
+        lab, pred = parse_adjectives(label), parse_adjectives(response)
         if not lab:
             raise DataError(f"label {label!r} has no adjectives")
         if not pred:
@@ -443,7 +416,7 @@ def check_records(records: object, source: str = "input") -> list[dict]:
         for key in (LABEL_KEY, RESPONSE_KEY):
             if key not in rec:
                 raise DataError(f"{source}: record {i} has no {key!r} key")
-        if not isinstance(rec[LABEL_KEY], str) or not adjectives(rec[LABEL_KEY]):
+        if not isinstance(rec[LABEL_KEY], str) or not parse_adjectives(rec[LABEL_KEY]):
             raise DataError(f"{source}: record {i} has an empty or non-string label "
                             f"{rec[LABEL_KEY]!r}")
         if rec[RESPONSE_KEY] is not None and not isinstance(rec[RESPONSE_KEY], str):
@@ -522,10 +495,7 @@ def format_summary(summary: dict) -> str:
 
 def judge_data_dir() -> Path:
     """``$RATOUCH_TVL_JUDGE_DIR``, else ``../shared/data/tvl_judge`` beside the repository."""
-    env = os.environ.get(DATA_DIR_ENV)
-    if env:
-        return Path(env)
-    return Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tvl_judge"
+    return tvl_judge_dir()
 
 
 def load_tvl_results(data_dir: str | os.PathLike | None = None) -> dict[str, list[dict]]:
@@ -592,9 +562,9 @@ def fit_offline_judge(data_dir: str | os.PathLike | None = None, seed: int = 0,
     fit_idx, _ = heldout_split(data[MODELS[0]], seed, fit_fraction)
     X, y = [], []
     for label, response, gpt, _, _ in _rows(data, fit_idx):
-        pred = adjectives(response)
+        pred = parse_adjectives(response)
         if pred:
-            X.append(judge_features(adjectives(label), pred))
+            X.append(judge_features(parse_adjectives(label), pred))
             y.append(gpt)
     X, y = np.asarray(X, dtype=np.float64), np.asarray(y, dtype=np.float64)
     mean, scale = X.mean(0), X.std(0)

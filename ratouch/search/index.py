@@ -442,3 +442,21 @@ class VectorIndex:
                             f"{INDEX_FILE} holds {held} {index.ntotal} x {index.d}")
         logger.info("loaded a %s index of %d x %d from %s", kind, count, dim, folder)
         return cls(index, cfg), meta
+
+
+def exact_topk(queries: np.ndarray, keys: np.ndarray, k: int, max_bytes: int = 1 << 28
+               ) -> np.ndarray:
+    """Exact top-k: (Q, k) row ids of `keys` with the largest inner product with each query,
+    best first (ties by lower id). Queries go in chunks so that one chunk's similarity matrix
+    stays under `max_bytes`; the reference that approximate indexes are measured against."""
+    queries = np.asarray(queries, np.float32)
+    keys = np.asarray(keys, np.float32)
+    k = min(k, len(keys))
+    out = np.empty((len(queries), k), np.int64)
+    step = max(1, max_bytes // (4 * max(1, len(keys))))
+    for s in range(0, len(queries), step):
+        sims = queries[s:s + step] @ keys.T
+        part = np.argpartition(-sims, k - 1, axis=1)[:, :k]
+        order = np.argsort(-np.take_along_axis(sims, part, 1), axis=1, kind="stable")
+        out[s:s + step] = np.take_along_axis(part, order, 1)
+    return out

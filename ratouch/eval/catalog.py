@@ -1,0 +1,19 @@
+"""The paper's experiments by name, with one line each: what `ratouch eval <name>` runs.
+
+Kept apart from `ratouch.eval.experiments` (which imports the models) so that the command
+line can list the experiments without loading torch. `experiments.EXPERIMENTS` implements
+exactly these names (checked when it is imported).
+"""
+
+EXPERIMENT_HELP: dict[str, str] = {
+    "table1": "Table 1 (the world's version): the encoder's baseline vs RA-Touch over corpus "
+              "sizes.",
+    "table2": "Table 2: retriever and integrator ablation.",
+    "table3": "Table 3: what the corpus's text side holds.",
+    "table4": "Table 4: retrieval query x key.",
+    "table5": "Table 5: integrate retrieved images, texts or both.",
+    "fig3": "Figure 3: corpus scale (stratified subsets of the corpus).",
+    "fig6": "Figure 6: number of retrieved neighbours K.",
+    "fig5": "Figure 5: PCA of the joint queries, alignment loss only vs alignment + stability.",
+    "table6": "Table 6 (not in the paper): materials missing from the paired training data.",
+}

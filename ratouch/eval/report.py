@@ -1,0 +1,53 @@
+"""Writing reports: static PNGs of plotly figures, the plotly script beside HTML figures, and
+the commit a report was made at. Shared by the experiment, stress and trade-off reports."""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+from pathlib import Path
+
+from ratouch.files import write_atomic
+from ratouch.paths import REPO
+
+log = logging.getLogger(__name__)
+
+
+def png_bytes(fig) -> tuple[bytes | None, str]:
+    """A figure as PNG through kaleido and the local Chromium: (bytes, "") or, where that does
+    not work offline, (None, why)."""
+    try:
+        return fig.to_image(format="png", scale=1), ""
+    except Exception as e:  # noqa: BLE001 - any exporter failure means "no PNG", said by callers
+        return None, f"{type(e).__name__}: {e}"
+
+
+def save_png(fig, path: Path) -> Path | None:
+    """Write the figure's PNG to `path`; None (and a logged reason) where no exporter works."""
+    data, why = png_bytes(fig)
+    if data is None:
+        log.warning("no PNG for %s (%s)", path.name, why)
+        return None
+    path.write_bytes(data)
+    return path
+
+
+def git_commit() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                             text=True, cwd=REPO, timeout=10)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10,
+                               cwd=REPO).stdout.strip()
+        return out.stdout.strip() + ("+changes" if dirty else "") or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def write_plotly_js(folder: Path) -> None:
+    """plotly.min.js beside the HTML figures that reference it (one copy per folder)."""
+    from plotly.offline import get_plotlyjs
+
+    js = folder / "plotly.min.js"
+    if not js.is_file():
+        write_atomic(js, get_plotlyjs())

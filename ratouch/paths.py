@@ -1,0 +1,49 @@
+"""Where things live on disk: the checkout, the shipped weights, the cache and outside data.
+
+One module owns these folders so that no other module works them out from its own `__file__`
+(which moves when a module moves). Every folder can be overridden by an environment variable:
+
+* ``$RATOUCH_CACHE`` — cached corpora, training data, experiment and failure results
+  (default ``~/.cache/ratouch``);
+* ``$RATOUCH_TVL_JUDGE_DIR`` — the published TVL judge files (default
+  ``../shared/data/tvl_judge`` beside the checkout).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parent
+REPO = PACKAGE.parent                      # the checkout (app/, docs/, assets/ sit here)
+ASSETS = REPO / "assets"                   # shipped weights
+CONFIGS = PACKAGE / "configs"              # named encoder configs, the judge's calibration
+DOCS = REPO / "docs"
+APP_FILE = REPO / "app" / "app.py"
+TVL_JUDGE_ENV = "RATOUCH_TVL_JUDGE_DIR"
+
+
+def cache_dir() -> Path:
+    """Where cached corpora and training data live: $RATOUCH_CACHE, else ~/.cache/ratouch."""
+    return Path(os.environ.get("RATOUCH_CACHE", Path.home() / ".cache" / "ratouch"))
+
+
+def encoder_weights(encoder: str) -> Path:
+    """Shipped weights of a default-backend encoder."""
+    return ASSETS / "encoders" / encoder
+
+
+def retriever_weights(encoder: str) -> Path:
+    """The shipped Tactile-Guided Retriever trained for an encoder."""
+    return ASSETS / "retriever" / encoder
+
+
+def generator_weights(encoder: str, kind: str) -> Path:
+    """A shipped generator (`kind` "ra" or "baseline") for an encoder."""
+    return ASSETS / "generator" / encoder / kind
+
+
+def tvl_judge_dir() -> Path:
+    """The published TVL result files with GPT-4 scores (read, never copied into the repo)."""
+    env = os.environ.get(TVL_JUDGE_ENV)
+    return Path(env) if env else REPO.parent / "shared" / "data" / "tvl_judge"

@@ -1,0 +1,382 @@
+"""The RA-Touch query pipeline, the one place a query is answered, and how it is assembled.
+
+`RATouchPipeline.query_many` answers requests (one or several at once: batched encoders, one
+index search, batched generation); `query` is `query_many` of one request. Its JSON-ready
+output is what `ratouch query` prints and the app shows. Around it: build, embed and index a
+corpus, open a search on it, the cached default corpus, and load the trained models.
+
+The three galleries are the three query modes (`QUERY_MODES`), each against the corpus's
+text embeddings (Table 4's x->text settings).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import torch
+
+from ratouch.checkpoint import load_into, read_checkpoint
+from ratouch.corpus.embed import (
+    EMBED_MANIFEST,
+    embed_corpus,
+    embeddings_dir,
+    load_embeddings,
+)
+from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
+from ratouch.encoders.factory import create_model
+from ratouch.encoders.preprocess import crop_box, to_rgb_array, tvl_contact_box
+from ratouch.errors import ConfigError, RATouchError
+from ratouch.model.generator import load_generator
+from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
+from ratouch.model.retriever import RetrieverConfig, TactileGuidedRetriever
+from ratouch.paths import cache_dir, generator_weights, retriever_weights
+from ratouch.search.index import IndexConfig
+from ratouch.search.pca import PCA2D
+from ratouch.search.retrieval import QUERY_MODES, CorpusIndex, CorpusSearch
+
+#: What `RATouchPipeline.corpus_embeddings` serves.
+CORPUS_EMBEDDING_KINDS = ("image", "tactile_caption", "class_name", "visual_description")
+
+log = logging.getLogger(__name__)
+
+
+def embed_and_index(corpus: str | os.PathLike, encoder: str = "default-s",
+                    index: str = "flat", workers: int = 2, progress: bool = True) -> dict:
+    """Embed a built corpus with an encoder and build (or check) its indexes."""
+    model = create_model(encoder)
+    emb = embed_corpus(corpus, model, workers=workers, progress=progress)
+    CorpusIndex(corpus, model.name, model.dim, IndexConfig(kind=index))
+    return {"encoder": model.name, "dim": model.dim, "index": index, "embedded": emb["count"]}
+
+
+def default_corpus(encoder: str = "default-s", size: str = "10k", seed: int = 0,
+                   progress: bool = True) -> Path:
+    """The world's ImageNet-T corpus of `size`, built, embedded and indexed on first use and
+    cached (a later call finds it ready)."""
+    folder = cache_dir() / f"imagenet-t-{size}-seed{seed}"
+    if not (folder / MANIFEST).is_file():
+        log.info("building the default corpus in %s (first use)", folder)
+        build_corpus(folder, size, seed=seed, progress=progress)
+    if not (embeddings_dir(folder, encoder) / EMBED_MANIFEST).is_file():
+        embed_and_index(folder, encoder, progress=progress)  # the index is checked on open
+    return folder
+
+
+def open_retriever(corpus: str | os.PathLike, encoder: str = "default-s",
+                   index: str = "flat", pretrained="shipped") -> CorpusSearch:
+    """Encoders + the corpus's index, checked against each other."""
+    model = create_model(encoder, pretrained=pretrained)
+    return CorpusSearch(model, CorpusIndex(corpus, model.name, model.dim, IndexConfig(kind=index)))
+
+
+# ---------------------------------------------------------------------------------------------
+# the query pipeline
+
+def integrator_factory(cfg: dict):
+    """Rebuild a saved Texture-Aware Integrator from its config."""
+    return TextureAwareIntegrator(IntegratorConfig(**cfg))
+
+
+def load_tgr(encoder: str, folder: str | os.PathLike | None = None):
+    """The frozen Tactile-Guided Retriever trained for an encoder (the shipped one in assets/,
+    or the one saved in `folder`, e.g. an ablation trained into the cache)."""
+    folder = Path(folder) if folder is not None else retriever_weights(encoder)
+    state, cfg, _ = read_checkpoint(folder)
+    cfg = {k: v for k, v in cfg.items() if k != "kind"}
+    model = TactileGuidedRetriever(RetrieverConfig(**cfg))
+    load_into(model, state, str(folder))
+    return model.eval()
+
+
+class RATouchPipeline:
+    """Encoders, corpus index, Tactile-Guided Retriever, the two generators and the PCA frame.
+
+    Read-only once loaded (the corpus embeddings of other caption kinds are computed once, on
+    first use); `query` and `query_many` may be called from several threads.
+    """
+
+    def __init__(self, retriever: CorpusSearch, tgr, generator_ra, generator_base,
+                 pca: PCA2D | None = None):
+        self.retriever = retriever
+        self.encoders = retriever.encoders
+        self.corpus = retriever.corpus
+        self.tgr = tgr
+        self.generator_ra = generator_ra
+        self.generator_base = generator_base
+        image_emb, text_emb, _ = load_embeddings(
+            self.corpus.folder, self.encoders.name, self.encoders.dim, verify=False)
+        self._corpus_emb: dict[str, np.ndarray] = {"image": image_emb,
+                                                   "tactile_caption": text_emb}
+        self._emb_lock = threading.Lock()
+        # the fixed reference frame: the first 2000 entries' image and text embeddings
+        self.pca = pca or PCA2D.fit(np.concatenate([np.asarray(image_emb[:2000]),
+                                                    np.asarray(text_emb[:2000])]))
+
+    @classmethod
+    def load(cls, encoder: str = "default-s", corpus: str | os.PathLike | None = None,
+             index: str = "flat", progress: bool = False,
+             generators: bool = True) -> "RATouchPipeline":
+        """Load everything for an encoder; the default corpus is built on first use.
+        `generators=False` loads the retrieval side only (for training the generators, or
+        evaluating retrieval): `describe` and `query` then need generators set first."""
+        corpus = corpus or default_corpus(encoder, progress=progress)
+        retriever = open_retriever(corpus, encoder, index)
+        tgr = load_tgr(encoder)
+        gen_ra = gen_base = None
+        if generators:
+            gen_ra = load_generator(generator_weights(encoder, "ra"), integrator_factory)
+            gen_base = load_generator(generator_weights(encoder, "baseline"))
+            for gen in (gen_ra, gen_base):  # inference only: fold LoRA into the weights
+                gen.decoder.merge_lora()
+        return cls(retriever, tgr, gen_ra, gen_base)
+
+    # ----------------------------------------------------------------- building blocks
+
+    def joint_query(self, V: np.ndarray, T: np.ndarray, tgr=None) -> np.ndarray:
+        """The Tactile-Guided Retriever's joint query Q for (N, D) visual and tactile
+        embeddings (`tgr`: another trained retriever, e.g. an ablation's; default the
+        pipeline's own)."""
+        with torch.no_grad():
+            return (tgr or self.tgr)(torch.from_numpy(np.ascontiguousarray(V, np.float32)),
+                                     torch.from_numpy(np.ascontiguousarray(T, np.float32))
+                                     ).query.numpy()
+
+    def joint_neighbours(self, V: np.ndarray, T: np.ndarray, k: int, batch: int = 1024
+                         ) -> np.ndarray:
+        """(N, k) corpus ids of the joint query's top-k against the text index, in batches."""
+        return np.concatenate([
+            self.corpus.search("text", self.joint_query(V[s:s + batch], T[s:s + batch]), k)[1]
+            for s in range(0, len(V), batch)])
+
+    def corpus_embeddings(self, kind: str) -> np.ndarray:
+        """Corpus embeddings of one kind, (N, D): "image", "tactile_caption" (the indexed
+        text; memory-mapped), or the text embeddings of the entries' "class_name" or
+        "visual_description" (Table 3; encoded on first use, then kept)."""
+        if kind in self._corpus_emb:
+            return self._corpus_emb[kind]
+        entries = self.corpus.entries
+        with self._emb_lock:
+            if kind == "class_name":
+                names = sorted({e.class_name for e in entries})
+                row = {n: i for i, n in enumerate(names)}
+                emb = self.encoders.encode_text(names)[[row[e.class_name] for e in entries]]
+            elif kind == "visual_description":
+                emb = self.encoders.encode_text([e.description for e in entries])
+            else:
+                raise ConfigError(f"corpus embeddings: unknown kind {kind!r}; one of "
+                                  f"{', '.join(CORPUS_EMBEDDING_KINDS)}")
+            self._corpus_emb[kind] = emb
+        return emb
+
+    def neighbour_embeddings(self, ids: np.ndarray, image_kind: str = "image",
+                             text_kind: str = "tactile_caption"
+                             ) -> tuple[np.ndarray, np.ndarray]:
+        """(Rv, Rl): image and text embeddings of retrieved entries `ids` (B, K), each
+        (B, K, D); the kinds are those of `corpus_embeddings`."""
+        flat = ids.reshape(-1)
+        order = np.argsort(flat)  # memory-mapped arrays read fastest in index order
+        rv = np.empty((len(flat), self.encoders.dim), np.float32)
+        rl = np.empty_like(rv)
+        rv[order] = self.corpus_embeddings(image_kind)[flat[order]]
+        rl[order] = self.corpus_embeddings(text_kind)[flat[order]]
+        return rv.reshape(*ids.shape, -1), rl.reshape(*ids.shape, -1)
+
+    def describe(self, V: np.ndarray, T: np.ndarray, ids: np.ndarray | None) -> list[str]:
+        """RA-Touch descriptions (with the neighbours `ids`) or baseline ones (ids None)."""
+        v, t = torch.from_numpy(V), torch.from_numpy(T)
+        with torch.no_grad():
+            if ids is None:
+                return self.generator_base.describe(v, t)
+            rv, rl = self.neighbour_embeddings(ids)
+            return self.generator_ra.describe(v, t, torch.from_numpy(rv), torch.from_numpy(rl))
+
+    def neighbour_entry(self, i: int, score: float) -> dict:
+        """One neighbour as `query` reports it."""
+        e = self.corpus.entry(int(i))
+        return {"id": int(i), "score": round(float(score), 4), "class_name": e.class_name,
+                "caption": e.caption, "description": e.description, "source": e.source}
+
+    def pca_points(self, queries: dict, results: dict, label: str | None) -> list[dict]:
+        """The PCA plot's points: each query, each mode's neighbours, the label if given."""
+        pts = []
+        text_emb = self.corpus_embeddings("tactile_caption")
+        for mode, q in queries.items():
+            x, y = self.pca.project(q)[0]
+            pts.append({"role": f"query_{mode}", "x": float(x), "y": float(y)})
+        for mode, (_, ids) in results.items():
+            xy = self.pca.project(text_emb[np.sort(ids[0])])
+            for i, (x, y) in zip(np.sort(ids[0]), xy):
+                pts.append({"role": f"neighbour_{mode}", "x": float(x), "y": float(y),
+                            "id": int(i)})
+        if label:
+            x, y = self.pca.project(self.encoders.encode_text([label]))[0]
+            pts.append({"role": "ground_truth", "x": float(x), "y": float(y)})
+        return pts
+
+    # ----------------------------------------------------------------- the query
+
+    def prepare_request(self, req: Mapping[str, Any]) -> dict:
+        """Check and decode one request (what `query` does before any model runs)."""
+        k = req.get("k", 5)
+        n = len(self.corpus.entries)
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= n:
+            raise ConfigError(f"k must be an integer in 1..{n}, got {k!r}")
+        image = to_rgb_array(req["visual"], name="visual image")
+        warnings: list[str] = []
+        box = req.get("box")
+        if box is None:
+            box = tvl_contact_box(image.shape[1], image.shape[0])
+            warnings.append(f"no contact box given: used TVL's centred crop {list(box)}")
+        crop = crop_box(image, box)
+        tactile = req.get("tactile")
+        frame = to_rgb_array(tactile, name="tactile image") if tactile is not None else None
+        if frame is None:
+            warnings.append("no tactile image: image-only retrieval; the tactile and joint "
+                            "queries and the RA-Touch description are not available")
+        return {"crop": crop, "frame": frame, "box": box, "k": int(k),
+                "label": req.get("label"), "warnings": warnings}
+
+    def query(self, visual: Any, tactile: Any = None, box=None, k: int = 5,
+              label: str | None = None) -> dict:
+        """Run the whole RA-Touch query for one visuo-tactile pair.
+
+        Args:
+            visual: the visual image (array, PIL image or path).
+            tactile: the tactile image, or None (image-only retrieval, said in `warnings`).
+            box: contact box (x0, y0, x1, y1) in pixels of the visual image; None uses TVL's
+                centred crop and says so in `warnings`.
+            k: neighbours per mode.
+            label: the ground-truth tactile caption, when known (plotted in the PCA).
+
+        Returns:
+            {"neighbours": {"image"|"tactile"|"joint": [{"id", "score", "class_name",
+            "caption", "description", "source"}]}, "description": {"ra_touch", "baseline"},
+            "pca": {"points": [{"role", "x", "y", "id"?}], "explained": [..]},
+            "timings_ms": {stage: ms, ..., "total": ms}, "warnings": [...], "box": [...]}
+        """
+        out = self.query_many([{"visual": visual, "tactile": tactile, "box": box, "k": k,
+                                "label": label}])[0]
+        if isinstance(out, Exception):
+            raise out
+        return out
+
+    def query_many(self, requests: Sequence[Mapping[str, Any]]) -> list[dict | Exception]:
+        """Several `query` calls at once (`query` is this with one request).
+
+        Args:
+            requests: `query`'s arguments by name (visual required; tactile, box, k, label).
+
+        Returns:
+            Per request, in order: `query`'s result, or the exception `query` would have
+            raised for an unusable image, box or k (the other requests are answered all the
+            same). `timings_ms` are the batch's stages, shared by its requests, plus
+            "batch_size".
+        """
+        clock = _Laps()
+        out: list[Any] = [None] * len(requests)
+        items: list[dict] = []
+        for pos, req in enumerate(requests):
+            try:
+                items.append({"pos": pos, **self.prepare_request(req)})
+            except (RATouchError, OSError) as e:
+                out[pos] = e
+        if not items:
+            return out
+        clock.lap("preprocess")
+        queries, touch = self._encode(items, clock)
+        results = self._search(items, queries)
+        clock.lap("search")
+        ra, base = self._generate(items, queries, results, touch, clock)
+        points = self._points(items, queries, results)
+        clock.lap("pca")
+        timings = clock.done(len(items))
+        explained = list(self.pca.explained)
+        for j, it in enumerate(items):
+            out[it["pos"]] = {
+                "neighbours": {mode: [self.neighbour_entry(i, s) for s, i in zip(sc[0], ii[0])]
+                               for mode, (sc, ii) in results[j].items()},
+                "description": {"ra_touch": ra.get(j, ""), "baseline": base.get(j, "")},
+                "pca": {"points": points[j], "explained": explained},
+                "timings_ms": dict(timings), "warnings": it["warnings"],
+                "box": [int(v) for v in it["box"]]}
+        return out
+
+    def _encode(self, items: list[dict], clock: "_Laps") -> tuple[list[dict], list[int]]:
+        """Per item {mode: (1, D) query}; and which items have a tactile frame."""
+        V = self.encoders.encode_image([it["crop"] for it in items])
+        clock.lap("encode_image")
+        queries: list[dict[str, np.ndarray]] = [{"image": V[j:j + 1]} for j in range(len(items))]
+        touch = [j for j, it in enumerate(items) if it["frame"] is not None]
+        if touch:
+            T = self.encoders.encode_tactile([items[j]["frame"] for j in touch])
+            clock.lap("encode_tactile")
+            J = self.joint_query(V[touch], T)
+            for r, j in enumerate(touch):
+                queries[j]["tactile"], queries[j]["joint"] = T[r:r + 1], J[r:r + 1]
+            clock.lap("retriever")
+        return queries, touch
+
+    def _search(self, items: list[dict], queries: list[dict]) -> list[dict]:
+        """Every mode of every request against the text index: one search at the largest K."""
+        rows = [(j, m) for j, q in enumerate(queries) for m in QUERY_MODES if m in q]
+        scores, ids = self.corpus.search(
+            "text", np.concatenate([queries[j][m] for j, m in rows]),
+            max(it["k"] for it in items))
+        results: list[dict] = [{} for _ in items]
+        for r, (j, m) in enumerate(rows):
+            k = items[j]["k"]
+            results[j][m] = (scores[r:r + 1, :k], ids[r:r + 1, :k])
+        return results
+
+    def _generate(self, items, queries, results, touch, clock) -> tuple[dict, dict]:
+        """RA-Touch (one generator batch per K) and baseline descriptions of the touch items."""
+        ra: dict[int, str] = {}
+        base: dict[int, str] = {}
+        if not touch:
+            return ra, base
+        V = np.concatenate([queries[j]["image"] for j in touch])
+        T = np.concatenate([queries[j]["tactile"] for j in touch])
+        by_k: dict[int, list[int]] = {}
+        for r, j in enumerate(touch):
+            by_k.setdefault(items[j]["k"], []).append(r)
+        for rows in by_k.values():
+            nb = np.concatenate([results[touch[r]]["joint"][1] for r in rows])
+            ra.update(zip([touch[r] for r in rows], self.describe(V[rows], T[rows], nb)))
+        clock.lap("generate_ra")
+        base.update(zip(touch, self.describe(V, T, None)))
+        clock.lap("generate_baseline")
+        return ra, base
+
+    def _points(self, items, queries, results) -> list[list[dict]]:
+        points = [self.pca_points(queries[j], results[j], None) for j in range(len(items))]
+        labelled = [j for j, it in enumerate(items) if it["label"]]
+        if labelled:  # the ground-truth captions' embeddings in one encoder call
+            xy = self.pca.project(self.encoders.encode_text(
+                [items[j]["label"] for j in labelled]))
+            for j, (x, y) in zip(labelled, xy):
+                points[j].append({"role": "ground_truth", "x": float(x), "y": float(y)})
+        return points
+
+
+class _Laps:
+    """Stage timings of one `query_many` call, in ms."""
+
+    def __init__(self):
+        self.start = self.t = time.perf_counter()
+        self.timings: dict[str, float] = {}
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.timings[stage] = round((now - self.t) * 1000, 2)
+        self.t = now
+
+    def done(self, batch_size: int) -> dict[str, float]:
+        self.timings["total"] = round((time.perf_counter() - self.start) * 1000, 2)
+        self.timings["batch_size"] = batch_size
+        return self.timings

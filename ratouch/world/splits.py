@@ -1,0 +1,65 @@
+"""The world's test split, rendered and encoded once for an evaluation.
+
+`encode_test_split` renders the 402 test pairs (or a subset, or under stress knobs) and encodes
+the contact-box crops and tactile frames with any encoder set (anything with `encode_image`
+and `encode_tactile`); `TestSplit` keeps the embeddings beside each pair's ground truth and its
+TVL-layout file names.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from ratouch.world.config import WorldConfig
+from ratouch.world.dataset import SUBSET_DIRS, world_for
+from ratouch.world.generator import TEST_SIZE
+
+
+@dataclass
+class TestSplit:
+    """The encoded test split of a world.
+
+    Attributes:
+        V, T: (N, D) visual (contact-box crop) and tactile embeddings.
+        labels: ground-truth captions as written in the data set.
+        subsets: "structured" / "wild" per sample.
+        materials: the world's ground-truth material per sample.
+        indices: sample indices in the test split.
+        object_scale: object size / frame side per sample (a failure-mode axis).
+        world: the world config (seed and stress knobs) the split was rendered with.
+    """
+
+    V: np.ndarray
+    T: np.ndarray
+    labels: list[str]
+    subsets: list[str]
+    materials: list[str]
+    indices: list[int]
+    object_scale: list[float]
+    world: WorldConfig
+
+    def image_fp(self, i: int) -> str:
+
+        return f"{SUBSET_DIRS[self.subsets[i]]}/vision/test_{self.indices[i]:06d}.png"
+
+    def tactile_fp(self, i: int) -> str:
+        return self.image_fp(i).replace("/vision/", "/tactile/")
+
+
+def encode_test_split(encoders, world: WorldConfig | None = None,
+                      indices: Sequence[int] | None = None) -> TestSplit:
+    """Render and encode the test split (all 402 pairs unless `indices` are given)."""
+
+    world = world or WorldConfig()
+    gen = world_for(world)
+    idx = list(range(TEST_SIZE)) if indices is None else [int(i) for i in indices]
+    samples = [gen.sample("test", i) for i in idx]
+    crops = [s.crop for s in samples]
+    return TestSplit(
+        V=encoders.encode_image(crops), T=encoders.encode_tactile([s.tactile for s in samples]),
+        labels=[s.caption for s in samples], subsets=[s.subset for s in samples],
+        materials=[s.material for s in samples], indices=idx,
+        object_scale=[float(s.object_scale) for s in samples], world=world)
