@@ -1,14 +1,21 @@
-"""Checkpoints that describe themselves: safetensors weights, the config JSON beside them, and a
-sha256 manifest. Loading verifies the checksums and loads strictly, reporting missing and
-unexpected keys; nothing pickled is ever executed."""
+"""The one module that reads and writes weight files.
+
+The project's own checkpoints describe themselves: safetensors weights, the config JSON beside
+them, and a sha256 manifest; loading verifies the checksums and loads strictly, reporting
+missing and unexpected keys. Checkpoints made elsewhere (TVL's `.pth`, OpenCLIP's) are read by
+`read_foreign_weights`. Nothing pickled is ever executed."""
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
 import os
+import pickle
+import re
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import torch
 from safetensors import SafetensorError
@@ -97,3 +104,54 @@ def load_into(module: torch.nn.Module, state: dict[str, torch.Tensor], source: s
             raise DataError(f"{source} does not fit the model: {k} has shape {tuple(v.shape)}, "
                             f"the model expects {tuple(own[k].shape)}")
     module.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()}, strict=True)
+
+
+# --------------------------------------------------------------------- foreign checkpoints
+
+def read_foreign_weights(path: Path, what: str) -> Any:
+    """Read a checkpoint made elsewhere (TVL, OpenCLIP) without executing pickled code.
+
+    ``.safetensors`` files are read with safetensors; anything else with
+    ``torch.load(weights_only=True)``, allowing only tensors, plain containers, numbers,
+    strings and ``argparse.Namespace`` (TVL stores its training arguments in one).
+
+    Args:
+        path: The checkpoint file.
+        what: How to name it in error messages.
+
+    Returns:
+        The loaded object (a dict of tensors for safetensors).
+
+    Raises:
+        DataError: If the file is not a checkpoint, or holds pickled objects that are not
+            plain data (refused, never executed).
+    """
+    if path.suffix == ".safetensors":
+        try:
+            return load_file(str(path), device="cpu")
+        except (SafetensorError, OSError, ValueError, RuntimeError) as e:
+            raise DataError(f"{what} {path} is not a valid safetensors file: {e}") from e
+    try:
+        with torch.serialization.safe_globals([argparse.Namespace]):
+            return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:
+        found = re.search(r"GLOBAL ([\w.]+)", str(e))
+        if found:
+            raise DataError(
+                f"refusing to load {what} {path}: it contains a pickled {found.group(1)} object, "
+                "and only tensors and plain data are unpickled (weights_only=True); re-save the "
+                "checkpoint as a plain state dict or safetensors"
+            ) from e
+        raise DataError(f"{what} {path} is not a PyTorch checkpoint "
+                        f"({first_line(e)})") from e
+    except Exception as e:  # torch raises RuntimeError/EOFError/KeyError/... on junk files
+        raise DataError(f"{what} {path} is not a PyTorch checkpoint "
+                        f"({type(e).__name__}: {first_line(e)})") from e
+
+
+def first_line(e: BaseException) -> str:
+    """The first non-empty line of an exception message, shortened."""
+    for line in str(e).splitlines():
+        if line.strip():
+            return line.strip()[:200]
+    return type(e).__name__

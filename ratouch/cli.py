@@ -546,7 +546,7 @@ def _bench_tradeoff(args: argparse.Namespace) -> int:
         raise _usage(f"--indexes: unknown index type(s) {sorted(bad)}; use flat, hnsw, ivfpq")
     r = bench_tradeoff(indexes=_csv(args.indexes), sizes=_csv(args.sizes, int),
                        ks=_csv(args.ks, int), other_encoders=_csv(args.encoders),
-                       n_latency=args.n, progress=not args.json)
+                       n_latency=args.n, progress=None if args.json else print)
     table = format_tradeoff(r)
     write_report(Report("tradeoff", "Speed against accuracy", f"```\n{table}\n```\n\n"
                         f"Settings: `{json.dumps(r['settings'])}`", tradeoff_figure(r), r),

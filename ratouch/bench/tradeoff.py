@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
+import torch
 
 from ratouch.bench.index import upstream_retrieve
 from ratouch.eval.experiments import Lab
@@ -41,7 +42,7 @@ def _p(times: list[float], q: float) -> float:
 
 
 def _subset_index(lab, kind: str, size: int):
-
+    """A class-stratified subset of `size` entries, indexed with `kind`."""
     ids = lab.subset_ids(size)
     emb = np.ascontiguousarray(lab.pipeline.corpus_embeddings("tactile_caption")[ids])
     return ids, VectorIndex.build(emb, IndexConfig(kind=kind))
@@ -50,98 +51,108 @@ def _subset_index(lab, kind: str, size: int):
 def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
                    sizes: Sequence[int] = (1000, 2500, 10000), ks: Sequence[int] = (1, 5, 10),
                    other_encoders: Sequence[str] = ("default-tiny", "default-b"),
-                   n_latency: int = 30, progress: bool = False) -> dict:
-    """Measure every point; returns {"points": [...], "upstream": {...}, "settings": {...}}."""
-    import torch
+                   n_latency: int = 30, progress: Callable[[str], None] | None = None) -> dict:
+    """Measure every point; returns {"points": [...], "upstream": {...}, "settings": {...}}.
 
-
+    `progress` is called with one line per measured point (the CLI prints them)."""
+    say = progress or (lambda line: None)
     lab = lab or Lab()
     p, test = lab.pipeline, lab.test
     torch.set_num_threads(1)
     rng = np.random.default_rng(0)
     picks = rng.choice(len(test.labels), size=min(n_latency, len(test.labels)), replace=False)
-    crops, frames = _raw_pairs(test, picks)
+    pairs = _raw_pairs(test, picks)
     joint = p.joint_query(test.V, test.T)
+    entry_mats = entry_materials(p.corpus)
     points = []
-
-    def timed_query(search) -> tuple[list[float], list[float]]:
-        """Seconds per whole query and per search alone, the first (warm-up) query left out."""
-        times, search_times = [], []
-        for j, (crop, frame) in enumerate(zip(crops, frames)):
-            t0 = time.perf_counter()
-            V = p.encoders.encode_image([crop])
-            T = p.encoders.encode_tactile([frame])
-            q = p.joint_query(V, T)
-            s0 = time.perf_counter()
-            ids = search(q)
-            if j:
-                search_times.append(time.perf_counter() - s0)
-            rv, rl = p.neighbour_embeddings(ids)
-            p.generator_ra.describe(*(torch.from_numpy(x) for x in (V, T, rv, rl)))
-            if j:  # the first query warms caches
-                times.append(time.perf_counter() - t0)
-        return times, search_times
-
     for kind in indexes:
         for size in sizes:
             ids_map, index = _subset_index(lab, kind, size)
             for k in ks:
                 t0 = time.perf_counter()
                 ids = ids_map[index.search(joint, k)[1]]
-                rv, rl = p.neighbour_embeddings(ids)
-                responses = describe(p.generator_ra, test.V, test.T, rv, rl)
-                _, summary = judge_results(records_for(test, responses, "ra-touch"), lab.judge)
-                ids5 = ids_map[index.search(joint, 5)[1]]
-                times, search_times = timed_query(lambda q: ids_map[index.search(q, k)[1]])
                 pt = {"encoder": lab.cfg.encoder, "index": kind, "corpus": len(ids_map), "k": k,
-                      "p50_ms": _p(times, 50), "p95_ms": _p(times, 95),
-                      "search_p50_ms": _p(search_times, 50),
-                      "judge": round(summary["subsets"]["overall"]["mean"], 4),
-                      "precision_at_5": round(material_precision(ids5, test.materials, entry_materials(p.corpus)).mean(), 4),
+                      **_latency(p, pairs, lambda q: ids_map[index.search(q, k)[1]]),
+                      "judge": _judge_mean(lab, p.neighbour_embeddings(ids)),
+                      "precision_at_5": round(float(material_precision(
+                          ids_map[index.search(joint, 5)[1]], test.materials,
+                          entry_mats).mean()), 4),
                       "system": "RA-Touch"}
                 points.append(pt)
-                if progress:
-                    print(f"{kind:<6}{len(ids_map):>7}{k:>4}  p50 {pt['p50_ms']:7.2f} ms  "
-                          f"judge {pt['judge']:.3f}  P@5 {pt['precision_at_5']:.3f}  "
-                          f"({time.perf_counter() - t0:.0f} s)", flush=True)
-
-    # the upstream recipe (torch re-normalisation + full matmul + topk) on the whole corpus
-    corpus_t = torch.from_numpy(np.ascontiguousarray(lab.pipeline.corpus_embeddings("tactile_caption")))
-    up_times, search_times = timed_query(
-        lambda q: upstream_retrieve(corpus_t, torch.from_numpy(q), 5).numpy().reshape(1, -1))
-    flat = next((q for q in points if q["index"] == "flat" and q["corpus"] == len(p.corpus)
-                 and q["k"] == 5), None)
-    upstream = {"encoder": lab.cfg.encoder, "index": "upstream", "corpus": len(p.corpus),
-                "k": 5, "p50_ms": _p(up_times, 50), "p95_ms": _p(up_times, 95),
-                "search_p50_ms": _p(search_times, 50),
-                "judge": flat["judge"] if flat else None,
-                "precision_at_5": flat["precision_at_5"] if flat else None,
-                "system": "RA-Touch, upstream retrieval"}
-    # baseline (no retrieval) as the floor
-    base = describe(p.generator_base, test.V, test.T)
-    _, bsum = judge_results(records_for(test, base, "baseline"), lab.judge)
-    floor = round(bsum["subsets"]["overall"]["mean"], 4)
-    points += _encoder_points(other_encoders, test, lab, n_latency, progress)
+                say(f"{kind:<6}{len(ids_map):>7}{k:>4}  p50 {pt['p50_ms']:7.2f} ms  "
+                    f"judge {pt['judge']:.3f}  P@5 {pt['precision_at_5']:.3f}  "
+                    f"({time.perf_counter() - t0:.0f} s)")
+    upstream = _upstream_point(lab, pairs, points)
+    floor = _judge_mean(lab, None)  # the baseline (no retrieval) as the floor
+    points += _encoder_points(other_encoders, test, n_latency, say)
     return {"points": points, "upstream": upstream, "baseline_judge": floor,
             "settings": {"n_latency": n_latency, "threads": 1, "test_pairs": len(test.labels),
                          "note": "RA-Touch generator trained with K=5 on the whole corpus; "
                                  "other points change retrieval at inference only"}}
 
 
-def _raw_pairs(test, picks) -> tuple[list, list]:
+def _judge_mean(lab, neighbours: tuple[np.ndarray, np.ndarray] | None) -> float:
+    """The judge's overall mean on the test split: RA-Touch reading `neighbours` (Rv, Rl), or
+    the baseline when None."""
+    test, p = lab.test, lab.pipeline
+    if neighbours is None:
+        responses, system = describe(p.generator_base, test.V, test.T), "baseline"
+    else:
+        responses, system = describe(p.generator_ra, test.V, test.T, *neighbours), "ra-touch"
+    _, summary = judge_results(records_for(test, responses, system), lab.judge)
+    return round(summary["subsets"]["overall"]["mean"], 4)
 
+
+def _latency(p, pairs: tuple[list, list], search) -> dict[str, float]:
+    """p50 / p95 of the RA-Touch answer path (encoders, retriever, `search`, generation) and of
+    the search alone, in ms, over warm single-pair queries (the first one warms caches)."""
+    times, search_times = [], []
+    for j, (crop, frame) in enumerate(zip(*pairs)):
+        t0 = time.perf_counter()
+        V = p.encoders.encode_image([crop])
+        T = p.encoders.encode_tactile([frame])
+        q = p.joint_query(V, T)
+        s0 = time.perf_counter()
+        ids = search(q)
+        s1 = time.perf_counter()
+        rv, rl = p.neighbour_embeddings(ids)
+        p.generator_ra.describe(*(torch.from_numpy(x) for x in (V, T, rv, rl)))
+        if j:
+            search_times.append(s1 - s0)
+            times.append(time.perf_counter() - t0)
+    return {"p50_ms": _p(times, 50), "p95_ms": _p(times, 95),
+            "search_p50_ms": _p(search_times, 50)}
+
+
+def _upstream_point(lab, pairs: tuple[list, list], points: list[dict]) -> dict:
+    """The upstream recipe (torch re-normalisation + full matmul + topk) on the whole corpus;
+    its quality is the flat K=5 point's (the same neighbours)."""
+    p = lab.pipeline
+    corpus_t = torch.from_numpy(np.ascontiguousarray(p.corpus_embeddings("tactile_caption")))
+    lat = _latency(p, pairs, lambda q: upstream_retrieve(corpus_t, torch.from_numpy(q), 5)
+                   .numpy().reshape(1, -1))
+    flat = next((q for q in points if q["index"] == "flat" and q["corpus"] == len(p.corpus)
+                 and q["k"] == 5), None)
+    return {"encoder": lab.cfg.encoder, "index": "upstream", "corpus": len(p.corpus), "k": 5,
+            **lat, "judge": flat["judge"] if flat else None,
+            "precision_at_5": flat["precision_at_5"] if flat else None,
+            "system": "RA-Touch, upstream retrieval"}
+
+
+def _raw_pairs(test, picks) -> tuple[list, list]:
+    """The raw contact crops and tactile frames of test pairs `picks` (for timing)."""
     world = world_for(test.world)
     samples = [world.sample("test", test.indices[int(i)]) for i in picks]
     return [s.crop for s in samples], [s.tactile for s in samples]
 
 
-def _encoder_points(encoders: Sequence[str], test, lab, n_latency: int, progress: bool) -> list:
+def _encoder_points(encoders: Sequence[str], test, n_latency: int,
+                    say: Callable[[str], None]) -> list:
     """Retrieval-only points for encoders without a trained retriever / generators."""
-
     out = []
     for name in encoders:
         t0 = time.perf_counter()
-        retriever = open_retriever(default_corpus(name, progress=progress), name)
+        retriever = open_retriever(default_corpus(name, progress=False), name)
         split = encode_test_split(retriever.encoders, test.world)
         ids = retriever.corpus.search("text", split.T, 5)[1]
         crops, frames = _raw_pairs(test, range(min(n_latency, len(test.labels))))
@@ -156,12 +167,12 @@ def _encoder_points(encoders: Sequence[str], test, lab, n_latency: int, progress
         pt = {"encoder": name, "index": "flat", "corpus": len(retriever.corpus), "k": 5,
               "p50_ms": _p(times, 50), "p95_ms": _p(times, 95), "search_p50_ms": None,
               "judge": None,
-              "precision_at_5": round(material_precision(ids, split.materials, entry_materials(retriever.corpus)).mean(), 4),
+              "precision_at_5": round(float(material_precision(
+                  ids, split.materials, entry_materials(retriever.corpus)).mean()), 4),
               "system": "retrieval only (tactile->text)"}
         out.append(pt)
-        if progress:
-            print(f"{name}: p50 {pt['p50_ms']:.2f} ms (encode + search), tactile->text P@5 "
-                  f"{pt['precision_at_5']:.3f} ({time.perf_counter() - t0:.0f} s)", flush=True)
+        say(f"{name}: p50 {pt['p50_ms']:.2f} ms (encode + search), tactile->text P@5 "
+            f"{pt['precision_at_5']:.3f} ({time.perf_counter() - t0:.0f} s)")
     return out
 
 

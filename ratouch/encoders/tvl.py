@@ -32,12 +32,9 @@ Example:
 
 from __future__ import annotations
 
-import argparse
 import difflib
 import logging
 import os
-import pickle
-import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +45,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from ratouch.checkpoint import first_line, read_foreign_weights
 from ratouch.encoders.preprocess import (
     CLIP_MEAN,
     CLIP_STD,
@@ -368,58 +366,6 @@ def _describe_keys(keys: Any) -> str:
     return f"[{shown}{more}]"
 
 
-def read_checkpoint(path: Path, what: str) -> Any:
-    """Read a checkpoint without executing pickled code.
-
-    ``.safetensors`` files are read with safetensors; anything else with
-    ``torch.load(weights_only=True)``, allowing only tensors, plain containers, numbers,
-    strings and ``argparse.Namespace`` (TVL stores its training arguments in one).
-
-    Args:
-        path: The checkpoint file.
-        what: How to name it in error messages.
-
-    Returns:
-        The loaded object (a dict of tensors for safetensors).
-
-    Raises:
-        DataError: If the file is not a checkpoint, or holds pickled objects that are not
-            plain data (refused, never executed).
-    """
-    if path.suffix == ".safetensors":
-        from safetensors import SafetensorError
-        from safetensors.torch import load_file
-
-        try:
-            return load_file(str(path), device="cpu")
-        except (SafetensorError, OSError, ValueError, RuntimeError) as e:
-            raise DataError(f"{what} {path} is not a valid safetensors file: {e}") from e
-    try:
-        with torch.serialization.safe_globals([argparse.Namespace]):
-            return torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as e:
-        found = re.search(r"GLOBAL ([\w.]+)", str(e))
-        if found:
-            raise DataError(
-                f"refusing to load {what} {path}: it contains a pickled {found.group(1)} object, "
-                "and only tensors and plain data are unpickled (weights_only=True); re-save the "
-                "checkpoint as a plain state dict or safetensors"
-            ) from e
-        raise DataError(f"{what} {path} is not a PyTorch checkpoint "
-                        f"({_first_line(e)})") from e
-    except Exception as e:  # torch raises RuntimeError/EOFError/KeyError/... on junk files
-        raise DataError(f"{what} {path} is not a PyTorch checkpoint "
-                        f"({type(e).__name__}: {_first_line(e)})") from e
-
-
-def _first_line(e: BaseException) -> str:
-    """The first non-empty line of an exception message, shortened."""
-    for line in str(e).splitlines():
-        if line.strip():
-            return line.strip()[:200]
-    return type(e).__name__
-
-
 def _tensor_dict(obj: Any, path: Path, what: str) -> dict[str, torch.Tensor]:
     """Check that ``obj`` is a ``str -> Tensor`` mapping and return it as a dict."""
     if not isinstance(obj, Mapping):
@@ -442,7 +388,7 @@ def read_clip_state(path: Path) -> dict[str, torch.Tensor]:
         DataError: If the file is not a checkpoint or not a state dict.
     """
     what = "OpenCLIP checkpoint"
-    obj = read_checkpoint(path, what)
+    obj = read_foreign_weights(path, what)
     if isinstance(obj, Mapping) and isinstance(obj.get("state_dict"), Mapping):
         obj = obj["state_dict"]
     elif isinstance(obj, Mapping) and isinstance(obj.get("model"), Mapping):
@@ -475,7 +421,7 @@ def read_tvl_tactile_state(path: Path) -> dict[str, torch.Tensor]:
             checkpoint is TVL's common-latent-dim variant (``modality_heads.*``).
     """
     what = "TVL tactile checkpoint"
-    obj = read_checkpoint(path, what)
+    obj = read_foreign_weights(path, what)
     if path.suffix == ".safetensors":
         model_state = obj
     else:
@@ -595,7 +541,7 @@ def load_state_strict(model: nn.Module, state: Mapping[str, torch.Tensor], path:
     try:
         model.load_state_dict(state, strict=True)
     except RuntimeError as e:  # incompatibilities not caught above
-        raise DataError(f"{what} {path} could not be loaded: {_first_line(e)}") from e
+        raise DataError(f"{what} {path} could not be loaded: {first_line(e)}") from e
 
 
 # --------------------------------------------------------------------------- loading

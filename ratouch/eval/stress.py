@@ -421,64 +421,75 @@ def run_stress(pipeline, sweeps: dict[str, list[dict]] | None = None, k: int = 5
     if world.stress != StressConfig():
         raise ConfigError("the base world of a stress sweep must be unstressed")
     say = progress or (lambda line: None)
-    ctx = _Context(pipeline, k, judge or OfflineJudge())
-    indices = stratified_indices(n)
-    renderer = _Renderer(world)
-    natural = renderer.natural_values(indices)
-    refs: dict[tuple, tuple[TestSplit, dict]] = {}
-
-    def reference(keys: tuple) -> tuple[TestSplit, dict]:
-        if keys not in refs:
-            t0 = time.perf_counter()
-            fixed = {kk: PAIR_FIXED[kk] for kk in keys if kk in PAIR_FIXED}
-            drawn = [kk for kk in keys if kk in PER_SAMPLE]
-            per = ([{kk: natural[kk][j] for kk in drawn} for j in range(len(indices))]
-                   if drawn else None)
-            sp = renderer.split(pipeline.encoders, indices, knobs=fixed, per_sample=per)
-            refs[keys] = (sp, _answers(pipeline, sp, k, False))
-            say(f"reference {'natural' if not keys else 'paired ' + '+'.join(keys)}: "
-                f"{time.perf_counter() - t0:.1f} s")
-        return refs[keys]
-
-    nat_split, nat_ans = reference(())
+    run = _Sweep(pipeline, _Context(pipeline, k, judge or OfflineJudge()),
+                 stratified_indices(n), world, say)
+    nat_split, nat_ans = run.reference(())
     result: dict[str, Any] = {
-        "encoder": encoder, "k": k, "n": len(indices), "world_seed": world.seed, "drop": drop,
-        "indices": indices, "judge": type(ctx.judge).__name__,
-        "natural_means": {kk: round(float(np.mean(v)), 4) for kk, v in natural.items()},
-        "reference": {**_score_point(nat_split, nat_ans, nat_split, nat_ans, ctx),
-                      "scale_bins": _scale_bins(nat_split, nat_ans, ctx)},
-        "knobs": {}}
-    for knob, settings in sweeps.items():
-        keys = tuple(sorted({kk for s in settings for kk in s if kk in PER_SAMPLE}
-                            | {kk for s in settings for kk in s if kk in PAIR_FIXED and s[kk]}))
-        ref_split, ref_ans = reference(keys)
-        mean = (float(np.mean(natural[knob])) if knob in PER_SAMPLE else None)
-        points = [{"label": _label(knob, None, mean), "value": None, "x": _x(knob, None, mean),
-                   "reference": True,
-                   **_score_point(ref_split, ref_ans, ref_split, ref_ans, ctx)}]
-        for setting in settings:
-            t0 = time.perf_counter()
-            fallback = setting.get("missing") == "tactile"
-            sp = renderer.split(pipeline.encoders, indices, knobs=setting)
-            ans = _answers(pipeline, sp, k, fallback)
-            points.append({"label": _label(knob, setting, mean), "value": setting,
-                           "x": _x(knob, setting, mean), "reference": False,
-                           **_score_point(sp, ans, ref_split, ref_ans, ctx),
-                           "seconds": round(time.perf_counter() - t0, 1)})
-            say(f"{knob}={points[-1]['label']}: {points[-1]['seconds']:.1f} s")
-        result["knobs"][knob] = {"paired_reference": list(keys), "points": points,
-                                 "break_points": break_points(points, k, drop)}
+        "encoder": encoder, "k": k, "n": len(run.indices), "world_seed": world.seed,
+        "drop": drop, "indices": run.indices, "judge": type(run.ctx.judge).__name__,
+        "natural_means": {kk: round(float(np.mean(v)), 4) for kk, v in run.natural.items()},
+        "reference": {**_score_point(nat_split, nat_ans, nat_split, nat_ans, run.ctx),
+                      "scale_bins": _scale_bins(nat_split, nat_ans, run.ctx)},
+        "knobs": {knob: run.knob(knob, settings, drop) for knob, settings in sweeps.items()}}
+    result["collapse"] = None
     if collapse:
         t0 = time.perf_counter()
-        result["collapse"] = collapse_report(pipeline, nat_split, ctx, encoder, collapse_epochs,
-                                             world.seed, align_tgr=align_tgr,
+        result["collapse"] = collapse_report(pipeline, nat_split, run.ctx, encoder,
+                                             collapse_epochs, world.seed, align_tgr=align_tgr,
                                              progress=progress is not None)
         result["collapse"]["seconds"] = round(time.perf_counter() - t0, 1)
         say(f"collapse diagnostic: {result['collapse']['seconds']:.1f} s")
-    else:
-        result["collapse"] = None
     result["seconds"] = round(time.perf_counter() - t_start, 1)
     return result
+
+
+class _Sweep:
+    """One stress run's shared state: the samples, their natural knob values, and the
+    (paired) references computed once per set of paired knobs."""
+
+    def __init__(self, pipeline, ctx: _Context, indices: list[int], world: WorldConfig,
+                 say: Callable[[str], None]):
+        self.pipeline, self.ctx, self.indices, self.say = pipeline, ctx, indices, say
+        self.renderer = _Renderer(world)
+        self.natural = self.renderer.natural_values(indices)
+        self.refs: dict[tuple, tuple[TestSplit, dict]] = {}
+
+    def reference(self, keys: tuple) -> tuple[TestSplit, dict]:
+        """The split and answers with the knobs `keys` at each sample's natural value."""
+        if keys not in self.refs:
+            t0 = time.perf_counter()
+            fixed = {kk: PAIR_FIXED[kk] for kk in keys if kk in PAIR_FIXED}
+            drawn = [kk for kk in keys if kk in PER_SAMPLE]
+            per = ([{kk: self.natural[kk][j] for kk in drawn} for j in range(len(self.indices))]
+                   if drawn else None)
+            sp = self.renderer.split(self.pipeline.encoders, self.indices, knobs=fixed,
+                                     per_sample=per)
+            self.refs[keys] = (sp, _answers(self.pipeline, sp, self.ctx.k, False))
+            self.say(f"reference {'natural' if not keys else 'paired ' + '+'.join(keys)}: "
+                     f"{time.perf_counter() - t0:.1f} s")
+        return self.refs[keys]
+
+    def knob(self, knob: str, settings: list[dict], drop: float) -> dict:
+        """Every setting of one knob against its paired reference, with its break points."""
+        keys = tuple(sorted({kk for s in settings for kk in s if kk in PER_SAMPLE}
+                            | {kk for s in settings for kk in s if kk in PAIR_FIXED and s[kk]}))
+        ref_split, ref_ans = self.reference(keys)
+        mean = (float(np.mean(self.natural[knob])) if knob in PER_SAMPLE else None)
+        points = [{"label": _label(knob, None, mean), "value": None, "x": _x(knob, None, mean),
+                   "reference": True,
+                   **_score_point(ref_split, ref_ans, ref_split, ref_ans, self.ctx)}]
+        for setting in settings:
+            t0 = time.perf_counter()
+            fallback = setting.get("missing") == "tactile"
+            sp = self.renderer.split(self.pipeline.encoders, self.indices, knobs=setting)
+            ans = _answers(self.pipeline, sp, self.ctx.k, fallback)
+            points.append({"label": _label(knob, setting, mean), "value": setting,
+                           "x": _x(knob, setting, mean), "reference": False,
+                           **_score_point(sp, ans, ref_split, ref_ans, self.ctx),
+                           "seconds": round(time.perf_counter() - t0, 1)})
+            self.say(f"{knob}={points[-1]['label']}: {points[-1]['seconds']:.1f} s")
+        return {"paired_reference": list(keys), "points": points,
+                "break_points": break_points(points, self.ctx.k, drop)}
 
 
 # ------------------------------------------------------------------------- figures
@@ -636,10 +647,25 @@ def _md_point_table(kr: dict, k: int) -> list[str]:
 
 
 def format_markdown(result: dict, png: str | None, png_note: str) -> str:
+    """The stress report in markdown: how to read it, the natural split, break points, every
+    knob's points, the collapse check and the figures."""
     k = result["k"]
-    drop = result["drop"]
-    ref = result["reference"]
-    out = [
+    out = _md_header(result)
+    out += _md_natural(result["reference"], k)
+    out += _md_break_points(result, k)
+    out += ["", "## Per knob", ""]
+    for knob, kr in result["knobs"].items():
+        out += [f"### {knob}", "", f"Reference: {_reference_text(kr['paired_reference'])}.",
+                ""] + _md_point_table(kr, k) + [""]
+    out += _md_collapse(result, k)
+    out += _md_figures(png, png_note)
+    out.append("")
+    return "\n".join(out)
+
+
+def _md_header(result: dict) -> list[str]:
+    k = result["k"]
+    return [
         "# Stress sweep: stability where the methods fail",
         "",
         f"Encoder `{result['encoder']}`, K={k}, {result['n']} test samples (stratified over the "
@@ -668,6 +694,11 @@ def format_markdown(result: dict, png: str | None, png_note: str) -> str:
         "image-only neighbours. The ↳ row shows the no-contact frame used as the query.",
         f"* Paper failure case: {', '.join(f'{a}={b}' for a, b in PAPER_FAILURE.items())}.",
         "",
+    ]
+
+
+def _md_natural(ref: dict, k: int) -> list[str]:
+    out = [
         "## Unperturbed (natural split)",
         "",
         f"| mode | P@{k} | adjective overlap@{k} |", "|---|---|---|"]
@@ -689,6 +720,12 @@ def format_markdown(result: dict, png: str | None, png_note: str) -> str:
                    + "".join(f"| {row['retrieval'][m]['material_precision']:.3f} "
                              for m in QUERY_MODES)
                    + "".join(f"| {row['judge'][s]:.2f} " for s in SYSTEMS) + "|")
+    return out
+
+
+def _md_break_points(result: dict, k: int) -> list[str]:
+    drop = result["drop"]
+    out: list[str] = []
     out += ["", "## Break points", "",
             f"First sweep value (mildest first) at which the quality falls below {drop:.0%} of "
             f"the knob's unperturbed value; *holds* = never within the sweep (worst value in "
@@ -712,10 +749,11 @@ def format_markdown(result: dict, png: str | None, png_note: str) -> str:
                 w = b["worst"]
                 cells.append(f"holds ({_f(w['value'], 2)})" if w else "holds")
         out.append(f"| {knob} | " + " | ".join(cells) + " |")
-    out += ["", "## Per knob", ""]
-    for knob, kr in result["knobs"].items():
-        out += [f"### {knob}", "", f"Reference: {_reference_text(kr['paired_reference'])}.",
-                ""] + _md_point_table(kr, k) + [""]
+    return out
+
+
+def _md_collapse(result: dict, k: int) -> list[str]:
+    out: list[str] = []
     col = result.get("collapse")
     out += ["## Collapse of the retriever's queries", ""]
     if col:
@@ -732,6 +770,11 @@ def format_markdown(result: dict, png: str | None, png_note: str) -> str:
                        f"{row['mean_dim_std']:.4f} | {_f(row.get('material_precision'))} |")
     else:
         out.append("Not run (`--no-collapse`).")
+    return out
+
+
+def _md_figures(png: str | None, png_note: str) -> list[str]:
+    out: list[str] = []
     out += ["", "## Figures", "",
             "`stress.html` (both figures, with plotly.min.js beside it, works offline); plotly JSON "
             "for the app: `stress_fig.json` (quality), `stress_overlap_fig.json` (stability).",
@@ -741,8 +784,7 @@ def format_markdown(result: dict, png: str | None, png_note: str) -> str:
                 f"![stability under stress]({png.replace('.png', '_overlap.png')})"]
     else:
         out.append(f"PNG: {png_note}")
-    out.append("")
-    return "\n".join(out)
+    return out
 
 
 def _html(figs) -> str:
