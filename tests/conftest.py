@@ -186,3 +186,20 @@ def serve_fake_llm(monkeypatch, reply: str):
     finally:
         server.shutdown()
         server.server_close()
+
+
+@pytest.fixture(scope="session")
+def real_pipeline(tmp_path_factory):
+    """The real pipeline (shipped default-s weights) on a 600-entry world corpus, built once
+    per session."""
+    from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
+    from ratouch.paths import generator_weights
+    from ratouch.serve.pipeline import RATouchPipeline, embed_and_index
+
+    if not (generator_weights("default-s", "ra") / "manifest.json").is_file():
+        pytest.skip("the trained retriever/generator weights are not in assets/")
+    folder = tmp_path_factory.getbasetemp() / "app-corpus-600"
+    if not (folder / MANIFEST).is_file():
+        build_corpus(folder, 600, progress=False)
+    embed_and_index(folder, "default-s", workers=1, progress=False)  # a no-op once done
+    return RATouchPipeline.load("default-s", corpus=folder)

@@ -270,3 +270,27 @@ def test_with_search_changes_search_settings_only(data, hnsw):
     assert recall(ids, brute_force(data[0], data[1], 5)) >= 0.9
     with pytest.raises(ConfigError, match="hnsw_m=8 cannot change"):
         hnsw.with_search(hnsw_m=8)
+
+
+@pytest.mark.parametrize("cfg", [IndexConfig(kind="flat"),
+                                 IndexConfig(kind="hnsw", hnsw_m=16, ef_construction=40,
+                                             ef_search=64),
+                                 IndexConfig(kind="ivfpq", nlist=16, nprobe=16, refine_factor=8)],
+                         ids=["flat", "hnsw", "ivfpq+refine"])
+def test_planted_neighbours_are_found_in_order(cfg):
+    """Each query has five planted copies at increasing distances among 2000 random vectors:
+    the top-5 must be exactly those, nearest first."""
+    rng = np.random.default_rng(7)
+    background = rng.normal(size=(2000, DIM)).astype(np.float32)
+    queries = rng.normal(size=(20, DIM)).astype(np.float32)
+    queries /= np.linalg.norm(queries, axis=1, keepdims=True)
+    planted, truth = [], []
+    for j, q in enumerate(queries):
+        noise = rng.normal(size=(5, DIM)).astype(np.float32)
+        noise /= np.linalg.norm(noise, axis=1, keepdims=True)
+        planted.append(q + np.array([0.02, 0.05, 0.1, 0.15, 0.2], np.float32)[:, None] * noise)
+        truth.append(len(background) + 5 * j + np.arange(5))
+    corpus = np.concatenate([background, *planted])
+    index = VectorIndex.build(corpus, cfg)
+    _, ids = index.search(queries, 5)
+    np.testing.assert_array_equal(ids, np.array(truth))

@@ -88,4 +88,22 @@ def test_retrieval_eval_reports_every_setting(small_corpus, debug_encoders):
     out = evaluate_retrieval(r, queries=q, ks=(1, 5))
     assert set(out["settings"]) == {"image_image", "image_text", "tactile_image", "tactile_text"}
     m = out["settings"]["tactile_text"]["all"]["5"]
-    assert 0 <= m["material_precision"] <= 1 and 0 <= m["adjective_overlap"] <= 1
+    # the reported P@5 is the share of the top-5 made of the query's material
+    emb = r.embed_queries(q["crops"], q["tactiles"], q["backgrounds"])
+    ids = r.retrieve(emb, 5, settings=["tactile_text"])["tactile_text"][1]
+    mats = np.array([e.material for e in r.corpus.entries])
+    want = np.mean(mats[ids] == np.asarray(q["materials"])[:, None])
+    assert m["material_precision"] == pytest.approx(want, abs=1e-4)
+    assert out["chance"]["5"]["material_precision"] < 0.2
+
+
+@pytest.mark.slow
+def test_joint_query_beats_the_image_query_on_look_alike_materials(real_pipeline):
+    """Look-alike materials share their look, so the image query cannot tell them apart;
+    touch can, and the Tactile-Guided Retriever's joint query must use it."""
+    r = evaluate_retrieval(real_pipeline.retriever, ks=(5,),
+                           joint_fn=real_pipeline.joint_query)
+    p5 = {s: r["settings"][s]["look_alike"]["5"]["material_precision"]
+          for s in ("image_text", "tactile_text", "joint_text")}
+    assert p5["joint_text"] > p5["image_text"] + 0.1
+    assert p5["image_text"] > r["chance"]["5"]["material_precision"]
