@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ratouch.errors import ConfigError
 from ratouch.vocabulary import TACTILE_WORDS
 from ratouch.world.texture import PatternSpec
 
@@ -64,12 +65,12 @@ class Material:
     def __post_init__(self) -> None:
         for word, w in self.profile:
             if word not in TACTILE_WORDS:
-                raise ValueError(f"Material {self.name!r}: profile word {word!r} is not tactile")
+                raise ConfigError(f"Material {self.name!r}: profile word {word!r} is not tactile")
             if w <= 0:
-                raise ValueError(f"Material {self.name!r}: weight of {word!r} must be > 0")
+                raise ConfigError(f"Material {self.name!r}: weight of {word!r} must be > 0")
         for c in self.look.palette:
             if c not in COLOURS:
-                raise ValueError(f"Material {self.name!r}: unknown colour {c!r}")
+                raise ConfigError(f"Material {self.name!r}: unknown colour {c!r}")
 
     @property
     def compliance(self) -> float:
@@ -300,13 +301,13 @@ def material(name: str) -> Material:
     try:
         return MATERIALS[MATERIAL_INDEX[name]]
     except KeyError as e:
-        raise ValueError(f"unknown material {name!r}; known: {sorted(MATERIAL_INDEX)}") from e
+        raise ConfigError(f"unknown material {name!r}; known: {sorted(MATERIAL_INDEX)}") from e
 
 
 def groups(kind: str) -> dict[str, list[str]]:
     """Members of each look-alike (kind="look") or feel-alike (kind="feel") group."""
     if kind not in ("look", "feel"):
-        raise ValueError(f"kind={kind!r} must be 'look' or 'feel'")
+        raise ConfigError(f"kind={kind!r} must be 'look' or 'feel'")
     out: dict[str, list[str]] = {}
     for m in MATERIALS:
         g = m.look_group if kind == "look" else m.feel_group

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from importlib import resources
 
+from ratouch.errors import ConfigError
 from ratouch.world.material import MATERIAL_INDEX
 
 # Typical width / height of each silhouette family's bounding box.
@@ -37,17 +38,17 @@ def _load() -> tuple[ObjectClass, ...]:
             continue
         name, family, mats = (part.strip() for part in line.split("|"))
         if family not in FAMILY_ASPECT:
-            raise ValueError(f"objects.txt line {n}: unknown silhouette family {family!r}")
+            raise ConfigError(f"objects.txt line {n}: unknown silhouette family {family!r}")
         weights = []
         for item in mats.split():
             mat, w = item.rsplit(":", 1)
             if mat not in MATERIAL_INDEX:
-                raise ValueError(f"objects.txt line {n}: unknown material {mat!r}")
+                raise ConfigError(f"objects.txt line {n}: unknown material {mat!r}")
             weights.append((mat, float(w)))
         out.append(ObjectClass(name, family, tuple(weights)))
     names = [c.name for c in out]
     if len(set(names)) != len(names):
-        raise ValueError("objects.txt: duplicate class names")
+        raise ConfigError("objects.txt: duplicate class names")
     return tuple(out)
 
 

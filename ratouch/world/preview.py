@@ -8,6 +8,7 @@ from typing import Sequence
 import numpy as np
 from PIL import Image, ImageDraw
 
+from ratouch.errors import ConfigError
 from ratouch.world.generator import Sample
 
 _TILE_W, _TILE_H, _TEXT_H = 2, 1, 40  # layout units: visual and tactile side by side
@@ -25,7 +26,7 @@ def draw_box(image: np.ndarray, box: Sequence[int], colour=(255, 40, 40), width:
 def contact_sheet(samples: Sequence[Sample], columns: int = 4, scale: int = 2) -> Image.Image:
     """Lay samples out in a grid: visual (box drawn), tactile, and two lines of text."""
     if not samples:
-        raise ValueError("contact_sheet needs at least one sample")
+        raise ConfigError("contact_sheet needs at least one sample")
     s = samples[0].visual.shape[0] * scale
     th, tw = (d * scale for d in samples[0].tactile.shape[:2])
     cell_w, cell_h = s + tw + 12, max(s, th) + _TEXT_H

@@ -26,6 +26,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from ratouch.errors import ConfigError
+
 __all__ = ["FAMILIES", "fill_fraction", "mask_bbox", "natural_aspect", "silhouette_mask"]
 
 _INF = math.inf
@@ -176,7 +178,7 @@ class _Ellipse(_Prim):
         self.clip = (xlo, xhi, ylo, yhi)
         if angle:
             if self.clip != (-_INF, _INF, -_INF, _INF):
-                raise ValueError("a rotated ellipse cannot be clipped")
+                raise ConfigError("a rotated ellipse cannot be clipped")
             a = math.radians(angle)
             self.cos, self.sin = math.cos(a), math.sin(a)
             hx = math.hypot(rx * self.cos, ry * self.sin)
@@ -193,7 +195,7 @@ class _Ellipse(_Prim):
         ya, yb = max(ylo, cy - ry), min(yhi, cy + ry)
         xa, xb = max(xlo, cx - rx), min(xhi, cx + rx)
         if ya > yb or xa > xb:
-            raise ValueError("clip box misses the ellipse")
+            raise ConfigError("clip box misses the ellipse")
         yn = min(max(cy, ya), yb)  # row of the clip band nearest the centre: widest there
         xn = min(max(cx, xa), xb)
         hw = rx * math.sqrt(max(0.0, 1.0 - ((yn - cy) / ry) ** 2))
@@ -917,7 +919,7 @@ def _builder(family: str) -> Callable[[float, float, float, float], list[_Part]]
     try:
         return _BUILDERS[family]
     except (KeyError, TypeError):
-        raise ValueError(
+        raise ConfigError(
             f"unknown silhouette family {family!r}; valid families: {', '.join(FAMILIES)}"
         ) from None
 
@@ -928,7 +930,7 @@ def _variant(variant: Sequence[float] | np.ndarray) -> tuple[float, float, float
     except (TypeError, ValueError):
         vals = []
     if len(vals) != 4 or not all(math.isfinite(t) for t in vals):
-        raise ValueError(f"variant must be 4 finite numbers in [0, 1], got {variant!r}")
+        raise ConfigError(f"variant must be 4 finite numbers in [0, 1], got {variant!r}")
     a, b, c, d = (min(1.0, max(0.0, t)) for t in vals)
     return a, b, c, d
 
@@ -976,17 +978,17 @@ def silhouette_mask(
     try:
         h, w = (int(s) for s in shape_hw)
     except (TypeError, ValueError):
-        raise ValueError(f"shape_hw must be (H, W), got {shape_hw!r}") from None
+        raise ConfigError(f"shape_hw must be (H, W), got {shape_hw!r}") from None
     if h < 0 or w < 0:
-        raise ValueError(f"shape_hw must be non-negative, got {shape_hw!r}")
+        raise ConfigError(f"shape_hw must be non-negative, got {shape_hw!r}")
     try:
         bx0, by0, bx1, by1 = (float(t) for t in bbox)
     except (TypeError, ValueError):
-        raise ValueError(f"bbox must be (x0, y0, x1, y1), got {bbox!r}") from None
+        raise ConfigError(f"bbox must be (x0, y0, x1, y1), got {bbox!r}") from None
     if not all(math.isfinite(t) for t in (bx0, by0, bx1, by1)):
-        raise ValueError(f"bbox must be finite, got {bbox!r}")
+        raise ConfigError(f"bbox must be finite, got {bbox!r}")
     if bx1 <= bx0 or by1 <= by0:
-        raise ValueError(f"degenerate bbox {bbox!r}: need x1 > x0 and y1 > y0")
+        raise ConfigError(f"degenerate bbox {bbox!r}: need x1 > x0 and y1 > y0")
     vals = _variant(variant)
 
     out = np.zeros((h, w), dtype=bool)
@@ -1043,7 +1045,7 @@ def mask_bbox(mask: np.ndarray) -> tuple[int, int, int, int] | None:
     """
     m = np.asarray(mask)
     if m.ndim != 2:
-        raise ValueError(f"mask must be 2-D, got shape {m.shape}")
+        raise ConfigError(f"mask must be 2-D, got shape {m.shape}")
     cols = np.flatnonzero(m.any(axis=0))
     if cols.size == 0:
         return None

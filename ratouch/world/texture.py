@@ -13,6 +13,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from ratouch.errors import ConfigError
+
 TILE = 256  # tile side in texels; must stay a power of two for the mip pyramid
 
 
@@ -36,11 +38,11 @@ class PatternSpec:
 
     def __post_init__(self) -> None:
         if self.kind not in PATTERNS:
-            raise ValueError(f"PatternSpec.kind={self.kind!r} is not one of {sorted(PATTERNS)}")
+            raise ConfigError(f"PatternSpec.kind={self.kind!r} is not one of {sorted(PATTERNS)}")
         if not 1.0 <= self.period <= TILE / 2:
-            raise ValueError(f"PatternSpec.period={self.period} must lie in [1, {TILE // 2}]")
+            raise ConfigError(f"PatternSpec.period={self.period} must lie in [1, {TILE // 2}]")
         if not 0.0 <= self.rough <= 1.0:
-            raise ValueError(f"PatternSpec.rough={self.rough} must lie in [0, 1]")
+            raise ConfigError(f"PatternSpec.rough={self.rough} must lie in [0, 1]")
 
     def param(self, name: str, default: float) -> float:
         return dict(self.params).get(name, default)
