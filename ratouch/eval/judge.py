@@ -550,18 +550,62 @@ def read_records(path: str | os.PathLike) -> list[dict]:
     return check_records(data, str(path))
 
 
+BOOTSTRAP_SAMPLES = 2000
+
+
+def mean_ci(values: Sequence[float], level: float = 0.95, n_boot: int = BOOTSTRAP_SAMPLES,
+            seed: int = 0) -> tuple[float, float, float]:
+    """(mean, low, high): the mean and its percentile bootstrap CI (seeded, so reproducible).
+
+    Raises:
+        DataError: If `values` is empty.
+    """
+    x = np.asarray(values, dtype=np.float64)
+    if x.size == 0:
+        raise DataError("a confidence interval needs at least one value")
+    if not 0 < level < 1:
+        raise ConfigError(f"level {level} must lie in (0, 1)")
+    means = x[np.random.default_rng(seed).integers(0, x.size, (n_boot, x.size))].mean(1)
+    lo, hi = np.quantile(means, [(1 - level) / 2, (1 + level) / 2])
+    return float(x.mean()), float(lo), float(hi)
+
+
+def score_stats(labels: Sequence[str], responses: Sequence[str | None], scores: Sequence[float],
+                seed: int = 0) -> dict:
+    """What every system comparison prints: the judge mean with its 95 % bootstrap CI, label
+    adjective F1 and the mean number of adjectives per answer (failed answers count 0).
+
+    Returns:
+        ``{"n", "mean", "ci_low", "ci_high", "f1", "mean_length"}``.
+    """
+    if not len(labels) == len(responses) == len(scores):
+        raise DataError(f"{len(labels)} labels, {len(responses)} responses, {len(scores)} scores")
+    mean, lo, hi = mean_ci(scores, seed=seed)
+    return {"n": len(scores), "mean": mean, "ci_low": lo, "ci_high": hi,
+            "f1": float(np.mean([adjective_f1(lab, r) for lab, r in zip(labels, responses)])),
+            "mean_length": float(np.mean([len(parse_adjectives(r)) for r in responses]))}
+
+
+def format_stats(s: Mapping) -> str:
+    """``7.945 [7.901, 7.988]  F1 0.606  3.4 adj`` from `score_stats`."""
+    return (f"{s['mean']:.3f} [{s['ci_low']:.3f}, {s['ci_high']:.3f}]  F1 {s['f1']:.3f}  "
+            f"{s['mean_length']:.1f} adj")
+
+
 def _mean(values: list[float]) -> float | None:
     return float(np.mean(values)) if values else None
 
 
 def judge_results(records: list[dict], judge: OfflineJudge | LLMJudge) -> tuple[list[dict], dict]:
-    """Score every record of a TVL-format list.
+    """Score every record of a TVL-format list (as one system: the offline judge measures the
+    system's word rates on these answers).
 
     Returns:
         (copies of the records with ``judge.key`` -- ``offline_score`` or ``llm_score`` -- added,
         summary). A null or empty response scores 1 and counts as failed. The summary holds,
-        per subset (SSVTP, HCT, overall), n, n_failed, the judge's mean and, where the
-        ``evaluation`` field parses, the GPT-4 mean and how many parsed.
+        per subset (SSVTP, HCT, overall), n, n_failed, the judge's mean with its 95 % bootstrap
+        CI, adjective F1 and mean length (`score_stats`) and, where the ``evaluation`` field
+        parses, the GPT-4 mean and how many parsed.
     """
     check_records(records)
     failed = [_is_failed(r[RESPONSE_KEY]) for r in records]
@@ -580,8 +624,10 @@ def judge_results(records: list[dict], judge: OfflineJudge | LLMJudge) -> tuple[
     subsets = {}
     for name, idx in groups.items():
         gpt = [g for g in (parse_gpt_score(records[i].get(EVAL_KEY)) for i in idx) if g is not None]
-        subsets[name] = {"n": len(idx), "n_failed": sum(failed[i] for i in idx),
-                         "mean": _mean([scores[i] for i in idx]),
+        stats = (score_stats([records[i][LABEL_KEY] for i in idx],
+                             [records[i][RESPONSE_KEY] for i in idx], [scores[i] for i in idx])
+                 if idx else {"mean": None})
+        subsets[name] = {**stats, "n": len(idx), "n_failed": sum(failed[i] for i in idx),
                          "gpt4_mean": _mean(gpt), "n_gpt4": len(gpt)}
     summary = {"judge": judge.name, "score_key": judge.key, "n": len(records),
                "n_failed": sum(failed), "subsets": subsets, **judge.stats()}
@@ -589,13 +635,18 @@ def judge_results(records: list[dict], judge: OfflineJudge | LLMJudge) -> tuple[
 
 
 def format_summary(summary: dict) -> str:
-    """Per-subset means as a small table."""
+    """Per-subset means (95 % bootstrap CI, adjective F1, mean length) as a small table."""
     judge = summary["judge"]
-    lines = [f"{'subset':<9}{'n':>5}{'failed':>8}{judge:>9}{'GPT-4':>8}"]
+    lines = [f"{'subset':<9}{'n':>5}{'failed':>8}  {judge + ' [95% CI]':<26}{'F1':>6}{'adj':>6}"
+             f"{'GPT-4':>8}"]
     for name, s in summary["subsets"].items():
-        mean = f"{s['mean']:.3f}" if s["mean"] is not None else "-"
+        if s["mean"] is None:
+            lines.append(f"{name:<9}{s['n']:>5}{s['n_failed']:>8}  -")
+            continue
         gpt = f"{s['gpt4_mean']:.3f}" if s["gpt4_mean"] is not None else "-"
-        lines.append(f"{name:<9}{s['n']:>5}{s['n_failed']:>8}{mean:>9}{gpt:>8}")
+        ci = f"{s['mean']:.3f} [{s['ci_low']:.3f}, {s['ci_high']:.3f}]"
+        lines.append(f"{name:<9}{s['n']:>5}{s['n_failed']:>8}  {ci:<26}{s['f1']:>6.3f}"
+                     f"{s['mean_length']:>6.1f}{gpt:>8}")
     if judge == "llm":
         lines.append(f"LLM requests {summary['n_requests']}, errors {summary['n_errors']}, "
                      f"unparseable {summary['n_unparseable']}, "
@@ -921,4 +972,105 @@ def format_validation(r: dict) -> str:
     lines.append("ranking offline: " + " > ".join(r["ranking_offline"])
                  + ("  (identical)" if r["ranking_identical"] else "  (DIFFERENT)"))
     lines.append("ranking F1:      " + " > ".join(r["ranking_f1"]))
+    return "\n".join(lines + _format_loso(r["loso"], r["targets"])
+                     + _format_shifts(r["style_shifts"]))
+
+
+def _format_loso(lo: dict, targets: Mapping) -> list[str]:
+    met = (lo["max_abs_error"] <= targets["max_abs_mean_error"] and lo["ranking_identical"]
+           and lo["pooled_spearman"] >= targets["pooled_spearman"])
+    lines = ["", "leave one system out (fit on the other two systems' FIT answers, judge the "
+                 "held-out system's held-out answers):",
+             f"{'held-out system':<22}{'GPT-4':>8}{'offline':>9}{'error':>8}{'rho':>7}"]
+    for m, s in lo["per_system"].items():
+        lines.append(f"{m:<22}{s['gpt4']:>8.3f}{s['offline']:>9.3f}{s['error']:>+8.3f}"
+                     f"{s['spearman']:>7.3f}")
+    lines.append(f"pooled Spearman {lo['pooled_spearman']:.3f} (target >= "
+                 f"{targets['pooled_spearman']}), max |mean error| {lo['max_abs_error']:.3f} "
+                 f"(target <= {targets['max_abs_mean_error']}), ranking "
+                 f"{'preserved' if lo['ranking_identical'] else 'CHANGED'}: "
+                 f"{'targets met' if met else 'TARGET MISSED'}")
+    return lines
+
+
+def _format_shifts(sh: dict) -> list[str]:
+    lines = ["", f"style shifts of the held-out answers (judge mean as written "
+                 f"{sh['original']:.3f}; GPT-4 chance level {sh['chance_level_gpt4']:.3f}; "
+                 f"padding words: {', '.join(sh['pad_words'])}):",
+             f"{'shift':<10}{'mean':>8}{'change':>8}  expected"]
+    for kind, s in sh["shifts"].items():
+        lines.append(f"{kind:<10}{s['mean']:>8.3f}{s['change']:>+8.3f}  {s['expected']}: "
+                     f"{'yes' if s['as_expected'] else 'NO'}")
+    return lines
+
+
+# --------------------------------------------------------------------------- explain / compare
+
+
+def explain_results(records: list[dict], judge: OfflineJudge | None = None) -> list[dict]:
+    """Per record (one system's answers): label, answer, per-word table and score."""
+    judge = judge if judge is not None else OfflineJudge()
+    check_records(records)
+    rates = answer_rates(r[RESPONSE_KEY] for r in records)
+    return [judge.explain(r[LABEL_KEY], r[RESPONSE_KEY], rates) for r in records]
+
+
+def format_explain(explained: Sequence[dict]) -> str:
+    """One block per answer: score, label, then each word with its status and weight."""
+    lines = []
+    for i, e in enumerate(explained):
+        lines.append(f"[{i}] score {e['score']:.2f}  label: {', '.join(e['label'])}")
+        if not e["words"]:
+            lines.append("    (no adjectives: failed answer, scored 1)")
+        for t in e["words"]:
+            match = (f" ~ {t['label_word']} (sim {t['similarity']:.2f})"
+                     if t["status"] in ("matched", "ignored") and t["label_word"] else "")
+            clash = f" clash {t['clash']:.2f}" if t["clash"] else ""
+            lines.append(f"    {t['word']:<14}{t['status']:<12}weight {t['weight']:.2f} "
+                         f"(label rate {t['label_rate']:.2f}, system rate {t['system_rate']:.2f})"
+                         f"{match}{clash}")
+    return "\n".join(lines)
+
+
+def compare_judges(files: Mapping[str, list[dict]], llm: LLMJudge,
+                   offline: OfflineJudge | None = None) -> dict:
+    """Agreement of the offline judge with an LLM judge on the user's own result files.
+
+    Returns per file n, both means and their difference (offline - LLM), the Spearman rho of
+    the per-answer scores (None where either judge gives one constant score), the pooled rho,
+    and the LLM judge's request counters.
+    """
+    offline = offline if offline is not None else OfflineJudge()
+    per_file, all_off, all_llm = {}, [], []
+    for name, records in files.items():
+        off = [r[offline.key] for r in judge_results(records, offline)[0]]
+        lm = [r[llm.key] for r in judge_results(records, llm)[0]]
+        per_file[name] = {"n": len(records), "offline_mean": float(np.mean(off)),
+                          "llm_mean": float(np.mean(lm)),
+                          "mean_diff": float(np.mean(off) - np.mean(lm)),
+                          "spearman": _safe_spearman(off, lm)}
+        all_off += off
+        all_llm += lm
+    return {"files": per_file, "pooled_spearman": _safe_spearman(all_off, all_llm),
+            "llm": llm.stats()}
+
+
+def _safe_spearman(a: Sequence[float], b: Sequence[float]) -> float | None:
+    if len(a) < 2 or len(set(a)) < 2 or len(set(b)) < 2:
+        return None
+    return _spearman(a, b)
+
+
+def format_compare(r: dict) -> str:
+    """The offline-vs-LLM agreement table."""
+    def rho(x):
+        return "-" if x is None else f"{x:.3f}"
+
+    lines = [f"{'file':<40}{'n':>5}{'offline':>9}{'LLM':>8}{'diff':>8}{'rho':>7}"]
+    for name, s in r["files"].items():
+        lines.append(f"{name[-40:]:<40}{s['n']:>5}{s['offline_mean']:>9.3f}{s['llm_mean']:>8.3f}"
+                     f"{s['mean_diff']:>+8.3f}{rho(s['spearman']):>7}")
+    lines.append(f"pooled Spearman rho {rho(r['pooled_spearman'])}; LLM requests "
+                 f"{r['llm']['n_requests']}, errors {r['llm']['n_errors']}, fallbacks to the "
+                 f"offline judge {r['llm']['n_fallbacks']}")
     return "\n".join(lines)
