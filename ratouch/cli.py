@@ -244,6 +244,9 @@ def _add_judge(sub) -> None:
     j.add_argument("--validate", action="store_true",
                    help="the offline judge's agreement with GPT-4 on held-out samples, on a "
                         "held-out system (leave one out) and under style shifts")
+    j.add_argument("--length-effect", action="store_true",
+                   help="a material oracle's score on the world's test split with 2/3/4/5 "
+                        "adjectives (the judge's length effect)")
     j.add_argument("--fit", action="store_true",
                    help="refit the offline judge's calibration on the FIT part and write it")
     j.add_argument("--json", action="store_true", help="print JSON")
@@ -610,7 +613,7 @@ def _run_bench(args: argparse.Namespace) -> int:
 
 def _check_judge_args(args: argparse.Namespace) -> None:
     files = args.file
-    if not (files or args.validate or args.fit):
+    if not (files or args.validate or args.fit or args.length_effect):
         raise _usage("judge needs FILE --out SCORED.json, FILE --explain, FILE --compare, "
                      "--validate or --fit")
     if (args.explain or args.compare) and not files:
@@ -644,6 +647,10 @@ def _run_judge(args: argparse.Namespace) -> int:
         report["compare"] = J.compare_judges(records, llm)
     if args.validate:
         report["validation"] = J.validate_judge()
+    if args.length_effect:
+        from ratouch.eval.tvl import oracle_length_effect  # imports torch and the world
+
+        report["length_effect"] = oracle_length_effect()
     if scored is not None:
         write_json_atomic(args.out, scored)
         report["out"] = str(args.out)
@@ -671,6 +678,12 @@ def _print_judge_report(J, args: argparse.Namespace, report: dict) -> None:
         print(J.format_compare(report["compare"]))
     if "validation" in report:
         print(J.format_validation(report["validation"]))
+    if "length_effect" in report:
+        le = report["length_effect"]
+        print("material oracle on the world's test split (the n heaviest profile words):")
+        for n, s in le["stats"].items():
+            print(f"  {n} adjectives: {J.format_stats(s)}")
+        print(f"  spread {le['spread']:.3f}")
 
 
 def _run_app(args: argparse.Namespace) -> int:

@@ -366,7 +366,13 @@ def test_cli_bad_input_writes_nothing(tmp_path, capsys, content, fragment):
 @pytest.mark.parametrize("argv", [["judge"], ["judge", "{tmp}/in.json"],
                                   ["judge", "--out", "{tmp}/o.json"],
                                   ["judge", "{tmp}/in.json", "--out", "{tmp}/o.json",
-                                   "--judge", "llm", "--endpoint", "not a url"]])
+                                   "--judge", "llm", "--endpoint", "not a url"],
+                                  ["judge", "--explain"], ["judge", "--compare"],
+                                  ["judge", "{tmp}/in.json", "{tmp}/in.json", "--out",
+                                   "{tmp}/o.json"],
+                                  ["judge", "{tmp}/in.json", "--compare"],  # no endpoint
+                                  ["judge", "{tmp}/in.json", "--compare", "--out", "{tmp}/o.json",
+                                   "--endpoint", "http://127.0.0.1:9/v1"]])
 def test_cli_usage_errors(tmp_path, capsys, monkeypatch, argv):
     monkeypatch.delenv("RATOUCH_JUDGE_ENDPOINT", raising=False)
     (tmp_path / "in.json").write_text(json.dumps(HAND_MADE))
@@ -465,3 +471,74 @@ def test_llm_judge_results_and_cli(fake_llm, tmp_path, capsys, monkeypatch):
 def test_llm_judge_config_rejects(kw, fragment):
     with pytest.raises(ConfigError, match=fragment):
         J.LLMJudgeConfig(**{"endpoint": "http://127.0.0.1:9/v1", **kw})
+
+
+def test_cli_explain_shows_each_word_and_its_weight(tmp_path, capsys):
+    src = tmp_path / "in.json"
+    src.write_text(json.dumps(HAND_MADE))
+    assert main(["judge", str(src), "--explain"]) == 0
+    text = capsys.readouterr().out
+    assert "[0] score" in text and "label: soft, plush, fabric" in text
+    assert "matched" in text and "weight" in text and "~ plush" in text
+    assert "clash" in text  # "rough, matte, soft" against "hard, smooth, glossy"
+    assert "failed answer, scored 1" in text
+    assert not list(tmp_path.glob("*.json"))[1:]  # nothing written
+    assert main(["judge", str(src), "--explain", "--json"]) == 0
+    (explained,) = json.loads(capsys.readouterr().out)["explain"].values()
+    words = {t["word"]: t for t in explained[1]["words"]}
+    assert words["soft"]["status"] == "clash" and 0 < words["soft"]["weight"] <= 1
+    assert explained[0]["score"] == pytest.approx(J.OfflineJudge().score_many(
+        [(r["label"], r["generated response"]) for r in HAND_MADE])[0])
+
+
+def test_cli_compare_with_a_local_llm_judge(tmp_path, capsys, monkeypatch):
+    """`judge --compare`: the offline judge's agreement with a (fake) LLM judge on own files."""
+    monkeypatch.delenv(KEY_ENV, raising=False)
+    labels = ["soft, plush, fabric", "hard, smooth, glossy", "rough, coarse, uneven",
+              "soft, woven, fibrous", "hard, metallic, cold"] * 4
+    good = ["soft, plush", "hard, smooth, rigid", "rough, coarse", "woven, soft", "hard, metallic"]
+    bad = ["hard, rigid", "rough, matte", "smooth, glossy", "hard, metallic", "soft, plush"]
+    files = []
+    for name, answers in (("good", good * 4), ("mixed", (good[:2] + bad[2:]) * 4),
+                          ("bad", bad * 4)):
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps([{"label": lab, "generated response": a}
+                                    for lab, a in zip(labels, answers)]))
+        files.append(str(path))
+    with serve_fake_llm(monkeypatch, "") as state:
+        state.mode = "grade"
+        argv = ["judge", *files, "--compare", "--endpoint", state.endpoint,
+                "--api-key-env", KEY_ENV]
+        assert main(argv + ["--json"]) == 0
+        r = json.loads(capsys.readouterr().out)["compare"]
+        assert main(argv) == 0
+        text = capsys.readouterr().out
+    assert list(r["files"]) == files and r["llm"]["n_fallbacks"] == 0
+    assert r["llm"]["n_requests"] == 60
+    f = r["files"]
+    assert f[files[0]]["llm_mean"] > f[files[1]]["llm_mean"] > f[files[2]]["llm_mean"]
+    assert f[files[0]]["offline_mean"] > f[files[1]]["offline_mean"] > f[files[2]]["offline_mean"]
+    assert r["pooled_spearman"] > 0.7
+    for s in f.values():
+        assert s["mean_diff"] == pytest.approx(s["offline_mean"] - s["llm_mean"])
+    assert "pooled Spearman rho" in text and "good.json" in text
+
+
+def test_cli_ttest_prints_ci_f1_and_length(tmp_path, capsys):
+    out = {}
+    for name, answers in (("a", ["soft", "hard", None]), ("b", ["soft, plush", "hard, smooth",
+                                                                "bumpy"])):
+        recs = [{**r, "generated response": a} for r, a in zip(HAND_MADE, answers)]
+        src, dst = tmp_path / f"{name}.json", tmp_path / f"{name}_scored.json"
+        src.write_text(json.dumps(recs))
+        assert main(["judge", str(src), "--out", str(dst)]) == 0
+        out[name] = str(dst)
+    capsys.readouterr()
+    assert main(["eval", "ttest", out["a"], out["b"]]) == 0
+    text = capsys.readouterr().out
+    overall = next(x for x in text.splitlines() if x.strip().startswith("overall") and "A " in x)
+    assert overall.count("[") == 2 and "F1" in overall and "adj" in overall
+    assert main(["eval", "ttest", out["a"], out["b"], "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)["subsets"]["overall"]
+    assert r["stats_a"]["mean_length"] == pytest.approx(2 / 3, abs=1e-4)
+    assert r["stats_b"]["ci_low"] <= r["mean_b"] <= r["stats_b"]["ci_high"]
