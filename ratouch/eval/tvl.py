@@ -157,7 +157,7 @@ def _stats(by_pair: dict, pairs: list, key: str) -> dict:
     recs = [by_pair[p] for p in pairs]
     s = score_stats([r[LABEL_KEY] for r in recs], [r.get(RESPONSE_KEY) for r in recs],
                     [float(r[key]) for r in recs])
-    return {k: round(v, 4) if isinstance(v, float) else v for k, v in s.items()}
+    return s
 
 
 def format_ttest(result: dict, name_a: str = "A", name_b: str = "B") -> str:
