@@ -4,12 +4,16 @@ TVL scores a generated tactile description by asking GPT-4 to rate it against th
 adjectives on a 1-10 scale (`JUDGE_PROMPT` is written in the spirit of TVL's prompt).
 
 `OfflineJudge` needs no network. It splits label and answer into adjectives, compares them with
-hand-made synonym groups and antonym pairs (soft ~ plush ~ cushioned; soft vs hard; ...), turns
-the comparison into six features (exact precision, soft recall, soft precision, antonym clashes,
-number of predicted adjectives, share of non-tactile words such as "cool" or "reflective") and
-maps them to 1-10 with a logistic-linear calibration, ``1 + 9 * sigmoid(b + w . z)``, fitted by
-least squares on the FIT half of the published TVL judge data (`fit_offline_judge`, stored in
-``ratouch/configs/judge/offline.json``). `validate_judge` measures it on the held-out half.
+hand-made synonym groups and antonym pairs (soft ~ plush ~ cushioned; soft vs hard; ...) and
+weighs every answer word by its informativeness: words that fit nearly every label (label base
+rates from the fit data) or that the judged system says for nearly every sample (its own word
+rates, measured at judge time on the answers being judged) earn little; antonym clashes cost.
+Five weighted features map to 1-10 with ``1 + 9 * sigmoid(b + w . z)``, fitted by least squares
+on the FIT half of the published TVL judge data (`fit_offline_judge`, stored in
+``ratouch/configs/judge/offline.json``). `validate_judge` measures it on held-out samples, on a
+held-out system (leave one out) and under style shifts; docs/judge.md has the figures.
+`mean_ci` / `score_stats` give the 95 % bootstrap CI, adjective F1 and mean length that every
+system comparison prints.
 
 `LLMJudge` asks any OpenAI-compatible chat-completions endpoint, retries a bounded number of
 times, and falls back to the offline judge when the endpoint fails or answers without a score.
