@@ -233,11 +233,20 @@ def _make_judge(args: argparse.Namespace):
 
 def _add_judge(sub) -> None:
     j = sub.add_parser("judge", help="score TVL-format results with the offline or LLM judge")
-    j.add_argument("file", nargs="?", help="TVL-format JSON list (label, generated response, ...)")
+    j.add_argument("file", nargs="*", help="TVL-format JSON list (label, generated response, ...); "
+                                           "one system per file; several with --compare")
     j.add_argument("--out", help="scored JSON to write (the input plus offline_score/llm_score)")
+    j.add_argument("--explain", action="store_true",
+                   help="print, per answer, the words matched, clashed or ignored and their weights")
+    j.add_argument("--compare", action="store_true",
+                   help="agreement of the offline judge with the LLM judge (--endpoint) on FILE(s)")
     _add_judge_options(j)
     j.add_argument("--validate", action="store_true",
-                   help="print the offline judge's agreement with GPT-4 on the held-out data")
+                   help="the offline judge's agreement with GPT-4 on held-out samples, on a "
+                        "held-out system (leave one out) and under style shifts")
+    j.add_argument("--length-effect", action="store_true",
+                   help="a material oracle's score on the world's test split with 2/3/4/5 "
+                        "adjectives (the judge's length effect)")
     j.add_argument("--fit", action="store_true",
                    help="refit the offline judge's calibration on the FIT part and write it")
     j.add_argument("--json", action="store_true", help="print JSON")
@@ -602,42 +611,79 @@ def _run_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_judge_args(args: argparse.Namespace) -> None:
+    files = args.file
+    if not (files or args.validate or args.fit or args.length_effect):
+        raise _usage("judge needs FILE --out SCORED.json, FILE --explain, FILE --compare, "
+                     "--validate or --fit")
+    if (args.explain or args.compare) and not files:
+        raise _usage("--explain and --compare need an input FILE")
+    if len(files) > 1 and not args.compare:
+        raise _usage(f"{len(files)} files given; only --compare takes several")
+    if files and not (args.out or args.explain or args.compare):
+        raise _usage("judge FILE needs --out SCORED.json (or --explain / --compare)")
+    if args.out and (not files or args.compare):
+        raise _usage("--out needs exactly one input FILE (and no --compare)")
+
+
 def _run_judge(args: argparse.Namespace) -> int:
 
     from ratouch.eval import judge as J
 
-    if not (args.file or args.validate or args.fit):
-        raise _usage("judge needs FILE --out SCORED.json, --validate or --fit")
-    if args.file and not args.out:
-        raise _usage("judge FILE needs --out SCORED.json")
-    if args.out and not args.file:
-        raise _usage("--out needs an input FILE")
+    _check_judge_args(args)
     report: dict = {}
+    llm = (J.LLMJudge(J.LLMJudgeConfig.from_env(args.endpoint, args.model, args.api_key_env))
+           if args.compare else None)  # configuration errors before any work
+    judge = _make_judge(args) if args.out else None
+    records = {f: J.read_records(f) for f in args.file}  # checked before anything is written
     if args.fit:
         report["fit"] = str(J.write_offline_config(J.fit_offline_judge()))
     scored = None
-    if args.file:
-        records = J.read_records(args.file)  # checked before anything is written
-        scored, report["results"] = J.judge_results(records, _make_judge(args))
+    if args.out:
+        scored, report["results"] = J.judge_results(records[args.file[0]], judge)
+    if args.explain:
+        report["explain"] = {f: J.explain_results(r) for f, r in records.items()}
+    if llm is not None:
+        report["compare"] = J.compare_judges(records, llm)
     if args.validate:
         report["validation"] = J.validate_judge()
+    if args.length_effect:
+        from ratouch.eval.tvl import oracle_length_effect  # imports torch and the world
+
+        report["length_effect"] = oracle_length_effect()
     if scored is not None:
         write_json_atomic(args.out, scored)
         report["out"] = str(args.out)
     if args.json:
         print(json.dumps(report, indent=1))
-        return 0
+    else:
+        _print_judge_report(J, args, report)
+    return 0
+
+
+def _print_judge_report(J, args: argparse.Namespace, report: dict) -> None:
     if "fit" in report:
         print(f"wrote the offline judge calibration to {report['fit']}")
     if "results" in report:
         r = report["results"]
-        print(f"{r['judge']} judge on {args.file}: {r['n']} responses, {r['n_failed']} failed "
+        print(f"{r['judge']} judge on {args.file[0]}: {r['n']} responses, {r['n_failed']} failed "
               f"(scored 1)")
         print(J.format_summary(r))
         print(f"wrote {args.out}")
+    for name, explained in report.get("explain", {}).items():
+        print(f"offline judge on {name}, answer by answer:")
+        print(J.format_explain(explained))
+    if "compare" in report:
+        print("offline judge vs LLM judge:")
+        print(J.format_compare(report["compare"]))
     if "validation" in report:
         print(J.format_validation(report["validation"]))
-    return 0
+    if "length_effect" in report:
+        le = report["length_effect"]
+        print("material oracle on the world's test split (the n heaviest profile words):")
+        for n, s in le["stats"].items():
+            print(f"  {n} adjectives: {J.format_stats(s)}")
+        print(f"  spread {le['spread']:.3f}")
 
 
 def _run_app(args: argparse.Namespace) -> int:

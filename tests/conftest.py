@@ -122,11 +122,22 @@ class FakeLLM:
 
     def __init__(self, reply: str) -> None:
         self.reply = reply
-        self.mode = "ok"  # ok | http500 | badjson | sleep | echo
+        self.mode = "ok"  # ok | http500 | badjson | sleep | echo | grade
         self.sleep_s = 1.0
         self.requests: list[dict] = []
         self.lock = threading.Lock()
         self.endpoint = ""
+
+
+def _grade(prompt: str) -> str:
+    """A judge reply to the TVL judge prompt: the share of the answer's words in the label."""
+    fields = {}
+    for line in prompt.splitlines():
+        for key in ("[Assistant's answer]: ", "[Correct answer]: "):
+            if line.startswith(key):
+                fields[key] = {w.strip(" .").lower() for w in line[len(key):].split(",")}
+    answer, label = fields["[Assistant's answer]: "], fields["[Correct answer]: "]
+    return f"{1 + 9 * len(answer & label) / max(len(answer), 1):.1f}\nshare of matched words"
 
 
 def _fake_llm_handler(state: FakeLLM):
@@ -145,6 +156,8 @@ def _fake_llm_handler(state: FakeLLM):
                 data = b"{not json"
             else:
                 content = state.reply
+                if state.mode == "grade":  # a judge: 1 + 9 * share of answer words in the label
+                    content = _grade(body["messages"][-1]["content"])
                 if state.mode == "echo":  # answer depends on the class name in the prompt
                     prompt = body["messages"][0]["content"]
                     line = next(x for x in prompt.splitlines() if x.startswith("Class: "))

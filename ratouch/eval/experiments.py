@@ -246,8 +246,8 @@ class Lab:
         missing = []
         for v in todo:
             cached = self._load(v)
-            if cached is not None:
-                self._results[v] = cached
+            if cached is not None:  # re-judged: the cache keeps answers, the judge may change
+                self._results[v] = self._judge(v, cached["responses"], cached["train_seconds"])
                 self.counts["from_cache"] += 1
             else:
                 missing.append(v)
@@ -284,6 +284,8 @@ class Lab:
         return {"variant": asdict(v), "responses": responses,
                 "scores": [r["offline_score"] for r in records],
                 "means": {k: round(s["mean"], 4) for k, s in summary["subsets"].items()},
+                "stats": {k: {f: round(s[f], 4) for f in ("ci_low", "ci_high", "f1", "mean_length")}
+                          for k, s in summary["subsets"].items()},
                 "train_seconds": round(seconds, 1)}
 
     # -- disk cache ----------------------------------------------------------------------
@@ -361,21 +363,24 @@ def make_integrator(v: Variant, dim: int, out_dim: int):
 
 
 def _row(lab: Lab, name: str, r: dict, base: dict | None) -> list[str]:
-    """A table row: SSVTP / HCT / TVL means, with the gain over the baseline and its p-value."""
+    """A table row: SSVTP / HCT / TVL means with their 95 % bootstrap CI, the gain over the
+    baseline and its p-value; then adjective F1 and mean answer length (overall)."""
     from scipy.stats import ttest_rel
 
     cells = [name]
     subs = np.array(lab.test.subsets)
     for key, sel in (("SSVTP", subs == "structured"), ("HCT", subs == "wild"),
                      ("overall", np.ones(len(subs), bool))):
-        cell = f"{r['means'][key]:.3f}"
+        s = r["stats"][key]
+        cell = f"{r['means'][key]:.3f} [{s['ci_low']:.2f}, {s['ci_high']:.2f}]"
         if base is not None and base is not r:
             a, b = np.array(base["scores"])[sel], np.array(r["scores"])[sel]
             d = float((b - a).mean())
             p = float(ttest_rel(b, a).pvalue) if np.any(b - a) else 1.0
             cell += f" ({d:+.3f}, p={p:.2g})"
         cells.append(cell)
-    return cells
+    s = r["stats"]["overall"]
+    return cells + [f"{s['f1']:.3f}", f"{s['mean_length']:.1f}"]
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -384,7 +389,8 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join(lines)
 
 
-JUDGE_COLS = ["SSVTP (structured)", "HCT (wild)", "TVL (overall)"]
+JUDGE_COLS = ["SSVTP (structured) [95% CI]", "HCT (wild) [95% CI]", "TVL (overall) [95% CI]",
+              "adjective F1", "adjectives / answer"]
 
 
 def _bar(title: str, names: Sequence[str], results: Sequence[dict]):

@@ -4,12 +4,16 @@ TVL scores a generated tactile description by asking GPT-4 to rate it against th
 adjectives on a 1-10 scale (`JUDGE_PROMPT` is written in the spirit of TVL's prompt).
 
 `OfflineJudge` needs no network. It splits label and answer into adjectives, compares them with
-hand-made synonym groups and antonym pairs (soft ~ plush ~ cushioned; soft vs hard; ...), turns
-the comparison into six features (exact precision, soft recall, soft precision, antonym clashes,
-number of predicted adjectives, share of non-tactile words such as "cool" or "reflective") and
-maps them to 1-10 with a logistic-linear calibration, ``1 + 9 * sigmoid(b + w . z)``, fitted by
-least squares on the FIT half of the published TVL judge data (`fit_offline_judge`, stored in
-``ratouch/configs/judge/offline.json``). `validate_judge` measures it on the held-out half.
+hand-made synonym groups and antonym pairs (soft ~ plush ~ cushioned; soft vs hard; ...) and
+weighs every answer word by its informativeness: words that fit nearly every label (label base
+rates from the fit data) or that the judged system says for nearly every sample (its own word
+rates, measured at judge time on the answers being judged) earn little; antonym clashes cost.
+Five weighted features map to 1-10 with ``1 + 9 * sigmoid(b + w . z)``, fitted by least squares
+on the FIT half of the published TVL judge data (`fit_offline_judge`, stored in
+``ratouch/configs/judge/offline.json``). `validate_judge` measures it on held-out samples, on a
+held-out system (leave one out) and under style shifts; docs/judge.md has the figures.
+`mean_ci` / `score_stats` give the 95 % bootstrap CI, adjective F1 and mean length that every
+system comparison prints.
 
 `LLMJudge` asks any OpenAI-compatible chat-completions endpoint, retries a bounded number of
 times, and falls back to the offline judge when the endpoint fails or answers without a score.
@@ -40,7 +44,7 @@ from ratouch.llm_http import (
     is_http_url,
 )
 from ratouch.paths import CONFIGS, TVL_JUDGE_ENV, tvl_judge_dir
-from ratouch.vocabulary import adjective_f1, parse_adjectives
+from ratouch.vocabulary import EXTRA_TACTILE, TVL_ADJECTIVES, adjective_f1, parse_adjectives
 
 logger = logging.getLogger(__name__)
 
@@ -50,6 +54,9 @@ TVL_QUESTION = "This image gives tactile feelings of?"
 MODELS = ("tvl_llama_vits", "tvl_llama_vits_bgs", "tvl_llama_vittiny")
 SUBSETS = ("SSVTP", "HCT")
 GPT4_INTERRUN_SPEARMAN = 0.89  # reference agreement of two GPT-4 judging runs (quoted, not measured)
+# Issue 12's targets on systems the judge was not fitted on.
+TARGETS = {"max_abs_mean_error": 0.15, "pooled_spearman": 0.85, "ranking": "preserved",
+           "length_effect_difference": 0.1}  # |judge - GPT-4| per extra adjective (this project's bound)
 DATA_DIR_ENV = TVL_JUDGE_ENV
 CONFIG_PATH = CONFIGS / "judge" / "offline.json"
 
@@ -156,22 +163,107 @@ def antonymy(a: str, b: str) -> float:
                default=0.0)
 
 
-FEATURES = ("exact_precision", "soft_recall", "soft_precision", "antonym_clash", "n_predicted",
-            "non_tactile_share")
+FEATURES = ("precision", "exact_precision", "recall", "antonym_clash", "non_tactile_share")
+PSEUDO_ANSWERS = 10.0  # a system's word rates are count / (n + 10): one answer ignores nothing
+IGNORE_BELOW = 0.1     # informativeness under this counts as 0 (the word is ignored)
 
 
-def judge_features(label: Sequence[str], predicted: Sequence[str]) -> list[float]:
-    """The `FEATURES` of a predicted adjective list against the label's (both non-empty)."""
-    label_set = set(label)
-    exact_precision = sum(p in label_set for p in predicted) / len(predicted)
-    soft_recall = sum(max(similarity(lw, p) for p in predicted) for lw in label) / len(label)
-    best = [max(similarity(p, lw) for lw in label) for p in predicted]
-    soft_precision = sum(best) / len(predicted)
-    clash = float(sum(max(antonymy(p, lw) for lw in label)
-                      for p, b in zip(predicted, best) if b < _MATCHED))
+@dataclass(frozen=True)
+class WordRates:
+    """How often one system says each word: the share of its answers that contain it.
+
+    Computed at judge time from the answers being judged (`answer_rates`); shrunk towards 0 by
+    `PSEUDO_ANSWERS`, so a file of a few answers ignores little and a word said in every one of
+    400 answers is worth almost nothing.
+    """
+
+    counts: Mapping[str, int]
+    n: int
+
+    def rate(self, word: str) -> float:
+        return self.counts.get(word, 0) / (self.n + PSEUDO_ANSWERS)
+
+
+NO_RATES = WordRates({}, 0)
+
+
+def answer_rates(responses: Iterable[str | None]) -> WordRates:
+    """The word rates of one system's answers (failed answers count as answers saying nothing)."""
+    counts: dict[str, int] = {}
+    n = 0
+    for r in responses:
+        n += 1
+        for w in parse_adjectives(r):
+            counts[w] = counts.get(w, 0) + 1
+    return WordRates(counts, n)
+
+
+def label_fit_rates(labels: Iterable[str], extra_words: Iterable[str] = ()) -> dict[str, float]:
+    """Label-side base rate of every word: its mean best similarity to a label, over labels.
+
+    A word that fits nearly every label ("textured", "uneven") has a rate near 1 and earns little
+    when it matches. Computed for the words of the labels, of `extra_words` and of the lexicon.
+    """
+    labs = [parse_adjectives(x) for x in labels]
+    labs = [x for x in labs if x]
+    if not labs:
+        raise DataError("label base rates need at least one non-empty label")
+    vocab = ({w for x in labs for w in x} | set(extra_words) | set(_MEMBERS)
+             | set(TVL_ADJECTIVES) | set(EXTRA_TACTILE))
+    return {w: round(sum(max(similarity(w, lw) for lw in x) for x in labs) / len(labs), 4)
+            for w in sorted(vocab)}
+
+
+def informativeness(word: str, label_rates: Mapping[str, float], rates: WordRates) -> float:
+    """(1 - b^2) * (1 - f^2), b the word's label base rate and f the system's rate of it; 0
+    below `IGNORE_BELOW`. (Squares: chosen over the linear and square-root forms by
+    leave-one-system-out agreement, see docs/judge.md.)"""
+    u = (1.0 - label_rates.get(word, 0.0) ** 2) * (1.0 - rates.rate(word) ** 2)
+    return u if u >= IGNORE_BELOW else 0.0
+
+
+def word_table(label: Sequence[str], predicted: Sequence[str], label_rates: Mapping[str, float],
+               rates: WordRates = NO_RATES) -> list[dict]:
+    """Per predicted word: best label match, similarity, clash strength, rates and weight."""
+    rows = []
+    for p in predicted:
+        sims = [similarity(p, lw) for lw in label]
+        best = max(sims)
+        clash = max(antonymy(p, lw) for lw in label) if best < _MATCHED else 0.0
+        u = informativeness(p, label_rates, rates)
+        if p in NON_TACTILE:
+            status = "non-tactile"
+        elif best >= _MATCHED:
+            status = "matched" if u > 0 else "ignored"
+        elif clash > 0:
+            status = "clash"
+        else:
+            status = "unmatched" if u > 0 else "ignored"
+        rows.append({"word": p, "status": status, "label_word": label[sims.index(best)] if best
+                     else None, "similarity": round(best, 3), "clash": round(clash, 3),
+                     "label_rate": label_rates.get(p, 0.0), "system_rate": round(rates.rate(p), 3),
+                     "weight": round(u, 3)})
+    return rows
+
+
+def judge_features(label: Sequence[str], predicted: Sequence[str],
+                   label_rates: Mapping[str, float], rates: WordRates = NO_RATES) -> list[float]:
+    """The `FEATURES` of a predicted adjective list against the label's (both non-empty).
+
+    Credit is weighted by informativeness: precision and recall count a predicted word by its
+    weight, so an ignored word (weight 0) neither helps nor hurts; antonym clashes always cost.
+    """
+    table = word_table(label, predicted, label_rates, rates)
+    u = np.array([t["weight"] for t in table])
+    best = np.array([t["similarity"] for t in table])
+    exact = np.array([float(p in set(label)) for p in predicted])
+    mass = float(u.sum())
+    precision = float(u @ best) / mass if mass > 0 else 0.0
+    exact_precision = float(u @ exact) / mass if mass > 0 else 0.0
+    recall = sum(max(similarity(lw, p) * w for p, w in zip(predicted, u)) for lw in label) / len(label)
+    clash = float(sum(t["clash"] for t in table))
     non_tactile = sum(p in NON_TACTILE for p in predicted) / len(predicted)
-    return [exact_precision, soft_recall, soft_precision, clash, float(len(predicted)),
-            non_tactile]
+    return [precision, exact_precision, float(recall), clash, non_tactile]
 
 
 def _is_failed(response: object) -> bool:
@@ -182,11 +274,17 @@ def _is_failed(response: object) -> bool:
 
 
 class OfflineJudge:
-    """Synonym/antonym-aware adjective matching plus a fitted 1-10 calibration.
+    """Informativeness-weighted synonym/antonym matching plus a fitted 1-10 calibration.
+
+    A matched adjective earns credit in proportion to how informative it is: words that fit
+    nearly every label (label base rates from the fit data) and words the judged system says in
+    nearly every answer (its own rates, `answer_rates`, measured by `score_many` on the answers
+    being judged) earn little; contradicted words (antonyms of a label word) cost.
 
     Args:
-        params: Calibration (keys ``features``, ``mean``, ``scale``, ``intercept``, ``weights``),
-            e.g. from `fit_offline_judge`; default: the shipped ``configs/judge/offline.json``.
+        params: Calibration (keys ``features``, ``mean``, ``scale``, ``intercept``, ``weights``,
+            ``label_rates``), e.g. from `fit_offline_judge`; default: the shipped
+            ``configs/judge/offline.json``.
 
     Raises:
         ConfigError: If the calibration is missing or malformed.
@@ -203,28 +301,42 @@ class OfflineJudge:
         self._scale = np.asarray(self.params["scale"], dtype=np.float64)
         self._w = np.asarray(self.params["weights"], dtype=np.float64)
         self._b = float(self.params["intercept"])
+        self.label_rates: dict[str, float] = dict(self.params["label_rates"])
 
-    def explain(self, label: str, response: str | None) -> dict:
-        """Parsed adjectives, features and score of one answer (for people reading a score)."""
+    def _calibrate(self, feats: Sequence[float]) -> float:
+        z = (np.asarray(feats) - self._mean) / self._scale
+        return MIN_SCORE + (MAX_SCORE - MIN_SCORE) / (1.0 + math.exp(-(self._b + float(z @ self._w))))
+
+    def explain(self, label: str, response: str | None, rates: WordRates = NO_RATES) -> dict:
+        """Parsed adjectives, per-word table (matched / clash / ignored ..., weights), features
+        and score of one answer, `rates` being the judged system's word rates."""
         lab, pred = parse_adjectives(label), parse_adjectives(response)
         if not lab:
             raise DataError(f"label {label!r} has no adjectives")
         if not pred:
-            return {"label": lab, "predicted": [], "features": None, "score": MIN_SCORE}
-        feats = judge_features(lab, pred)
-        z = (np.asarray(feats) - self._mean) / self._scale
-        score = MIN_SCORE + (MAX_SCORE - MIN_SCORE) / (1.0 + math.exp(-(self._b + float(z @ self._w))))
-        return {"label": lab, "predicted": pred, "features": dict(zip(FEATURES, feats)),
-                "score": score}
+            return {"label": lab, "predicted": [], "words": [], "features": None,
+                    "score": MIN_SCORE}
+        feats = judge_features(lab, pred, self.label_rates, rates)
+        return {"label": lab, "predicted": pred,
+                "words": word_table(lab, pred, self.label_rates, rates),
+                "features": dict(zip(FEATURES, feats)), "score": self._calibrate(feats)}
 
-    def score(self, label: str, response: str | None) -> float:
+    def score(self, label: str, response: str | None, rates: WordRates = NO_RATES) -> float:
         """Score in [1, 10] of a generated response against the ground-truth label; a missing
-        or empty response scores 1."""
-        return float(self.explain(label, response)["score"])
+        or empty response scores 1. Without `rates` only the label base rates weigh words."""
+        lab, pred = parse_adjectives(label), parse_adjectives(response)
+        if not lab:
+            raise DataError(f"label {label!r} has no adjectives")
+        if not pred:
+            return MIN_SCORE
+        return self._calibrate(judge_features(lab, pred, self.label_rates, rates))
 
     def score_many(self, pairs: Iterable[tuple[str, str | None]]) -> list[float]:
-        """Scores of (label, response) pairs, in order."""
-        return [self.score(label, response) for label, response in pairs]
+        """Scores of (label, response) pairs of ONE system, in order; the system's word rates
+        are measured on these responses."""
+        pairs = list(pairs)
+        rates = answer_rates(r for _, r in pairs)
+        return [self.score(label, response, rates) for label, response in pairs]
 
     def stats(self) -> dict:
         return {}
@@ -233,9 +345,11 @@ class OfflineJudge:
 def _check_params(params: Mapping) -> dict:
     if not isinstance(params, Mapping):
         raise ConfigError(f"offline judge calibration must be a mapping, got {type(params).__name__}")
-    missing = [k for k in ("features", "mean", "scale", "intercept", "weights") if k not in params]
+    missing = [k for k in ("features", "mean", "scale", "intercept", "weights", "label_rates")
+               if k not in params]
     if missing:
-        raise ConfigError(f"offline judge calibration lacks {missing}")
+        raise ConfigError(f"offline judge calibration lacks {missing}; "
+                          "refit with `ratouch judge --fit`")
     if list(params["features"]) != list(FEATURES):
         raise ConfigError(f"offline judge calibration is for features {params['features']}, "
                           f"this code computes {list(FEATURES)}; refit with `ratouch judge --fit`")
@@ -248,6 +362,10 @@ def _check_params(params: Mapping) -> dict:
         raise ConfigError("offline judge calibration 'scale' must be > 0")
     if not isinstance(params["intercept"], (int, float)) or not math.isfinite(params["intercept"]):
         raise ConfigError("offline judge calibration 'intercept' must be a finite number")
+    rates = params["label_rates"]
+    if not isinstance(rates, Mapping) or not all(
+            isinstance(v, (int, float)) and 0 <= v <= 1 for v in rates.values()):
+        raise ConfigError("offline judge calibration 'label_rates' must map words to [0, 1]")
     return dict(params)
 
 
@@ -437,18 +555,62 @@ def read_records(path: str | os.PathLike) -> list[dict]:
     return check_records(data, str(path))
 
 
+BOOTSTRAP_SAMPLES = 2000
+
+
+def mean_ci(values: Sequence[float], level: float = 0.95, n_boot: int = BOOTSTRAP_SAMPLES,
+            seed: int = 0) -> tuple[float, float, float]:
+    """(mean, low, high): the mean and its percentile bootstrap CI (seeded, so reproducible).
+
+    Raises:
+        DataError: If `values` is empty.
+    """
+    x = np.asarray(values, dtype=np.float64)
+    if x.size == 0:
+        raise DataError("a confidence interval needs at least one value")
+    if not 0 < level < 1:
+        raise ConfigError(f"level {level} must lie in (0, 1)")
+    means = x[np.random.default_rng(seed).integers(0, x.size, (n_boot, x.size))].mean(1)
+    lo, hi = np.quantile(means, [(1 - level) / 2, (1 + level) / 2])
+    return float(x.mean()), float(lo), float(hi)
+
+
+def score_stats(labels: Sequence[str], responses: Sequence[str | None], scores: Sequence[float],
+                seed: int = 0) -> dict:
+    """What every system comparison prints: the judge mean with its 95 % bootstrap CI, label
+    adjective F1 and the mean number of adjectives per answer (failed answers count 0).
+
+    Returns:
+        ``{"n", "mean", "ci_low", "ci_high", "f1", "mean_length"}``.
+    """
+    if not len(labels) == len(responses) == len(scores):
+        raise DataError(f"{len(labels)} labels, {len(responses)} responses, {len(scores)} scores")
+    mean, lo, hi = mean_ci(scores, seed=seed)
+    return {"n": len(scores), "mean": mean, "ci_low": lo, "ci_high": hi,
+            "f1": float(np.mean([adjective_f1(lab, r) for lab, r in zip(labels, responses)])),
+            "mean_length": float(np.mean([len(parse_adjectives(r)) for r in responses]))}
+
+
+def format_stats(s: Mapping) -> str:
+    """``7.945 [7.901, 7.988]  F1 0.606  3.4 adj`` from `score_stats`."""
+    return (f"{s['mean']:.3f} [{s['ci_low']:.3f}, {s['ci_high']:.3f}]  F1 {s['f1']:.3f}  "
+            f"{s['mean_length']:.1f} adj")
+
+
 def _mean(values: list[float]) -> float | None:
     return float(np.mean(values)) if values else None
 
 
 def judge_results(records: list[dict], judge: OfflineJudge | LLMJudge) -> tuple[list[dict], dict]:
-    """Score every record of a TVL-format list.
+    """Score every record of a TVL-format list (as one system: the offline judge measures the
+    system's word rates on these answers).
 
     Returns:
         (copies of the records with ``judge.key`` -- ``offline_score`` or ``llm_score`` -- added,
         summary). A null or empty response scores 1 and counts as failed. The summary holds,
-        per subset (SSVTP, HCT, overall), n, n_failed, the judge's mean and, where the
-        ``evaluation`` field parses, the GPT-4 mean and how many parsed.
+        per subset (SSVTP, HCT, overall), n, n_failed, the judge's mean with its 95 % bootstrap
+        CI, adjective F1 and mean length (`score_stats`) and, where the ``evaluation`` field
+        parses, the GPT-4 mean and how many parsed.
     """
     check_records(records)
     failed = [_is_failed(r[RESPONSE_KEY]) for r in records]
@@ -467,8 +629,10 @@ def judge_results(records: list[dict], judge: OfflineJudge | LLMJudge) -> tuple[
     subsets = {}
     for name, idx in groups.items():
         gpt = [g for g in (parse_gpt_score(records[i].get(EVAL_KEY)) for i in idx) if g is not None]
-        subsets[name] = {"n": len(idx), "n_failed": sum(failed[i] for i in idx),
-                         "mean": _mean([scores[i] for i in idx]),
+        stats = (score_stats([records[i][LABEL_KEY] for i in idx],
+                             [records[i][RESPONSE_KEY] for i in idx], [scores[i] for i in idx])
+                 if idx else {"mean": None})
+        subsets[name] = {**stats, "n": len(idx), "n_failed": sum(failed[i] for i in idx),
                          "gpt4_mean": _mean(gpt), "n_gpt4": len(gpt)}
     summary = {"judge": judge.name, "score_key": judge.key, "n": len(records),
                "n_failed": sum(failed), "subsets": subsets, **judge.stats()}
@@ -476,13 +640,18 @@ def judge_results(records: list[dict], judge: OfflineJudge | LLMJudge) -> tuple[
 
 
 def format_summary(summary: dict) -> str:
-    """Per-subset means as a small table."""
+    """Per-subset means (95 % bootstrap CI, adjective F1, mean length) as a small table."""
     judge = summary["judge"]
-    lines = [f"{'subset':<9}{'n':>5}{'failed':>8}{judge:>9}{'GPT-4':>8}"]
+    lines = [f"{'subset':<9}{'n':>5}{'failed':>8}  {judge + ' [95% CI]':<26}{'F1':>6}{'adj':>6}"
+             f"{'GPT-4':>8}"]
     for name, s in summary["subsets"].items():
-        mean = f"{s['mean']:.3f}" if s["mean"] is not None else "-"
+        if s["mean"] is None:
+            lines.append(f"{name:<9}{s['n']:>5}{s['n_failed']:>8}  -")
+            continue
         gpt = f"{s['gpt4_mean']:.3f}" if s["gpt4_mean"] is not None else "-"
-        lines.append(f"{name:<9}{s['n']:>5}{s['n_failed']:>8}{mean:>9}{gpt:>8}")
+        ci = f"{s['mean']:.3f} [{s['ci_low']:.3f}, {s['ci_high']:.3f}]"
+        lines.append(f"{name:<9}{s['n']:>5}{s['n_failed']:>8}  {ci:<26}{s['f1']:>6.3f}"
+                     f"{s['mean_length']:>6.1f}{gpt:>8}")
     if judge == "llm":
         lines.append(f"LLM requests {summary['n_requests']}, errors {summary['n_errors']}, "
                      f"unparseable {summary['n_unparseable']}, "
@@ -535,11 +704,11 @@ def heldout_split(records: list[dict], seed: int = 0, fit_fraction: float = 0.5
     return sorted(fit_set), [i for i in range(len(records)) if i not in fit_set]
 
 
-def _rows(data: Mapping[str, list[dict]], idx: Sequence[int]):
-    """(label, response, GPT-4 score, model, subset) of the answers of every model to samples
+def _rows(data: Mapping[str, list[dict]], idx: Sequence[int], models: Sequence[str] = MODELS):
+    """(label, response, GPT-4 score, model, subset) of the answers of `models` to samples
     `idx`, skipping answers whose GPT-4 evaluation does not parse."""
     rows = []
-    for model in MODELS:
+    for model in models:
         for i in idx:
             rec = data[model][i]
             gpt = parse_gpt_score(rec.get(EVAL_KEY))
@@ -549,23 +718,27 @@ def _rows(data: Mapping[str, list[dict]], idx: Sequence[int]):
     return rows
 
 
-def fit_offline_judge(data_dir: str | os.PathLike | None = None, seed: int = 0,
-                      fit_fraction: float = 0.5) -> dict:
-    """Fit the offline judge's calibration on the FIT part of the TVL judge data only.
+def fit_calibration(data: Mapping[str, list[dict]], models: Sequence[str], idx: Sequence[int],
+                    meta: Mapping | None = None) -> dict:
+    """Fit label base rates and the 1-10 calibration on the answers of `models` to samples `idx`.
 
-    Least squares of ``1 + 9 * sigmoid(b + w . z)`` against the GPT-4 scores, z the
-    standardised `FEATURES` of every non-failed answer of the three models to the FIT samples.
+    Label base rates come from the labels of `idx`; each model's word rates from its own answers
+    to `idx` (as `score_many` measures them at judge time); then least squares of
+    ``1 + 9 * sigmoid(b + w . z)`` against GPT-4, z the standardised `FEATURES`.
     """
     from scipy.optimize import least_squares
 
-    data = load_tvl_results(data_dir)
-    fit_idx, _ = heldout_split(data[MODELS[0]], seed, fit_fraction)
+    labels = [data[models[0]][i][LABEL_KEY] for i in idx]
+    answer_words = {w for m in models for i in idx for w in parse_adjectives(data[m][i][RESPONSE_KEY])}
+    label_rates = label_fit_rates(labels, answer_words)
     X, y = [], []
-    for label, response, gpt, _, _ in _rows(data, fit_idx):
-        pred = parse_adjectives(response)
-        if pred:
-            X.append(judge_features(parse_adjectives(label), pred))
-            y.append(gpt)
+    for model in models:
+        rates = answer_rates(data[model][i][RESPONSE_KEY] for i in idx)
+        for label, response, gpt, _, _ in _rows(data, idx, [model]):
+            pred = parse_adjectives(response)
+            if pred:
+                X.append(judge_features(parse_adjectives(label), pred, label_rates, rates))
+                y.append(gpt)
     X, y = np.asarray(X, dtype=np.float64), np.asarray(y, dtype=np.float64)
     mean, scale = X.mean(0), X.std(0)
     scale[scale == 0] = 1.0
@@ -575,12 +748,18 @@ def fit_offline_judge(data_dir: str | os.PathLike | None = None, seed: int = 0,
         return MIN_SCORE + (MAX_SCORE - MIN_SCORE) / (1.0 + np.exp(-(p[0] + Z @ p[1:]))) - y
 
     p = least_squares(residual, np.zeros(Z.shape[1] + 1), method="trf").x
-    return {
-        "features": list(FEATURES), "mean": mean.tolist(), "scale": scale.tolist(),
-        "intercept": float(p[0]), "weights": p[1:].tolist(),
-        "fit": {"models": list(MODELS), "split_seed": seed, "fit_fraction": fit_fraction,
-                "n_fit_samples": len(fit_idx), "n_fit_answers": int(len(y))},
-    }
+    return {"features": list(FEATURES), "mean": mean.tolist(), "scale": scale.tolist(),
+            "intercept": float(p[0]), "weights": p[1:].tolist(), "label_rates": label_rates,
+            "fit": {"models": list(models), **(meta or {}), "n_fit_samples": len(idx),
+                    "n_fit_answers": int(len(y))}}
+
+
+def fit_offline_judge(data_dir: str | os.PathLike | None = None, seed: int = 0,
+                      fit_fraction: float = 0.5) -> dict:
+    """Fit the offline judge on the FIT part (`heldout_split`) of all three TVL files."""
+    data = load_tvl_results(data_dir)
+    fit_idx, _ = heldout_split(data[MODELS[0]], seed, fit_fraction)
+    return fit_calibration(data, MODELS, fit_idx, {"split_seed": seed, "fit_fraction": fit_fraction})
 
 
 def write_offline_config(params: Mapping, path: str | os.PathLike | None = None) -> Path:
@@ -592,16 +771,179 @@ def _ranking(means: Mapping[str, float]) -> list[str]:
     return sorted(means, key=lambda m: (-means[m], m))
 
 
-def validate_judge(data_dir: str | os.PathLike | None = None, judge: OfflineJudge | None = None,
-                   seed: int | None = None, fit_fraction: float | None = None) -> dict:
-    """Held-out agreement of the offline judge (and of plain adjective F1) with GPT-4.
-
-    The split defaults to the one the judge's calibration was fitted with, so only samples it
-    never saw are used. Returns pooled Spearman rho over the three models' answers, per-subset
-    rho, per-model mean scores and the rankings of the models by mean score.
-    """
+def _spearman(a: Sequence[float], b: Sequence[float]) -> float:
     from scipy.stats import spearmanr
 
+    return float(spearmanr(a, b)[0])
+
+
+def leave_one_system_out(data: Mapping[str, list[dict]], fit_idx: Sequence[int],
+                         held_idx: Sequence[int]) -> dict:
+    """Fit on two systems' answers to the FIT samples, judge the third on the held-out samples.
+
+    Returns per held-out system its GPT-4 and judge means and the error, the ranking of the three
+    held-out means against GPT-4's, and the pooled Spearman rho of the held-out answers.
+    """
+    per_system, judge_all, gpt_all = {}, [], []
+    for held in MODELS:
+        judge = OfflineJudge(fit_calibration(data, [m for m in MODELS if m != held], fit_idx))
+        rows = _rows(data, held_idx, [held])
+        scores = judge.score_many([(r[0], r[1]) for r in rows])
+        gpt = [r[2] for r in rows]
+        per_system[held] = {"n_answers": len(rows), "gpt4": float(np.mean(gpt)),
+                            "offline": float(np.mean(scores)),
+                            "error": float(np.mean(scores) - np.mean(gpt)),
+                            "spearman": _spearman(scores, gpt)}
+        judge_all += scores
+        gpt_all += gpt
+    rank_gpt = _ranking({m: s["gpt4"] for m, s in per_system.items()})
+    rank_off = _ranking({m: s["offline"] for m, s in per_system.items()})
+    return {"per_system": per_system, "pooled_spearman": _spearman(judge_all, gpt_all),
+            "max_abs_error": max(abs(s["error"]) for s in per_system.values()),
+            "ranking_gpt4": rank_gpt, "ranking_offline": rank_off,
+            "ranking_identical": rank_gpt == rank_off}
+
+
+# --------------------------------------------------------------------------- style shifts
+
+
+def generic_words(label_rates: Mapping[str, float], n: int = 3) -> list[str]:
+    """The `n` tactile words that fit the most labels (the padding of the style-shift test)."""
+    tactile = set(TVL_ADJECTIVES) | set(EXTRA_TACTILE)
+    return sorted((w for w in label_rates if w in tactile), key=lambda w: (-label_rates[w], w))[:n]
+
+
+def antonym_answer(label: str) -> str | None:
+    """An answer that contradicts the label: the head word of each group opposite to a label
+    word's groups ("soft, fuzzy" -> "hard"); None when no label word has an antonym."""
+    out: list[str] = []
+    for w in parse_adjectives(label):
+        for g in _MEMBERS.get(w, {}):
+            out += [b for a, b in sorted(_OPPOSITE) if a == g and b not in out]
+    return ", ".join(out) if out else None
+
+
+def style_shift(kind: str, labels: Sequence[str], responses: Sequence[str | None], seed: int = 0,
+                pad: Sequence[str] = ()) -> list[str | None]:
+    """One system's answers rewritten in another style: "pad" (append the `pad` words),
+    "truncate" (first word only), "shuffle" (answers permuted across samples, seeded) or
+    "antonyms" (contradict the label; None where it has no antonym)."""
+    if kind == "pad":
+        return [", ".join(parse_adjectives(r) + [w for w in pad if w not in parse_adjectives(r)])
+                for r in responses]
+    if kind == "truncate":
+        return [(parse_adjectives(r) or [None])[0] for r in responses]
+    if kind == "shuffle":
+        perm = np.random.default_rng(seed).permutation(len(responses))
+        return [responses[i] for i in perm]
+    if kind == "antonyms":
+        return [antonym_answer(lab) for lab in labels]
+    raise ConfigError(f"unknown style shift {kind!r}")
+
+
+SHIFTS = {  # kind: what GPT-4 would be expected to do
+    "pad": "must not rise (generic words carry no information)",
+    "truncate": "must fall (fewer correct adjectives)",
+    "shuffle": "must fall to near the chance level",
+    "antonyms": "must fall below the chance level",
+}
+CHANCE_TOLERANCE = 0.5
+
+
+def _cell(label: str, response: str | None, label_rates: Mapping[str, float]) -> tuple[int, int]:
+    table = word_table(parse_adjectives(label), parse_adjectives(response), label_rates)
+    return (min(sum(t["similarity"] >= _MATCHED for t in table), 3),
+            min(sum(t["clash"] > 0 for t in table), 2))
+
+
+def chance_level(data: Mapping[str, list[dict]], idx: Sequence[int], judge: OfflineJudge,
+                 seed: int = 0) -> dict:
+    """What GPT-4 would give answers shuffled across samples, estimated from its real scores.
+
+    Each real answer falls in a cell (matched words 0/1/2/3+, contradicted words 0/1/2+); the
+    chance level is the mean, over shuffled pairs, of GPT-4's mean score of the real answers in
+    the shuffled pair's cell. ``floor``: GPT-4's mean over real answers matching nothing.
+    """
+    rows = [r for r in _rows(data, idx) if parse_adjectives(r[1])]
+    cells: dict[tuple[int, int], list[float]] = {}
+    for r in rows:
+        cells.setdefault(_cell(r[0], r[1], judge.label_rates), []).append(r[2])
+    means = {c: float(np.mean(v)) for c, v in cells.items()}
+    est = []
+    for model in MODELS:
+        labels = [data[model][i][LABEL_KEY] for i in idx]
+        shuffled = style_shift("shuffle", labels, [data[model][i][RESPONSE_KEY] for i in idx], seed)
+        for lab, resp in zip(labels, shuffled):
+            c = _cell(lab, resp, judge.label_rates) if parse_adjectives(resp) else None
+            if c in means:
+                est.append(means[c])
+    return {"chance": float(np.mean(est)), "floor": means.get((0, 0), float("nan"))}
+
+
+def style_shifts(data: Mapping[str, list[dict]], idx: Sequence[int], judge: OfflineJudge,
+                 seed: int = 0) -> dict:
+    """The judge's mean over the three systems' answers to `idx`, as written and under each
+    style shift, with the expected direction checked (each system is judged as its own file)."""
+    pad = generic_words(judge.label_rates)
+    levels = chance_level(data, idx, judge, seed)
+    chance = levels["chance"]
+    base, shifted = [], {k: [] for k in SHIFTS}
+    for model in MODELS:
+        labels = [data[model][i][LABEL_KEY] for i in idx]
+        responses = [data[model][i][RESPONSE_KEY] for i in idx]
+        base += judge.score_many(zip(labels, responses))
+        for kind in SHIFTS:
+            new = style_shift(kind, labels, responses, seed, pad)
+            keep = [i for i, r in enumerate(new) if r is not None]
+            shifted[kind] += judge.score_many([(labels[i], new[i]) for i in keep])
+    original = float(np.mean(base))
+    out = {"original": original, "chance_level_gpt4": chance, "no_match_gpt4": levels["floor"],
+           "pad_words": pad, "shifts": {}}
+    for kind, scores in shifted.items():
+        m = float(np.mean(scores))
+        ok = {"pad": m <= original + 0.05, "truncate": m < original,
+              "shuffle": m < original and abs(m - chance) <= CHANCE_TOLERANCE,
+              "antonyms": m < min(original, chance)}[kind]
+        out["shifts"][kind] = {"n_answers": len(scores), "mean": m, "change": m - original,
+                               "expected": SHIFTS[kind], "as_expected": bool(ok)}
+    return out
+
+
+def length_effect(data: Mapping[str, list[dict]], idx: Sequence[int], judge: OfflineJudge) -> dict:
+    """What one more adjective does to the score at fixed content, for GPT-4 and for the judge.
+
+    Least squares of the score on (matched words, contradicted words, predicted words, label
+    words) over the three systems' answers to `idx`; the ``per_adjective`` coefficients are the
+    change per extra adjective that neither matches nor contradicts the label.
+    """
+    X, gpt, off = [], [], []
+    for model in MODELS:
+        rows = [r for r in _rows(data, idx, [model]) if parse_adjectives(r[1])]
+        off += judge.score_many([(r[0], r[1]) for r in rows])
+        for r in rows:
+            lab, pred = parse_adjectives(r[0]), parse_adjectives(r[1])
+            table = word_table(lab, pred, judge.label_rates)
+            X.append([1.0, sum(t["similarity"] >= _MATCHED for t in table),
+                      sum(t["clash"] > 0 for t in table), len(pred), len(lab)])
+            gpt.append(r[2])
+    X = np.asarray(X)
+    coef = {name: np.linalg.lstsq(X, np.asarray(y), rcond=None)[0]
+            for name, y in (("gpt4", gpt), ("offline", off))}
+    out = {name: {"per_matched": float(c[1]), "per_contradicted": float(c[2]),
+                  "per_adjective": float(c[3])} for name, c in coef.items()}
+    out["difference_per_adjective"] = out["offline"]["per_adjective"] - out["gpt4"]["per_adjective"]
+    return out
+
+
+def validate_judge(data_dir: str | os.PathLike | None = None, judge: OfflineJudge | None = None,
+                   seed: int | None = None, fit_fraction: float | None = None) -> dict:
+    """Agreement of the offline judge with GPT-4 on answers and styles it was not fitted on.
+
+    The split defaults to the one the judge's calibration was fitted with, so only samples it
+    never saw are used. Returns, on the held-out samples: pooled and per-subset Spearman rho of
+    the judge (and of plain adjective F1), per-model means and rankings; ``loso``: leave one
+    system out (`leave_one_system_out`); ``style_shifts`` (`style_shifts`).
+    """
     judge = judge if judge is not None else OfflineJudge()
     fit_meta = judge.params.get("fit", {})
     seed = fit_meta.get("split_seed", 0) if seed is None else seed
@@ -610,31 +952,34 @@ def validate_judge(data_dir: str | os.PathLike | None = None, judge: OfflineJudg
     fit_idx, held_idx = heldout_split(data[MODELS[0]], seed, fit_fraction)
     rows = _rows(data, held_idx)
     gpt = np.array([r[2] for r in rows])
-    off = np.array([judge.score(r[0], r[1]) for r in rows])
-    f1 = np.array([adjective_f1(r[0], r[1]) for r in rows])
     models = np.array([r[3] for r in rows])
+    off = np.zeros(len(rows))
+    for m in MODELS:  # each system judged as its own file (its own word rates)
+        sel = np.flatnonzero(models == m)
+        off[sel] = judge.score_many([(rows[i][0], rows[i][1]) for i in sel])
+    f1 = np.array([adjective_f1(r[0], r[1]) for r in rows])
     subsets = np.array([str(r[4]) for r in rows])
     per_model = {m: {"gpt4": float(gpt[models == m].mean()), "offline": float(off[models == m].mean()),
                      "f1": float(f1[models == m].mean())} for m in MODELS}
     rankings = {k: _ranking({m: per_model[m][k] for m in MODELS}) for k in ("gpt4", "offline", "f1")}
-    by_subset = {}
-    for name in SUBSETS:
-        sel = subsets == name
-        if sel.sum() > 1:
-            by_subset[name] = {"n_answers": int(sel.sum()),
-                               "spearman_offline": float(spearmanr(off[sel], gpt[sel])[0]),
-                               "spearman_f1": float(spearmanr(f1[sel], gpt[sel])[0])}
+    by_subset = {name: {"n_answers": int((subsets == name).sum()),
+                        "spearman_offline": _spearman(off[subsets == name], gpt[subsets == name]),
+                        "spearman_f1": _spearman(f1[subsets == name], gpt[subsets == name])}
+                 for name in SUBSETS if (subsets == name).sum() > 1}
     return {
         "split_seed": seed, "fit_fraction": fit_fraction, "n_samples": len(data[MODELS[0]]),
         "n_fit_samples": len(fit_idx), "n_heldout_samples": len(held_idx),
         "n_heldout_answers": len(rows),
-        "spearman_offline": float(spearmanr(off, gpt)[0]),
-        "spearman_f1": float(spearmanr(f1, gpt)[0]),
+        "spearman_offline": _spearman(off, gpt), "spearman_f1": _spearman(f1, gpt),
         "gpt4_interrun_reference": GPT4_INTERRUN_SPEARMAN,
         "by_subset": by_subset, "per_model": per_model,
         "ranking_gpt4": rankings["gpt4"], "ranking_offline": rankings["offline"],
         "ranking_f1": rankings["f1"],
         "ranking_identical": rankings["offline"] == rankings["gpt4"],
+        "loso": leave_one_system_out(data, fit_idx, held_idx),
+        "style_shifts": style_shifts(data, held_idx, judge, seed),
+        "length_effect": length_effect(data, held_idx, judge),
+        "targets": TARGETS,
     }
 
 
@@ -659,4 +1004,112 @@ def format_validation(r: dict) -> str:
     lines.append("ranking offline: " + " > ".join(r["ranking_offline"])
                  + ("  (identical)" if r["ranking_identical"] else "  (DIFFERENT)"))
     lines.append("ranking F1:      " + " > ".join(r["ranking_f1"]))
+    le = r["length_effect"]
+    lines += ["", "length effect at fixed content (score change per extra adjective that neither "
+                  "matches nor contradicts, least squares on the held-out answers): "
+                  f"GPT-4 {le['gpt4']['per_adjective']:+.3f}, offline "
+                  f"{le['offline']['per_adjective']:+.3f} (difference "
+                  f"{le['difference_per_adjective']:+.3f}, bound "
+                  f"{TARGETS['length_effect_difference']})"]
+    return "\n".join(lines + _format_loso(r["loso"], r["targets"])
+                     + _format_shifts(r["style_shifts"]))
+
+
+def _format_loso(lo: dict, targets: Mapping) -> list[str]:
+    met = (lo["max_abs_error"] <= targets["max_abs_mean_error"] and lo["ranking_identical"]
+           and lo["pooled_spearman"] >= targets["pooled_spearman"])
+    lines = ["", "leave one system out (fit on the other two systems' FIT answers, judge the "
+                 "held-out system's held-out answers):",
+             f"{'held-out system':<22}{'GPT-4':>8}{'offline':>9}{'error':>8}{'rho':>7}"]
+    for m, s in lo["per_system"].items():
+        lines.append(f"{m:<22}{s['gpt4']:>8.3f}{s['offline']:>9.3f}{s['error']:>+8.3f}"
+                     f"{s['spearman']:>7.3f}")
+    lines.append(f"pooled Spearman {lo['pooled_spearman']:.3f} (target >= "
+                 f"{targets['pooled_spearman']}), max |mean error| {lo['max_abs_error']:.3f} "
+                 f"(target <= {targets['max_abs_mean_error']}), ranking "
+                 f"{'preserved' if lo['ranking_identical'] else 'CHANGED'}: "
+                 f"{'targets met' if met else 'TARGET MISSED'}")
+    return lines
+
+
+def _format_shifts(sh: dict) -> list[str]:
+    lines = ["", f"style shifts of the held-out answers (judge mean as written "
+                 f"{sh['original']:.3f}; GPT-4 chance level {sh['chance_level_gpt4']:.3f}; "
+                 f"padding words: {', '.join(sh['pad_words'])}):",
+             f"{'shift':<10}{'mean':>8}{'change':>8}  expected"]
+    for kind, s in sh["shifts"].items():
+        lines.append(f"{kind:<10}{s['mean']:>8.3f}{s['change']:>+8.3f}  {s['expected']}: "
+                     f"{'yes' if s['as_expected'] else 'NO'}")
+    return lines
+
+
+# --------------------------------------------------------------------------- explain / compare
+
+
+def explain_results(records: list[dict], judge: OfflineJudge | None = None) -> list[dict]:
+    """Per record (one system's answers): label, answer, per-word table and score."""
+    judge = judge if judge is not None else OfflineJudge()
+    check_records(records)
+    rates = answer_rates(r[RESPONSE_KEY] for r in records)
+    return [judge.explain(r[LABEL_KEY], r[RESPONSE_KEY], rates) for r in records]
+
+
+def format_explain(explained: Sequence[dict]) -> str:
+    """One block per answer: score, label, then each word with its status and weight."""
+    lines = []
+    for i, e in enumerate(explained):
+        lines.append(f"[{i}] score {e['score']:.2f}  label: {', '.join(e['label'])}")
+        if not e["words"]:
+            lines.append("    (no adjectives: failed answer, scored 1)")
+        for t in e["words"]:
+            match = (f" ~ {t['label_word']} (sim {t['similarity']:.2f})"
+                     if t["status"] in ("matched", "ignored") and t["label_word"] else "")
+            clash = f" clash {t['clash']:.2f}" if t["clash"] else ""
+            lines.append(f"    {t['word']:<14}{t['status']:<12}weight {t['weight']:.2f} "
+                         f"(label rate {t['label_rate']:.2f}, system rate {t['system_rate']:.2f})"
+                         f"{match}{clash}")
+    return "\n".join(lines)
+
+
+def compare_judges(files: Mapping[str, list[dict]], llm: LLMJudge,
+                   offline: OfflineJudge | None = None) -> dict:
+    """Agreement of the offline judge with an LLM judge on the user's own result files.
+
+    Returns per file n, both means and their difference (offline - LLM), the Spearman rho of
+    the per-answer scores (None where either judge gives one constant score), the pooled rho,
+    and the LLM judge's request counters.
+    """
+    offline = offline if offline is not None else OfflineJudge()
+    per_file, all_off, all_llm = {}, [], []
+    for name, records in files.items():
+        off = [r[offline.key] for r in judge_results(records, offline)[0]]
+        lm = [r[llm.key] for r in judge_results(records, llm)[0]]
+        per_file[name] = {"n": len(records), "offline_mean": float(np.mean(off)),
+                          "llm_mean": float(np.mean(lm)),
+                          "mean_diff": float(np.mean(off) - np.mean(lm)),
+                          "spearman": _safe_spearman(off, lm)}
+        all_off += off
+        all_llm += lm
+    return {"files": per_file, "pooled_spearman": _safe_spearman(all_off, all_llm),
+            "llm": llm.stats()}
+
+
+def _safe_spearman(a: Sequence[float], b: Sequence[float]) -> float | None:
+    if len(a) < 2 or len(set(a)) < 2 or len(set(b)) < 2:
+        return None
+    return _spearman(a, b)
+
+
+def format_compare(r: dict) -> str:
+    """The offline-vs-LLM agreement table."""
+    def rho(x):
+        return "-" if x is None else f"{x:.3f}"
+
+    lines = [f"{'file':<40}{'n':>5}{'offline':>9}{'LLM':>8}{'diff':>8}{'rho':>7}"]
+    for name, s in r["files"].items():
+        lines.append(f"{name[-40:]:<40}{s['n']:>5}{s['offline_mean']:>9.3f}{s['llm_mean']:>8.3f}"
+                     f"{s['mean_diff']:>+8.3f}{rho(s['spearman']):>7}")
+    lines.append(f"pooled Spearman rho {rho(r['pooled_spearman'])}; LLM requests "
+                 f"{r['llm']['n_requests']}, errors {r['llm']['n_errors']}, fallbacks to the "
+                 f"offline judge {r['llm']['n_fallbacks']}")
     return "\n".join(lines)

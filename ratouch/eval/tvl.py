@@ -17,14 +17,19 @@ import torch
 
 from ratouch.errors import ConfigError, DataError
 from ratouch.eval.judge import (
+    LABEL_KEY,
     RESPONSE_KEY,
     TVL_QUESTION,
     OfflineJudge,
+    format_stats,
     judge_results,
+    score_stats,
     subset_of,
 )
 from ratouch.search.retrieval import QUERY_MODES
 from ratouch.world.config import WorldConfig
+from ratouch.world.dataset import world_for
+from ratouch.world.generator import TEST_SIZE
 from ratouch.world.splits import TestSplit, encode_test_split
 
 SYSTEMS = ("baseline", "ra-touch")
@@ -136,7 +141,8 @@ def paired_ttest(a: Sequence[dict], b: Sequence[dict], key: str | None = None) -
         x = np.array([float(ra[p][key]) for p in pairs])
         y = np.array([float(rb[p][key]) for p in pairs])
         row = {"n": len(pairs), "mean_a": round(float(x.mean()), 4),
-               "mean_b": round(float(y.mean()), 4), "diff": round(float((y - x).mean()), 4)}
+               "mean_b": round(float(y.mean()), 4), "diff": round(float((y - x).mean()), 4),
+               "stats_a": _stats(ra, pairs, key), "stats_b": _stats(rb, pairs, key)}
         if len(pairs) >= 2 and np.any(y - x):
             t = ttest_rel(y, x)
             row.update({"t": round(float(t.statistic), 3), "p": float(t.pvalue)})
@@ -146,12 +152,50 @@ def paired_ttest(a: Sequence[dict], b: Sequence[dict], key: str | None = None) -
     return out
 
 
+def _stats(by_pair: dict, pairs: list, key: str) -> dict:
+    """`score_stats` (mean, 95 % bootstrap CI, F1, mean length) of one file on `pairs`."""
+    recs = [by_pair[p] for p in pairs]
+    s = score_stats([r[LABEL_KEY] for r in recs], [r.get(RESPONSE_KEY) for r in recs],
+                    [float(r[key]) for r in recs])
+    return s
+
+
 def format_ttest(result: dict, name_a: str = "A", name_b: str = "B") -> str:
+    """The t-test table, then each file's means with 95 % bootstrap CI, F1 and length."""
     lines = [f"paired t-test on {result['key']} ({result['n_shared']} shared samples; "
              f"B - A, A = {name_a}, B = {name_b})",
              f"{'subset':<9}{'n':>5}{'A':>8}{'B':>8}{'B-A':>8}{'t':>8}{'p':>11}"]
     for name, r in result["subsets"].items():
         lines.append(f"{name:<9}{r['n']:>5}{r['mean_a']:>8.3f}{r['mean_b']:>8.3f}"
                      f"{r['diff']:>+8.3f}{r['t']:>8.2f}{r['p']:>11.2e}")
+    lines.append("mean [95% bootstrap CI], adjective F1, adjectives per answer:")
+    for name, r in result["subsets"].items():
+        lines.append(f"  {name:<8} A {format_stats(r['stats_a'])}   B {format_stats(r['stats_b'])}")
     return "\n".join(lines)
 
+
+
+def oracle_length_effect(judge=None, world: WorldConfig | None = None,
+                         lengths: Sequence[int] = (2, 3, 4, 5)) -> dict:
+    """The judge's length effect: a material oracle's mean score with n adjectives.
+
+    The oracle knows each test pair's material and answers the n heaviest words of its tactile
+    profile (labels are random draws from that profile); no pixel is rendered. Each length is
+    judged as its own system (its own word rates).
+
+    Returns:
+        ``{"lengths": [...], "means": {n: mean}, "stats": {n: score_stats}, "spread"}``, spread
+        being the largest minus the smallest mean.
+    """
+    gen = world_for(world or WorldConfig())
+    plans = [gen.plan("test", i) for i in range(TEST_SIZE)]
+    labels = [", ".join(p[5]) if not isinstance(p[5], str) else p[5] for p in plans]
+    judge = judge or OfflineJudge()
+    stats = {}
+    for n in lengths:
+        answers = [", ".join(w for w, _ in sorted(p[2].profile, key=lambda x: -x[1])[:n])
+                   for p in plans]
+        stats[n] = score_stats(labels, answers, judge.score_many(zip(labels, answers)))
+    means = {n: s["mean"] for n, s in stats.items()}
+    return {"lengths": list(lengths), "means": means, "stats": stats,
+            "spread": max(means.values()) - min(means.values())}
