@@ -211,6 +211,13 @@ def _add_eval(sub) -> None:
     tt.add_argument("a", help="results file A (e.g. the baseline)")
     tt.add_argument("b", help="results file B (e.g. RA-Touch)")
     tt.add_argument("--json", action="store_true")
+    c = esub.add_parser("controls", help="does RA-Touch read its neighbours? shuffled "
+                                         "neighbours, zeroed integrator, copy and oracle ceilings")
+    c.add_argument("--encoder", default="default-s")
+    c.add_argument("--k", type=_pos_int, default=5, help="neighbours RA-Touch reads")
+    c.add_argument("--shuffles", type=_pos_int, default=3, help="neighbour shuffles (seeds)")
+    c.add_argument("--seed", type=_nonneg_int, default=0, help="seed of the shuffles and CIs")
+    c.add_argument("--json", action="store_true")
 
 
 def _add_judge_options(p: argparse.ArgumentParser) -> None:
@@ -444,7 +451,8 @@ def _run_eval(args: argparse.Namespace) -> int:
         return _eval_ttest(args)
     if args.eval_cmd == "stress":
         return _eval_stress(args)
-
+    if args.eval_cmd == "controls":
+        return _eval_controls(args)
 
     corpus = args.corpus or default_corpus(args.encoder)
     if (retriever_weights(args.encoder) / "manifest.json").is_file():
@@ -454,6 +462,16 @@ def _run_eval(args: argparse.Namespace) -> int:
         retriever, joint_fn = open_retriever(corpus, args.encoder, args.index), None
     r = evaluate_retrieval(retriever, WorldConfig(seed=args.seed), joint_fn=joint_fn)
     print(json.dumps(r, indent=1) if args.json else format_retrieval_eval(r))
+    return 0
+
+
+def _eval_controls(args: argparse.Namespace) -> int:
+    from ratouch.eval.controls import format_controls, run_controls
+    from ratouch.serve.pipeline import RATouchPipeline
+
+    r = run_controls(RATouchPipeline.load(args.encoder), k=args.k, shuffles=args.shuffles,
+                     seed=args.seed)
+    print(json.dumps(r, indent=1) if args.json else format_controls(r))
     return 0
 
 

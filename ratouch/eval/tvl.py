@@ -19,7 +19,6 @@ from ratouch.errors import ConfigError, DataError
 from ratouch.eval.judge import (
     LABEL_KEY,
     RESPONSE_KEY,
-    TVL_QUESTION,
     OfflineJudge,
     format_stats,
     judge_results,
@@ -27,6 +26,7 @@ from ratouch.eval.judge import (
     subset_of,
 )
 from ratouch.search.retrieval import QUERY_MODES
+from ratouch.vocabulary import TVL_QUESTION
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
 from ratouch.world.generator import TEST_SIZE
