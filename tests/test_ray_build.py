@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
 import signal
 import socket
 import subprocess
@@ -33,10 +34,16 @@ SHARD = 120
 BUILD_TIMEOUT_S = 300  # a deadlocked pipeline never finishes; a healthy one takes ~1 min here
 
 
+_TOKEN = secrets.token_hex(32)
+
+
 def _env() -> dict:
+    """No proxies (the fake LLM is on 127.0.0.1), this tree on the path, and one Ray
+    authentication token shared by the test's cluster nodes and drivers."""
     env = {k: v for k, v in os.environ.items() if "proxy" not in k.lower()}
     env["PYTHONPATH"] = str(REPO)
     env.pop("RAY_ADDRESS", None)
+    env.update(RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=_TOKEN)
     return env
 
 
