@@ -304,6 +304,14 @@ def _add_bench(sub) -> None:
     qb.add_argument("--corpus", default=None)
     qb.add_argument("--n", type=_pos_int, default=60)
     qb.add_argument("--json", action="store_true")
+    cb = bsub.add_parser("corpus", help="corpus build throughput per stage and peak memory, "
+                                        "single process or on Ray")
+    cb.add_argument("--engine", choices=("local", "ray"), default="ray")
+    cb.add_argument("--n", type=_pos_int, default=2000)
+    cb.add_argument("--workers", type=_pos_int, default=2,
+                    help="render processes (local) or embedding actors (ray)")
+    cb.add_argument("--encoder", default="default-s")
+    cb.add_argument("--json", action="store_true")
     w = bsub.add_parser("world", help="corpus + test split generation throughput")
     w.add_argument("--corpus-size", default="10k")
     w.add_argument("--workers", type=_pos_int, default=2)
@@ -603,6 +611,12 @@ def _run_bench(args: argparse.Namespace) -> int:
 
     if args.bench_cmd == "tradeoff":
         return _bench_tradeoff(args)
+    if args.bench_cmd == "corpus":
+        from ratouch.bench.corpus import bench_corpus, format_corpus_bench
+
+        r = bench_corpus(args.engine, args.n, args.workers, args.encoder)
+        print(json.dumps(r) if args.json else format_corpus_bench(r))
+        return 0
     if args.bench_cmd == "query":
 
         r = bench_query(args.encoder, args.corpus, n=args.n)
