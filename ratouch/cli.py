@@ -121,7 +121,8 @@ def _add_corpus(sub) -> None:
     b.add_argument("--from-list", help="CSV or Parquet of (image path, class, caption) for a "
                                        "real corpus")
     b.add_argument("--encoder", default="default-s", help="encoder to embed with")
-    b.add_argument("--index", choices=("flat", "hnsw", "ivfpq"), default="flat")
+    b.add_argument("--index", choices=("flat", "hnsw", "ivfpq", "ivfflat"), default="flat",
+                   help="with --engine ray, ivfflat/ivfpq are built from the shards on disk")
     b.add_argument("--no-embed", action="store_true", help="only recaption and sample")
     b.add_argument("--workers", type=_pos_int, default=2,
                    help="render processes (local) or embedding actors (ray)")

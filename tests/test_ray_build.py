@@ -148,9 +148,18 @@ def test_the_pipeline_opens_a_ray_built_corpus_unchanged(ray_two_cores):
 
 
 def test_rerun_skips_finished_shards_and_refuses_another_build(ray_two_cores):
+    """A re-run finds every shard finished (no Ray needed) and only adds what is missing:
+    here an IVF index built from the shards as one on-disk index, which the retriever opens
+    unchanged."""
     folder, _ = ray_two_cores
-    r = _run(_cli("--out", str(folder), "--size", str(N), "--shard-size", str(SHARD)), 120)
+    r = _run(_cli("--out", str(folder), "--size", str(N), "--shard-size", str(SHARD),
+                  "--index", "ivfflat"), 120)
     assert r["shards_built"] == 0 and r["size"] == N
+    assert (folder / "index" / "default-s" / "text-ivfflat" / "lists.ivfdata").is_file()
+    search = open_retriever(folder, "default-s", "ivfflat")
+    q = np.asarray(load_embeddings(folder, "default-s")[1][:20])
+    ids = search.corpus.search("text", q, 5)[1]
+    assert np.mean([i in row for i, row in enumerate(ids)]) >= 0.9  # itself among its top 5
     p = subprocess.run(_cli("--out", str(folder), "--size", str(N), "--seed", "1",
                             "--shard-size", str(SHARD)), cwd=REPO, env=_env(),
                        capture_output=True, text=True, timeout=120)
@@ -302,3 +311,16 @@ def test_worker_killed_mid_build_loses_nothing(ray_cluster, tmp_path, single):
     assert json.loads(out.strip().splitlines()[-1])["size"] == N
     _assert_same_corpus(single, folder)
     _assert_clean_shards(folder)
+
+
+@pytest.mark.slow
+def test_two_thousand_entries_same_either_way(tmp_path):
+    """The issue's 2k-entry comparison: Ray build (local Ray, 2 actors) against the
+    single-process build."""
+    a, b = tmp_path / "single", tmp_path / "ray"
+    build_corpus(a, 2000, seed=0, progress=False)
+    embed_and_index(a, "default-s", workers=2, progress=False)
+    r = _run(_cli("--out", str(b), "--size", "2000", "--workers", "2"), 600)
+    assert r["size"] == 2000 and r["shards"] == 2
+    _assert_same_corpus(a, b)
+    _assert_clean_shards(b)

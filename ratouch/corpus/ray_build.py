@@ -52,8 +52,8 @@ from ratouch.corpus.recaption import LLMRecaptioner, OfflineRecaptioner, Recapti
 from ratouch.encoders.factory import create_model
 from ratouch.errors import ConfigError, DataError, ServiceError
 from ratouch.files import write_json_atomic
-from ratouch.search.index import IndexConfig
-from ratouch.search.retrieval import CorpusIndex
+from ratouch.search.index import IndexConfig, VectorIndex
+from ratouch.search.retrieval import CorpusIndex, index_folder
 from ratouch.world.config import WorldConfig
 from ratouch.world.generator import World
 
@@ -64,6 +64,8 @@ PARTIAL_DIR = ".partial"
 META_COLUMNS = ("id", "class_name", "description", "caption", "source", "material")
 #: CPUs asked by each light task (plan, offline recaption) and each LLM actor.
 LIGHT_CPUS = 0.25
+#: Index kinds the Ray build makes from its shards as one on-disk index (lists memory-mapped).
+ONDISK_KINDS = ("ivfflat", "ivfpq")
 STAGES = ("plan", "recaption", "render", "embed", "write", "assemble", "index")
 
 
@@ -367,7 +369,8 @@ def connect(opts: RayOptions) -> bool:
             ray.init(address=address, runtime_env=runtime_env, log_to_driver=False,
                      logging_level=logging.WARNING)
         else:
-            ray.init(num_cpus=opts.num_cpus or os.cpu_count(), include_dashboard=False,
+            ray.init(address="local", num_cpus=opts.num_cpus or os.cpu_count(),
+                     include_dashboard=False,
                      runtime_env=runtime_env, log_to_driver=False, logging_level=logging.WARNING)
     except (ConnectionError, RuntimeError, ValueError) as e:
         raise ServiceError(f"cannot connect to Ray at address={address!r}: {e}") from e
@@ -499,6 +502,22 @@ def assemble(out: Path, store: ShardStore, manifest: dict, encoder: str, dim: in
     return corpus_manifest
 
 
+def build_ondisk_indexes(out: Path, store: ShardStore, encoder: str, kind: str,
+                         corpus_sha256: str, workers: int) -> None:
+    """IVF indexes of the image and text embeddings built from the shards (memory-mapped,
+    one at a time) into one on-disk index each, where `CorpusIndex` finds them."""
+    for key in ("image", "text"):
+        folder = index_folder(out, encoder, key, kind)
+        if (folder / "manifest.json").is_file():
+            continue
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        shards = [np.load(store.files(s)[f"{key}.npy"], mmap_mode="r")
+                  for s in range(store.n_shards)]
+        VectorIndex.build_ondisk(shards, folder, IndexConfig(kind=kind),
+                                 meta={"encoder": encoder, "key": key,
+                                       "corpus_sha256": corpus_sha256}, workers=workers)
+
+
 def build_corpus_ray(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
                      recaption: RecaptionConfig | None = None, image_list: str | None = None,
                      encoder: str = "default-s", index: str = "flat",
@@ -515,7 +534,8 @@ def build_corpus_ray(out: str | os.PathLike, size: int | str = "10k", seed: int 
         recaption: recaptioner config (offline by default).
         image_list: CSV or Parquet of (path, class, caption) for a real corpus; None: the world.
         encoder: encoder to embed with.
-        index: index kind built at the end ("flat", "hnsw", "ivfpq").
+        index: index kind built at the end: "flat" or "hnsw" in memory, "ivfflat" or
+            "ivfpq" from the shards as one on-disk index.
         options: Ray options (address, workers, batch and shard sizes, LLM limits).
 
     Returns:
@@ -560,6 +580,9 @@ def build_corpus_ray(out: str | os.PathLike, size: int | str = "10k", seed: int 
     manifest = assemble(out, store, entries_meta, encoder, dim)
     clock.add("assemble", time.perf_counter() - ta, store.n)
     ti = time.perf_counter()
+    if index in ONDISK_KINDS:
+        build_ondisk_indexes(out, store, encoder, index, manifest["metadata_sha256"],
+                             opts.workers)
     CorpusIndex(out, encoder, dim, IndexConfig(kind=index))
     clock.add("index", time.perf_counter() - ti, store.n)
     shutil.rmtree(store.partial, ignore_errors=True)
