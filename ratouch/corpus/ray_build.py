@@ -55,6 +55,7 @@ from ratouch.files import write_json_atomic
 from ratouch.search.index import IndexConfig, VectorIndex
 from ratouch.search.retrieval import CorpusIndex, index_folder
 from ratouch.world.config import WorldConfig
+from ratouch.world.dataset import check_writable
 from ratouch.world.generator import World
 
 log = logging.getLogger(__name__)
@@ -545,6 +546,7 @@ def build_corpus_ray(out: str | os.PathLike, size: int | str = "10k", seed: int 
     recaption = recaption or RecaptionConfig()
     IndexConfig(kind=index)  # fail on a bad kind before any work
     out = Path(out)
+    check_writable(out)
     if (out / MANIFEST).is_file() and not (out / SHARD_DIR).is_dir():
         raise ConfigError(f"{out} already holds a corpus; choose another folder")
     t0 = time.perf_counter()
@@ -564,6 +566,11 @@ def build_corpus_ray(out: str | os.PathLike, size: int | str = "10k", seed: int 
         try:
             ds = _dataset(table, todo, seed, recaption, encoder, opts, image_list is None)
             _stream_shards(ds, store, todo, clock)
+        except ray.exceptions.RayError as e:  # finished shards stay; a re-run resumes
+            raise ServiceError(f"the Ray pipeline failed ({len(store.done())} of "
+                               f"{store.n_shards} shards finished, kept for a re-run): "
+                               f"{str(e).splitlines()[0] if str(e) else type(e).__name__}"
+                               ) from e
         finally:
             if started:
                 ray.shutdown()
