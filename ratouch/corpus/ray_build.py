@@ -341,6 +341,13 @@ class ShardStore:
         self.manifest["shards"][str(shard)] = {"count": len(table), "sha256": sums}
         write_json_atomic(self.path, self.manifest)
 
+    def add_llm_stats(self, requests: int, fallbacks: int) -> None:
+        """Add one run's LLM request and fallback counts to the manifest's totals."""
+        stats = self.manifest.setdefault("captioner_stats", {"n_requests": 0, "n_fallbacks": 0})
+        stats["n_requests"] += requests
+        stats["n_fallbacks"] += fallbacks
+        write_json_atomic(self.path, self.manifest)
+
     def read(self, shard: int) -> tuple[list[CorpusEntry], np.ndarray, np.ndarray]:
         """One finished shard, checked against its checksums."""
         rec = self.manifest["shards"][str(shard)]
@@ -574,11 +581,8 @@ def build_corpus_ray(out: str | os.PathLike, size: int | str = "10k", seed: int 
         finally:
             if started:
                 ray.shutdown()
-    if recaption.backend == "llm":  # counters of this run (earlier runs' are in their logs)
-        store.manifest.setdefault("captioner_stats", {"n_requests": 0, "n_fallbacks": 0})
-        store.manifest["captioner_stats"]["n_requests"] += clock.llm_requests
-        store.manifest["captioner_stats"]["n_fallbacks"] += clock.llm_fallbacks
-        write_json_atomic(store.path, store.manifest)
+    if recaption.backend == "llm":
+        store.add_llm_stats(clock.llm_requests, clock.llm_fallbacks)
     ta = time.perf_counter()
     entries_meta = {"kind": "imagenet-t", "size": store.n, "seed": seed,
                     "source": build["source"], "captioner": recaption.backend,
