@@ -118,11 +118,25 @@ def _add_corpus(sub) -> None:
     b.add_argument("--endpoint", help="OpenAI-compatible base URL for --captioner llm "
                                       "(key from $RATOUCH_LLM_API_KEY)")
     b.add_argument("--model", default="gpt-4o-mini")
-    b.add_argument("--from-list", help="CSV of (image path, class, caption) for a real corpus")
+    b.add_argument("--from-list", help="CSV or Parquet of (image path, class, caption) for a "
+                                       "real corpus")
     b.add_argument("--encoder", default="default-s", help="encoder to embed with")
-    b.add_argument("--index", choices=("flat", "hnsw", "ivfpq"), default="flat")
+    b.add_argument("--index", choices=("flat", "hnsw", "ivfpq", "ivfflat"), default="flat",
+                   help="with --engine ray, ivfflat/ivfpq are built from the shards on disk")
     b.add_argument("--no-embed", action="store_true", help="only recaption and sample")
-    b.add_argument("--workers", type=_pos_int, default=2)
+    b.add_argument("--workers", type=_pos_int, default=2,
+                   help="render processes (local) or embedding actors (ray)")
+    b.add_argument("--engine", choices=("local", "ray"), default="local",
+                   help="local: one process; ray: a Ray Data pipeline, resumable shards")
+    b.add_argument("--address", default=None, help="Ray cluster address (default: "
+                                                   "$RAY_ADDRESS, else a local Ray)")
+    b.add_argument("--num-cpus", type=_pos_int, default=None, help="CPUs of a local Ray")
+    b.add_argument("--batch-size", type=_pos_int, default=250, help="entries per Ray batch")
+    b.add_argument("--shard-size", type=_pos_int, default=1000, help="entries per shard")
+    b.add_argument("--llm-concurrency", type=_pos_int, default=8,
+                   help="LLM requests in flight at once (ray)")
+    b.add_argument("--llm-rate", type=float, default=50.0,
+                   help="LLM requests per second, 0 for no limit (ray)")
 
 
 def _add_train(sub) -> None:
@@ -307,6 +321,14 @@ def _add_bench(sub) -> None:
     qb.add_argument("--corpus", default=None)
     qb.add_argument("--n", type=_pos_int, default=60)
     qb.add_argument("--json", action="store_true")
+    cb = bsub.add_parser("corpus", help="corpus build throughput per stage and peak memory, "
+                                        "single process or on Ray")
+    cb.add_argument("--engine", choices=("local", "ray"), default="ray")
+    cb.add_argument("--n", type=_pos_int, default=2000)
+    cb.add_argument("--workers", type=_pos_int, default=2,
+                    help="render processes (local) or embedding actors (ray)")
+    cb.add_argument("--encoder", default="default-s")
+    cb.add_argument("--json", action="store_true")
     w = bsub.add_parser("world", help="corpus + test split generation throughput")
     w.add_argument("--corpus-size", default="10k")
     w.add_argument("--workers", type=_pos_int, default=2)
@@ -375,12 +397,29 @@ def _run_corpus(args: argparse.Namespace) -> int:
     from ratouch.serve.pipeline import embed_and_index
 
     rc = RecaptionConfig(backend=args.captioner, endpoint=args.endpoint, model=args.model)
+    if args.engine == "ray":
+        return _run_corpus_ray(args, rc)
     manifest = build_corpus(args.out, args.size, seed=args.seed, recaption=rc,
                             image_list=args.from_list)
     if not args.no_embed:
 
         manifest = {**manifest, **embed_and_index(args.out, args.encoder, args.index,
                                                   workers=args.workers)}
+    print(json.dumps(manifest))
+    return 0
+
+
+def _run_corpus_ray(args: argparse.Namespace, rc) -> int:
+    from ratouch.corpus.ray_build import RayOptions, build_corpus_ray
+
+    if args.no_embed:
+        raise _usage("--no-embed is not supported with --engine ray (it embeds as it goes)")
+    opts = RayOptions(address=args.address, num_cpus=args.num_cpus, workers=args.workers,
+                      batch_size=args.batch_size, shard_size=args.shard_size,
+                      llm_concurrency=args.llm_concurrency, llm_rate=args.llm_rate)
+    manifest = build_corpus_ray(args.out, args.size, seed=args.seed, recaption=rc,
+                                image_list=args.from_list, encoder=args.encoder,
+                                index=args.index, options=opts)
     print(json.dumps(manifest))
     return 0
 
@@ -600,6 +639,12 @@ def _run_bench(args: argparse.Namespace) -> int:
 
     if args.bench_cmd == "tradeoff":
         return _bench_tradeoff(args)
+    if args.bench_cmd == "corpus":
+        from ratouch.bench.corpus import bench_corpus, format_corpus_bench
+
+        r = bench_corpus(args.engine, args.n, args.workers, args.encoder)
+        print(json.dumps(r) if args.json else format_corpus_bench(r))
+        return 0
     if args.bench_cmd == "query":
 
         r = bench_query(args.encoder, args.corpus, n=args.n)

@@ -53,14 +53,16 @@ def corpus_images(entries: Sequence[CorpusEntry], start: int, batch: int, worker
         return
 
     for k in tqdm(range(0, len(rest), batch), desc="read corpus images", disable=not progress):
-        out = []
-        for e in rest[k:k + batch]:
-            try:
-                with Image.open(e.source) as im:
-                    out.append(to_rgb_array(im))
-            except OSError as err:
-                raise DataError(f"corpus image {e.source} is unreadable: {err}") from err
-        yield out
+        yield [read_corpus_image(e.source) for e in rest[k:k + batch]]
+
+
+def read_corpus_image(path: str) -> np.ndarray:
+    """A real corpus entry's image as an (H, W, 3) uint8 array."""
+    try:
+        with Image.open(path) as im:
+            return to_rgb_array(im)
+    except OSError as err:
+        raise DataError(f"corpus image {path} is unreadable: {err}") from err
 
 
 def embed_corpus(corpus: str | os.PathLike, encoders, batch: int = 500, workers: int = 2,

@@ -122,11 +122,14 @@ def stratified_world_ids(size: int, seed: int, n_classes: int = len(OBJECT_CLASS
 
 
 def read_image_list(path: str | os.PathLike) -> list[tuple[str, str, str]]:
-    """Read a real corpus list: a CSV with columns path, class, caption (header optional).
-    Relative image paths are resolved against the list's folder."""
+    """Read a real corpus list: a CSV with columns path, class, caption (header optional), or
+    a Parquet file with columns path, class and optionally caption. Relative image paths are
+    resolved against the list's folder."""
     path = Path(path)
     if not path.is_file():
         raise DataNotFoundError(f"image list {path} does not exist")
+    if path.suffix.lower() == ".parquet":
+        return _read_parquet_list(path)
     rows = []
     with open(path, newline="") as f:
         for n, row in enumerate(csv.reader(f), 1):
@@ -142,6 +145,30 @@ def read_image_list(path: str | os.PathLike) -> list[tuple[str, str, str]]:
             if not img_path.is_file():
                 raise DataNotFoundError(f"{path}:{n}: image {img_path} does not exist")
             rows.append((str(img_path), cls, cap))
+    if not rows:
+        raise DataError(f"image list {path} has no rows")
+    return rows
+
+
+def _read_parquet_list(path: Path) -> list[tuple[str, str, str]]:
+    """A Parquet image list: columns path, class, optional caption."""
+    import pyarrow.parquet as pq  # heavy; only Parquet lists need it
+
+    try:
+        table = pq.read_table(path).to_pydict()
+    except (OSError, ValueError) as e:
+        raise DataError(f"image list {path} is not readable Parquet: {e}") from e
+    missing = {"path", "class"} - set(table)
+    if missing:
+        raise DataError(f"image list {path} lacks columns {sorted(missing)} "
+                        f"(has {sorted(table)})")
+    caps = table.get("caption") or [""] * len(table["path"])
+    rows = []
+    for n, (img, cls, cap) in enumerate(zip(table["path"], table["class"], caps), 1):
+        img_path = Path(img) if os.path.isabs(img) else path.parent / img
+        if not img_path.is_file():
+            raise DataNotFoundError(f"{path}: row {n}: image {img_path} does not exist")
+        rows.append((str(img_path), str(cls).strip(), str(cap or "").strip()))
     if not rows:
         raise DataError(f"image list {path} has no rows")
     return rows

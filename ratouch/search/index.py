@@ -16,10 +16,13 @@ import json
 import logging
 import math
 import os
+import shutil
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import Sequence
 
 import faiss
 import numpy as np
@@ -29,13 +32,14 @@ from ratouch.errors import ConfigError, DataError, DataNotFoundError
 
 logger = logging.getLogger(__name__)
 
-KINDS = ("flat", "hnsw", "ivfpq")
+KINDS = ("flat", "hnsw", "ivfpq", "ivfflat")
+ONDISK_FILE = "lists.ivfdata"
 INDEX_FILE = "index.faiss"
 MANIFEST_FILE = "manifest.json"
 MAX_TRAIN = 100_000
 _CHUNK = 65_536
 _FAISS_TYPES = {"flat": ("IndexFlatIP",), "hnsw": ("IndexHNSWFlat",),
-                "ivfpq": ("IndexIVFPQ", "IndexRefineFlat")}
+                "ivfpq": ("IndexIVFPQ", "IndexRefineFlat"), "ivfflat": ("IndexIVFFlat",)}
 SEARCH_FIELDS = frozenset({"ef_search", "nprobe", "refine_factor", "threads",
                            "blas_threshold"})
 
@@ -45,7 +49,8 @@ class IndexConfig:
     """How the index is built and searched.
 
     Attributes:
-        kind: "flat" (exact inner product), "hnsw" or "ivfpq".
+        kind: "flat" (exact inner product), "hnsw", "ivfpq" or "ivfflat" (inverted lists
+            of full vectors; with `VectorIndex.build_ondisk` the lists live on disk).
         hnsw_m: HNSW neighbours per node (M).
         ef_construction: HNSW candidate list size while building.
         ef_search: HNSW candidate list size while searching (recall vs latency).
@@ -172,11 +177,12 @@ class VectorIndex:
         self._cfg = cfg
         self._kind, self._dim, self._count = cfg.kind, int(index.d), int(index.ntotal)
         self._xb: np.ndarray | None = None  # in-place view of a flat index's vectors
+        self._ondisk = False
         self._params: faiss.SearchParameters | None = None
         self._ivf_params: faiss.SearchParameters | None = None
         if cfg.kind == "hnsw":
             self._params = faiss.SearchParametersHNSW(efSearch=cfg.ef_search)
-        elif cfg.kind == "ivfpq":
+        elif cfg.kind in ("ivfpq", "ivfflat"):
             nprobe = min(cfg.nprobe, faiss.extract_index_ivf(index).nlist)
             self._params = faiss.SearchParametersIVF(nprobe=nprobe)
             if cfg.refine_factor:
@@ -251,7 +257,7 @@ class VectorIndex:
             index.hnsw.efConstruction = cfg.ef_construction
             index.hnsw.efSearch = cfg.ef_search
         else:
-            index = cls._trained_ivfpq(x, cfg, seed)
+            index = cls._trained_ivfpq(x, cfg, seed, n)
         t0 = time.perf_counter()
         for start in range(0, n, _CHUNK * 4):
             index.add(x[start:start + _CHUNK * 4])
@@ -261,27 +267,100 @@ class VectorIndex:
         return cls(index, cfg)
 
     @staticmethod
-    def _trained_ivfpq(x: np.ndarray, cfg: IndexConfig, seed: int) -> faiss.Index:
-        n, dim = x.shape
+    def _trained_ivfpq(x: np.ndarray, cfg: IndexConfig, seed: int, n: int) -> faiss.Index:
+        """An empty IVF-PQ or IVF-flat index for `n` vectors, trained on (a sample of) x."""
+        dim = x.shape[1]
         pq_m = cfg.pq_m or _default_pq_m(dim)
-        if dim % pq_m:
+        if cfg.kind == "ivfpq" and dim % pq_m:
             raise ConfigError(f"pq_m={pq_m!r} must divide the dimension {dim}")
-        if n < 256:
-            raise ConfigError(f"kind='ivfpq' needs at least 256 vectors to train, got {n}")
+        if len(x) < 256:
+            raise ConfigError(f"kind={cfg.kind!r} needs at least 256 vectors to train, "
+                              f"got {len(x)}")
         nlist = cfg.nlist or _default_nlist(n)
-        if nlist > n:
-            raise ConfigError(f"nlist={nlist!r} is larger than the corpus of {n} entries")
+        if nlist > len(x):
+            raise ConfigError(f"nlist={nlist!r} is larger than the corpus of {len(x)} entries "
+                              "(training vectors)")
         quantizer = faiss.IndexFlatIP(dim)
-        index = faiss.IndexIVFPQ(quantizer, dim, nlist, pq_m, 8, faiss.METRIC_INNER_PRODUCT)
+        if cfg.kind == "ivfflat":
+            index = faiss.IndexIVFFlat(quantizer, dim, nlist, faiss.METRIC_INNER_PRODUCT)
+        else:
+            index = faiss.IndexIVFPQ(quantizer, dim, nlist, pq_m, 8, faiss.METRIC_INNER_PRODUCT)
+            index.pq.cp.seed = seed
         index.cp.seed = seed
         index.cp.niter = 10  # a good-enough partition; training dominates build time
-        index.pq.cp.seed = seed
+        n = len(x)
         rng = np.random.default_rng(seed)
         train = x if n <= MAX_TRAIN else x[np.sort(rng.choice(n, MAX_TRAIN, replace=False))]
         index.train(train)
         if cfg.refine_factor:
             index = faiss.IndexRefineFlat(index)
         return index
+
+    @classmethod
+    def build_ondisk(cls, shards: Sequence[np.ndarray], folder: str | os.PathLike,
+                     cfg: IndexConfig, meta: dict | None = None, seed: int = 0,
+                     workers: int = 2) -> VectorIndex:
+        """An IVF index over shards too big for memory together, its lists on disk.
+
+        The coarse quantiser is trained on a sample drawn from every shard (at most
+        MAX_TRAIN vectors); each shard is added (in parallel threads) to its own copy of the
+        trained index with global ids (shard offsets), and the copies are merged into one
+        index whose inverted lists live in `lists.ivfdata`, memory-mapped when loaded. Built
+        in a temporary folder that replaces `folder` at the end.
+
+        Args:
+            shards: (N_i, D) arrays (memory-mapped ones are read shard by shard).
+            folder: output folder (`index.faiss`, `lists.ivfdata`, `manifest.json`).
+            cfg: kind "ivfflat" or "ivfpq" (without refine_factor).
+            meta: caller metadata for the manifest.
+            seed: sampling and k-means seed.
+            workers: threads adding shards.
+        """
+        from faiss.contrib.ondisk import merge_ondisk  # faiss's own on-disk merge helper
+
+        if cfg.kind not in ("ivfflat", "ivfpq") or cfg.refine_factor:
+            raise ConfigError(f"kind={cfg.kind!r} (refine_factor={cfg.refine_factor}) cannot "
+                              "be built on disk; use 'ivfflat' or 'ivfpq' without refinement")
+        sizes = [len(x) for x in shards]
+        n = sum(sizes)
+        rng = np.random.default_rng(seed)
+        take = [min(m, max(1, round(MAX_TRAIN * m / n))) for m in sizes]
+        sample = np.concatenate([np.asarray(x)[np.sort(rng.choice(m, t, replace=False))]
+                                 for x, m, t in zip(shards, sizes, take)])
+        sample = _normalised(_as_matrix(sample, "index vectors"), "index vectors", warn=True)
+        trained = cls._trained_ivfpq(sample, cfg, seed, n)
+        folder = Path(folder)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}-", dir=folder.parent))
+        try:
+            offsets = np.concatenate([[0], np.cumsum(sizes)])
+
+            def add(k: int) -> str:
+                part = faiss.clone_index(trained)
+                x = _normalised(_as_matrix(shards[k], "index vectors"), "index vectors", True)
+                part.add_with_ids(x, np.arange(offsets[k], offsets[k + 1], dtype=np.int64))
+                path = str(tmp / f"part-{k:05d}.faiss")
+                faiss.write_index(part, path)
+                return path
+
+            with ThreadPoolExecutor(max(1, workers)) as pool:
+                parts = list(pool.map(add, range(len(shards))))
+            merged = faiss.clone_index(trained)
+            merge_ondisk(merged, parts, str(tmp / ONDISK_FILE))
+            faiss.write_index(merged, str(tmp / INDEX_FILE))
+            for part in parts:
+                os.unlink(part)
+            ondisk = {"file": ONDISK_FILE, "bytes": (tmp / ONDISK_FILE).stat().st_size}
+            _write_manifest(tmp, cfg.kind, dim=int(merged.d), count=n, cfg=cfg,
+                            meta=meta, ondisk=ondisk)
+            del merged
+            if folder.exists():
+                shutil.rmtree(folder)
+            os.replace(tmp, folder)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        logger.info("built an on-disk %s index of %d vectors in %d shards at %s", cfg.kind, n,
+                    len(shards), folder)
+        return cls.load(folder)[0]
 
     def search(self, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         """The k most similar indexed vectors for each query.
@@ -369,19 +448,11 @@ class VectorIndex:
         """
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
-        index_path = folder / INDEX_FILE
-        faiss.write_index(self._index, str(index_path))
-        manifest = {"kind": self.kind, "dim": self.dim, "count": self.count,
-                    "config": asdict(self._cfg), "index_sha256": sha256_file(index_path),
-                    "meta": dict(meta or {})}
-        fd, tmp = tempfile.mkstemp(prefix=".manifest-", suffix=".json", dir=folder)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                json.dump(manifest, fh, indent=2, sort_keys=True)
-            os.replace(tmp, folder / MANIFEST_FILE)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        if self._ondisk:
+            raise ConfigError("an on-disk or sharded index is saved where it is built "
+                              "(VectorIndex.build_ondisk)")
+        faiss.write_index(self._index, str(folder / INDEX_FILE))
+        _write_manifest(folder, self.kind, self.dim, self.count, self._cfg, meta)
         logger.info("saved a %s index of %d x %d to %s", self.kind, self.count, self.dim,
                     folder)
         return folder
@@ -430,8 +501,15 @@ class VectorIndex:
         if expected_encoder is not None and meta.get("encoder") != expected_encoder:
             raise DataError(f"index {str(folder)!r} was built with encoder "
                             f"{meta.get('encoder')!r}, expected {expected_encoder!r}")
+        ondisk = manifest.get("ondisk")
+        if ondisk:  # inverted lists memory-mapped from the file beside index.faiss
+            lists = folder / ondisk["file"]
+            if not lists.is_file() or lists.stat().st_size != ondisk["bytes"]:
+                raise DataError(f"index {str(folder)!r}: {ondisk['file']} is missing or has "
+                                f"the wrong size (expected {ondisk['bytes']} bytes)")
         try:
-            index = faiss.read_index(str(index_path))
+            index = faiss.read_index(str(index_path),
+                                     faiss.IO_FLAG_ONDISK_SAME_DIR if ondisk else 0)
         except RuntimeError as exc:
             raise DataError(f"index {str(folder)!r}: faiss cannot read {INDEX_FILE}: "
                             f"{exc}") from exc
@@ -441,7 +519,66 @@ class VectorIndex:
             raise DataError(f"index {str(folder)!r}: manifest says {kind} {count} x {dim}, "
                             f"{INDEX_FILE} holds {held} {index.ntotal} x {index.d}")
         logger.info("loaded a %s index of %d x %d from %s", kind, count, dim, folder)
-        return cls(index, cfg), meta
+        out = cls(index, cfg)
+        out._ondisk = bool(ondisk)
+        return out, meta
+
+
+def _write_manifest(folder: Path, kind: str, dim: int, count: int, cfg: IndexConfig,
+                    meta: dict | None, ondisk: dict | None = None) -> None:
+    """manifest.json (shape, config, checksum of index.faiss, caller metadata), atomically."""
+    manifest = {"kind": kind, "dim": dim, "count": count, "config": asdict(cfg),
+                "index_sha256": sha256_file(folder / INDEX_FILE), "meta": dict(meta or {})}
+    if ondisk:
+        manifest["ondisk"] = ondisk
+    fd, tmp = tempfile.mkstemp(prefix=".manifest-", suffix=".json", dir=folder)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(manifest, fh, indent=2, sort_keys=True)
+        os.replace(tmp, folder / MANIFEST_FILE)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+class ShardedVectorIndex(VectorIndex):
+    """Several indexes searched as one (e.g. one per machine): each shard's top-k, merged
+    by score; shard i's row r is global id offsets[i] + r (default: successive ranges).
+    Same search API as `VectorIndex`."""
+
+    def __init__(self, shards: Sequence[VectorIndex], offsets: Sequence[int] | None = None):
+        if not shards:
+            raise ConfigError("a sharded index needs at least one shard")
+        dims = sorted({s.dim for s in shards})
+        if len(dims) != 1:
+            raise DataError(f"index shards have different dimensions {dims}")
+        self._shards = list(shards)
+        self._offsets = (list(offsets) if offsets is not None else
+                         [int(x) for x in np.cumsum([0] + [s.count for s in shards[:-1]])])
+        if len(self._offsets) != len(shards):
+            raise ConfigError(f"{len(self._offsets)} offsets for {len(shards)} shards")
+        self._cfg = shards[0].config
+        self._kind, self._dim = self._cfg.kind, dims[0]
+        self._count = sum(s.count for s in shards)
+        self._ondisk, self._xb = True, None
+
+    def with_search(self, **changes: int | None) -> VectorIndex:
+        return ShardedVectorIndex([s.with_search(**changes) for s in self._shards],
+                                  self._offsets)
+
+    def search(self, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+            raise ConfigError(f"K={k!r} must be a positive integer")
+        if k > self.count:
+            raise ConfigError(f"K={k} larger than the corpus of {self.count} entries")
+        q = self._prepare_queries(queries)
+        parts = [s.search(q, min(int(k), s.count)) for s in self._shards]
+        scores = np.concatenate([p[0] for p in parts], axis=1)
+        ids = np.concatenate([np.where(p[1] >= 0, p[1] + off, -1)
+                              for p, off in zip(parts, self._offsets)], axis=1)
+        order = np.argsort(-scores, axis=1, kind="stable")[:, :k]
+        return (np.take_along_axis(scores, order, 1).astype(np.float32),
+                np.take_along_axis(ids, order, 1).astype(np.int64))
 
 
 def exact_topk(queries: np.ndarray, keys: np.ndarray, k: int, max_bytes: int = 1 << 28

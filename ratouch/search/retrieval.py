@@ -48,6 +48,11 @@ class Neighbour:
     material: str
 
 
+def index_folder(corpus: str | os.PathLike, encoder_name: str, key: str, kind: str) -> Path:
+    """Where a corpus's index of one key modality and kind lives."""
+    return Path(corpus) / "index" / encoder_name / f"{key}-{kind}"
+
+
 class CorpusIndex:
     """A corpus with its embeddings and one index per key modality (image, text).
 
@@ -67,7 +72,7 @@ class CorpusIndex:
         self.indexes = {key: self._index(key, emb) for key, emb in (("image", img), ("text", txt))}
 
     def _index(self, key: str, emb: np.ndarray) -> VectorIndex:
-        folder = self.folder / "index" / self.encoder_name / f"{key}-{self.cfg.kind}"
+        folder = index_folder(self.folder, self.encoder_name, key, self.cfg.kind)
         if (folder / "manifest.json").is_file():
             index, meta = VectorIndex.load(folder, expected_dim=self.dim,
                                            expected_encoder=self.encoder_name)
