@@ -151,6 +151,14 @@ def _add_train(sub) -> None:
     g.add_argument("--seed", type=_nonneg_int, default=0)
     g.add_argument("--stage1-steps", type=_pos_int, default=None)
     g.add_argument("--stage2-steps", type=_pos_int, default=None)
+    tr = tsub.add_parser("trust", help="calibrate the trust signals (novelty, no contact) on "
+                                       "the world's validation renders")
+    tr.add_argument("--encoder", default="default-s")
+    tr.add_argument("--seed", type=_nonneg_int, default=0)
+    tr.add_argument("--false-alarm", type=float, default=0.02,
+                    help="share of in-distribution validation inputs each signal may flag")
+    tr.add_argument("--out", default=None,
+                    help="calibration JSON (default: assets/trust/ENCODER.json)")
     a = tsub.add_parser("all", help="encoders, retriever and generators, in order")
     a.add_argument("--seed", type=_nonneg_int, default=0)
 
@@ -383,6 +391,8 @@ def _run_train(args: argparse.Namespace) -> int:
                                        ("stage2_steps", args.stage2_steps)) if v}
         print(json.dumps(recipes.generator_recipe(args.encoder, args.seed, **overrides)))
         return 0
+    if args.train_cmd == "trust":
+        return _train_trust(args)
     if args.train_cmd == "all":
         args.model, args.out, args.steps, args.threads = None, None, None, 2
         args.n_pairs, args.n_corpus = 12_000, 8_000
@@ -391,6 +401,22 @@ def _run_train(args: argparse.Namespace) -> int:
         print(json.dumps(recipes.generator_recipe(seed=args.seed)))
         return 0
     return _train_encoders(args)
+
+
+def _train_trust(args: argparse.Namespace) -> int:
+
+    from ratouch.encoders.factory import create_model
+    from ratouch.paths import trust_calibration
+    from ratouch.train.trust import TrustConfig, calibrate
+
+    cal = calibrate(create_model(args.encoder),
+                    TrustConfig(seed=args.seed, false_alarm=args.false_alarm))
+    out = cal.save(args.out or trust_calibration(args.encoder))
+    print(json.dumps({"written": str(out), "contact_threshold": cal.contact_threshold,
+                      "contact_threshold_bg": cal.contact_threshold_bg,
+                      "visual_threshold": cal.visual.threshold,
+                      "tactile_threshold": cal.tactile.threshold, **cal.meta}, indent=1))
+    return 0
 
 
 def _train_encoders(args: argparse.Namespace) -> int:
