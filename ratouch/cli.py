@@ -299,6 +299,12 @@ def _add_bench(sub) -> None:
     qb.add_argument("--corpus", default=None)
     qb.add_argument("--n", type=_pos_int, default=60)
     qb.add_argument("--json", action="store_true")
+    up = bsub.add_parser("upload", help="a huge tactile upload: its latency, where the time "
+                                        "goes, and the delay of a normal query beside it")
+    up.add_argument("--encoder", default="default-s")
+    up.add_argument("--corpus", default=None)
+    up.add_argument("--side", type=_pos_int, default=6000, help="side of the square PNG")
+    up.add_argument("--repeats", type=_pos_int, default=3)
     w = bsub.add_parser("world", help="corpus + test split generation throughput")
     w.add_argument("--corpus-size", default="10k")
     w.add_argument("--workers", type=_pos_int, default=2)
@@ -603,6 +609,12 @@ def _run_bench(args: argparse.Namespace) -> int:
 
         r = bench_query(args.encoder, args.corpus, n=args.n)
         print(json.dumps(r, indent=None if args.json else 1))
+        return 0
+    if args.bench_cmd == "upload":
+        from ratouch.bench.upload import bench_upload
+
+        print(json.dumps(bench_upload(args.encoder, args.corpus, args.side, args.repeats),
+                         indent=1))
         return 0
     if args.bench_cmd == "retrieval":
 

@@ -503,7 +503,8 @@ def test_the_batcher_answers_concurrent_queries_together(monkeypatch):
         return [DataError(f"bad {r['k']}") if r["k"] == 13 else {"k": r["k"]}
                 for r in requests]
 
-    b = serving.QueryBatcher(SimpleNamespace(corpus="the corpus", query_many=fake_many),
+    b = serving.QueryBatcher(SimpleNamespace(corpus="the corpus", query_many=fake_many,
+                                             prepare_request=dict),
                              max_batch=4)
     assert b.corpus == "the corpus"
     out, errors = {}, {}

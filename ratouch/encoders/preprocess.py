@@ -68,11 +68,11 @@ MIN_SIDE = 8
 MAX_PIXELS = 50_000_000
 #: Largest accepted output size for the tensor builders.
 MAX_TENSOR_SIZE = 4096
-#: Longer side an upload is reduced to before any per-pixel work when it serves a query: at
-#: least twice every encoder's input side (default backend 64 px, TVL 224 px), so the
-#: reduction changes what the encoders see very little while a 36-megapixel upload costs
-#: what a 0.3-megapixel one does.
-QUERY_MAX_SIDE = 512
+#: Longer side an upload is reduced to before any per-pixel work when it serves a query: a
+#: DIGIT / GelSight-Mini frame's native 320 x 240 passes untouched, and it is above every
+#: encoder's input side (default backend 64 px, TVL 224 px), so a 36-megapixel upload costs
+#: what a 0.08-megapixel one does after decoding.
+QUERY_MAX_SIDE = 320
 
 # Half-width of the contact crop relative to the longer image side, as in TVL
 # (``im_scale_range[1]``); the crop side is sqrt(2) * scale * max(H, W).
@@ -262,6 +262,9 @@ def _pil_to_rgb(img: Image.Image, what: str, max_side: int | None = None) -> np.
         img.load()
     except (OSError, ValueError, SyntaxError) as e:  # truncated or corrupt file data
         raise DataError(f"cannot decode {what}: {e}") from e
+    if max_side is not None and img.mode in _REDUCIBLE_MODES:
+        # reduce first: the EXIF rotation keeps the longer side, and copies the image
+        img = _reduce_pil(img, max_side)
     try:
         rotated = ImageOps.exif_transpose(img)
     except Exception as e:  # broken EXIF blocks must not make the image unusable
@@ -269,8 +272,6 @@ def _pil_to_rgb(img: Image.Image, what: str, max_side: int | None = None) -> np.
         rotated = None
     if rotated is not None:
         img = rotated
-    if max_side is not None and img.mode in _REDUCIBLE_MODES:
-        img = _reduce_pil(img, max_side)
     mode = img.mode
     if mode == "RGB":
         return np.array(img, dtype=np.uint8)
@@ -311,8 +312,9 @@ def _open_image(path: str | os.PathLike[str], role: str = "image") -> Image.Imag
         raise DataError(f"cannot read {role} {path_str} as an image: {e}") from e
 
 
-def _bounded(arr: np.ndarray, max_side: int | None) -> np.ndarray:
-    """An ``(H, W, 3)`` ``uint8`` array reduced so its longer side is at most ``max_side``."""
+def fit_within(arr: np.ndarray, max_side: int | None) -> np.ndarray:
+    """An ``(H, W, 3)`` ``uint8`` array reduced (antialiased, aspect kept) so that its longer
+    side is at most ``max_side`` pixels (unchanged if it already is, or ``max_side`` is None)."""
     if max_side is None or max(arr.shape[:2]) <= max_side:
         return arr
     return np.asarray(_reduce_pil(Image.fromarray(arr), max_side), dtype=np.uint8)
@@ -350,12 +352,12 @@ def to_rgb_array(image: ImageLike, name: str | None = None,
     if isinstance(image, (str, os.PathLike)):
         what = name or f"image {os.fspath(image)}"
         with _open_image(image, name or "image") as img:
-            return _bounded(_pil_to_rgb(img, what, max_side), max_side)
+            return fit_within(_pil_to_rgb(img, what, max_side), max_side)
     what = name or "image"
     if isinstance(image, Image.Image):
-        return _bounded(_pil_to_rgb(image, what, max_side), max_side)
+        return fit_within(_pil_to_rgb(image, what, max_side), max_side)
     if isinstance(image, np.ndarray):
-        return _bounded(_array_to_rgb(image, what), max_side)
+        return fit_within(_array_to_rgb(image, what), max_side)
     if isinstance(image, torch.Tensor):
         raise DataError(f"{what} is a torch.Tensor; pass a numpy array (H, W, C) or a PIL image")
     raise DataError(f"{what} must be a PIL image, a numpy array or a file path, "
