@@ -266,6 +266,9 @@ def _add_query(sub) -> None:
     q = sub.add_parser("query", help="one RA-Touch query: neighbours, description, PCA, timings")
     q.add_argument("--vision", required=True, help="visual image file")
     q.add_argument("--tactile", default=None, help="tactile image file (optional)")
+    q.add_argument("--background", default=None,
+                   help="the tactile sensor's no-contact frame (optional; same size as the "
+                        "tactile image), for the no-contact check")
     q.add_argument("--box", type=_box, default=None, help="contact box x0,y0,x1,y1 in pixels")
     q.add_argument("--k", type=_pos_int, default=5)
     q.add_argument("--label", default=None, help="ground-truth caption, if known (for the PCA)")
@@ -445,11 +448,13 @@ def _run_query(args: argparse.Namespace) -> int:
 
     from ratouch.serve.pipeline import RATouchPipeline
 
-    for path in (args.vision, args.tactile):
+    for role, path in (("visual image", args.vision), ("tactile image", args.tactile),
+                       ("background image", args.background)):
         if path is not None and not Path(path).is_file():
-            raise _usage(f"image file {path} does not exist")
+            raise _usage(f"{role} file {path} does not exist")
     pipe = RATouchPipeline.load(args.encoder, corpus=args.corpus)
-    result = pipe.query(args.vision, args.tactile, box=args.box, k=args.k, label=args.label)
+    result = pipe.query(args.vision, args.tactile, box=args.box, k=args.k, label=args.label,
+                        background=args.background)
     print(json.dumps(result, indent=1))
     return 0
 
