@@ -424,7 +424,7 @@ def test_benchmarks_tab_without_and_with_a_report(tmp_path):
     assert [p.name for p in view.list_figures(tmp_path)] == [
         "tradeoff.json", "b_recall.json", "broken.json"]
     report, note, *slots = handlers.benchmarks(tmp_path, 3)
-    assert "interactive chart **tradeoff** below" in report
+    assert "interactive chart **tradeoff** above" in report
     assert f"/gradio_api/file={(figs / 'local.png').resolve()}" in report
     assert "gone.png) not found" in report and "| a | b |" in report
     assert f"[interactive](/gradio_api/file={(figs / 'tradeoff.html').resolve()})" in report
