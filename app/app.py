@@ -33,8 +33,8 @@ EXAMPLES = [0, 12, 40, 60, 140, 190, 290, 390]
 THUMBNAIL_SIDE = 128
 VISUAL_HEIGHT = 420  # the preview's display height: inputs end well above a 900 px fold
 # after Run, the answer is scrolled into view (the inputs stay just above it)
-SHOW_ANSWER_JS = ("() => document.getElementById('status')"
-                  "?.scrollIntoView({behavior: 'smooth', block: 'start'})")
+SHOW_ANSWER_JS = ("() => document.getElementById('description')"
+                  "?.scrollIntoView({behavior: 'smooth', block: 'nearest'})")
 MAX_K = handlers.MAX_K
 SESSION_TTL_S = 2 * 3600
 
@@ -168,8 +168,11 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int) -> N
                 type="filepath", image_mode=None, sources=["upload", "clipboard"],
                 format="png", height=VISUAL_HEIGHT, elem_id="visual")
             with gr.Row():
-                ui.fields = [gr.Number(value=None, label=n, precision=0, elem_id=f"box-{n}",
-                                       min_width=60) for n in ("x0", "y0", "x1", "y1")]
+                # text fields: empty until a box is marked (a Number would show 0 0 0 0,
+                # which reads as a real zero-size box)
+                ui.fields = [gr.Textbox(value="", label=n, placeholder="—", max_lines=1,
+                                        elem_id=f"box-{n}", min_width=60)
+                             for n in ("x0", "y0", "x1", "y1")]
                 ui.reset = gr.Button("Default box", size="sm", min_width=60)
             ui.box_note = gr.Markdown(elem_id="box-note")
         with gr.Column(scale=2):
@@ -187,7 +190,9 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int) -> N
                              elem_id="k")
             ui.run = gr.Button("Run query", variant="primary", elem_id="run")
             ui.status = gr.Markdown(elem_id="status")
-            with gr.Accordion("Examples from the world's test split (ground-truth label shown)"):
+            # closed: open, it would push the answer below the fold
+            with gr.Accordion("Examples from the world's test split (ground-truth label shown)",
+                              open=False, elem_id="examples-box"):
                 ui.examples = gr.Gallery(
                     handlers.example_gallery(world, EXAMPLES), columns=4, height=220,
                     allow_preview=False, show_label=False, elem_id="examples",

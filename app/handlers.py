@@ -74,8 +74,9 @@ def user_message(e: BaseException, files: dict[str, Any] | None = None) -> str:
         log.error("unexpected error in an app handler", exc_info=e)
         return f"internal error ({type(e).__name__}); it has been logged on the server"
     for role, path in (files or {}).items():
-        if isinstance(path, str) and path:
-            msg = msg.replace(path, f"{Path(path).name} ({role})")
+        if isinstance(path, str) and path:  # the first mention with its role, then the name
+            msg = msg.replace(path, f"{Path(path).name} ({role})", 1)
+            msg = msg.replace(path, Path(path).name)
     return msg
 
 
