@@ -98,6 +98,7 @@ def bench_upload(encoder: str = "default-s", corpus=None, side: int = 6000, repe
             runs["beside_normal"].append(_pair(server, normal, normal, gap_s)["second_ms"])
     med = {k: statistics.median(v) for k, v in runs.items()}
     return {"side": side, "file_mb": file_mb, "repeats": repeats, "max_side": QUERY_MAX_SIDE,
+            "cpu_count": os.cpu_count(), "load_average_1m": round(os.getloadavg()[0], 2),
             "median_ms": med, "runs_ms": runs, "huge_decode": stages,
             "huge_timings_ms": last["timings_ms"],
             "delay_beside_huge_ms": round(med["beside_huge"] - med["normal"], 1),

@@ -42,7 +42,12 @@ from ratouch.errors import ConfigError, DataError, RATouchError
 from ratouch.model.generator import load_generator
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.model.retriever import RetrieverConfig, TactileGuidedRetriever
-from ratouch.paths import cache_dir, generator_weights, retriever_weights, trust_calibration
+from ratouch.paths import (
+    cache_dir,
+    generator_weights,
+    retriever_weights,
+    trust_calibration,
+)
 from ratouch.search.index import IndexConfig
 from ratouch.search.pca import PCA2D
 from ratouch.search.retrieval import QUERY_MODES, CorpusIndex, CorpusSearch

@@ -23,9 +23,10 @@ from __future__ import annotations
 import json
 import logging
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from PIL import Image
@@ -66,7 +67,7 @@ class Novelty:
     threshold: float = float("inf")
 
     @classmethod
-    def fit(cls, reference: np.ndarray, rank: int = 16) -> "Novelty":
+    def fit(cls, reference: np.ndarray, rank: int = 16) -> Novelty:
         """Fit the distance to (N, D) reference embeddings (threshold left at +inf)."""
         X = np.asarray(reference, np.float64)
         if X.ndim != 2 or len(X) <= rank:
@@ -86,7 +87,7 @@ class Novelty:
         m2 = (z * z / self.variances).sum(1) + np.maximum(resid, 0) / self.residual
         return np.sqrt(m2 / self.mean.shape[0])
 
-    def with_threshold(self, threshold: float) -> "Novelty":
+    def with_threshold(self, threshold: float) -> Novelty:
         return Novelty(self.mean, self.components, self.variances, self.residual,
                        float(threshold))
 
@@ -96,7 +97,7 @@ class Novelty:
                 "threshold": self.threshold}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Novelty":
+    def from_dict(cls, d: dict) -> Novelty:
         return cls(np.asarray(d["mean"], np.float64), np.asarray(d["components"], np.float64),
                    np.asarray(d["variances"], np.float64), float(d["residual"]),
                    float(d["threshold"]))
@@ -184,7 +185,7 @@ class TrustCalibration:
         return write_atomic(path, "\n".join(lines) + "\n}\n")
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "TrustCalibration":
+    def load(cls, path: str | os.PathLike) -> TrustCalibration:
         """Read a calibration written by `save`.
 
         Raises:
