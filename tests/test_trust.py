@@ -156,3 +156,20 @@ def test_calibration_is_reproducible(tmp_path):
     assert a.contact_threshold == b.contact_threshold
     assert a.visual.threshold == b.visual.threshold
     assert a.meta["measured"]["no_contact_detected_test"] >= 0.9
+
+
+def test_huge_visual_crop_matches_the_full_resolution_crop(tmp_path):
+    """A crop reduced inside PIL (bounded work) shows what the full-resolution crop shows."""
+    from ratouch.encoders.preprocess import crop_box, fit_within
+
+    rng = np.random.default_rng(0)
+    small = rng.integers(0, 256, (60, 80, 3), dtype=np.uint8)
+    big = np.asarray(Image.fromarray(small).resize((4000, 3000), Image.NEAREST))
+    Image.fromarray(big).save(tmp_path / "big.jpg", quality=95)
+    box = (1000, 500, 2600, 2100)
+    fast = crop_box(tmp_path / "big.jpg", box, max_side=QUERY_MAX_SIDE)
+    slow = fit_within(crop_box(to_rgb_array(tmp_path / "big.jpg"), box), QUERY_MAX_SIDE)
+    assert fast.shape == slow.shape == (320, 320, 3)
+    assert np.abs(fast.astype(int) - slow.astype(int)).mean() < 8
+    with pytest.raises(DataError, match="outside the 4000x3000"):
+        crop_box(tmp_path / "big.jpg", (5000, 5000, 5100, 5100), max_side=QUERY_MAX_SIDE)

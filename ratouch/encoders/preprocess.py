@@ -367,25 +367,33 @@ def to_rgb_array(image: ImageLike, name: str | None = None,
 # --------------------------------------------------------------------------- boxes
 
 
-def crop_box(image: ImageLike, box: Sequence[float]) -> np.ndarray:
-    """Crop ``box = (x0, y0, x1, y1)`` (pixels, x1/y1 exclusive) out of an image.
-
-    Fractional coordinates are widened to whole pixels (x0/y0 floored, x1/y1 ceiled).
-    A box partially outside the image is clipped to it.
-
-    Args:
-        image: Any image :func:`to_rgb_array` accepts.
-        box: ``(x0, y0, x1, y1)`` with ``x0 < x1`` and ``y0 < y1``.
-
-    Returns:
-        The ``(h, w, 3)`` ``uint8`` crop (a copy).
+def oriented_size(image: ImageLike, name: str = "image") -> tuple[int, int]:
+    """``(width, height)`` of an image as :func:`to_rgb_array` returns it (EXIF orientation
+    applied); a file's is read from its header, without decoding the pixels.
 
     Raises:
-        DataError: If the box is malformed, empty, inverted or entirely outside the image
-            (the message names the box and the image size).
+        DataNotFoundError / DataError: as :func:`to_rgb_array` for unusable images.
     """
-    arr = to_rgb_array(image)
-    height, width = arr.shape[:2]
+    if isinstance(image, (str, os.PathLike)):
+        with _open_image(image, name) as img:
+            return _oriented(img, name)
+    if isinstance(image, Image.Image):
+        return _oriented(image, name)
+    height, width = to_rgb_array(image, name).shape[:2]  # arrays are decoded already
+    return width, height
+
+
+def _oriented(img: Image.Image, what: str) -> tuple[int, int]:
+    _check_size(img.width, img.height, what)
+    try:
+        orientation = img.getexif().get(0x0112, 1)
+    except Exception:  # noqa: BLE001 - broken EXIF is ignored, as in _pil_to_rgb
+        orientation = 1
+    return (img.height, img.width) if orientation in (5, 6, 7, 8) else (img.width, img.height)
+
+
+def _clip_box(box: Sequence[float], width: int, height: int) -> tuple[int, int, int, int]:
+    """A box as whole pixels clipped to a ``width`` x ``height`` image (see :func:`crop_box`)."""
     try:
         values = [float(v) for v in box]
     except (TypeError, ValueError) as e:
@@ -408,7 +416,43 @@ def crop_box(image: ImageLike, box: Sequence[float]) -> np.ndarray:
     if (cx0, cy0, cx1, cy1) != (ix0, iy0, ix1, iy1):
         log.debug("box %s clipped to (%d, %d, %d, %d) for a %dx%d image",
                   tuple(box), cx0, cy0, cx1, cy1, width, height)
-    return arr[cy0:cy1, cx0:cx1].copy()
+    return cx0, cy0, cx1, cy1
+
+
+def crop_box(image: ImageLike, box: Sequence[float], max_side: int | None = None,
+             name: str | None = None) -> np.ndarray:
+    """Crop ``box = (x0, y0, x1, y1)`` (pixels, x1/y1 exclusive) out of an image.
+
+    Fractional coordinates are widened to whole pixels (x0/y0 floored, x1/y1 ceiled).
+    A box partially outside the image is clipped to it.
+
+    Args:
+        image: Any image :func:`to_rgb_array` accepts.
+        box: ``(x0, y0, x1, y1)`` with ``x0 < x1`` and ``y0 < y1``, in pixels of the image.
+        max_side: When given, the crop is returned with its longer side at most this many
+            pixels, and a file or PIL image is reduced inside PIL before it becomes an array
+            (the work is bounded by ``max_side``, not by the image's pixels).
+        name: How to name the image in error messages.
+
+    Returns:
+        The ``(h, w, 3)`` ``uint8`` crop (a copy).
+
+    Raises:
+        DataError: If the box is malformed, empty, inverted or entirely outside the image
+            (the message names the box and the image size).
+    """
+    if max_side is None or isinstance(image, np.ndarray):
+        arr = to_rgb_array(image, name)
+        cx0, cy0, cx1, cy1 = _clip_box(box, arr.shape[1], arr.shape[0])
+        return fit_within(arr[cy0:cy1, cx0:cx1].copy(), max_side)
+    width, height = oriented_size(image, name or "image")
+    cx0, cy0, cx1, cy1 = _clip_box(box, width, height)
+    factor = min(1.0, max_side / max(cx1 - cx0, cy1 - cy0))
+    arr = to_rgb_array(image, name, max_side=max(MIN_SIDE, math.ceil(max(width, height) * factor)))
+    sx, sy = arr.shape[1] / width, arr.shape[0] / height
+    rx0, ry0 = math.floor(cx0 * sx), math.floor(cy0 * sy)
+    rx1, ry1 = max(math.ceil(cx1 * sx), rx0 + 1), max(math.ceil(cy1 * sy), ry0 + 1)
+    return fit_within(arr[ry0:ry1, rx0:rx1].copy(), max_side)
 
 
 def tvl_contact_box(width: int, height: int, version: str = "v1",

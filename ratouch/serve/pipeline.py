@@ -34,7 +34,7 @@ from ratouch.encoders.factory import create_model
 from ratouch.encoders.preprocess import (
     QUERY_MAX_SIDE,
     crop_box,
-    fit_within,
+    oriented_size,
     to_rgb_array,
     tvl_contact_box,
 )
@@ -260,13 +260,14 @@ class RATouchPipeline:
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= n:
             raise ConfigError(f"k must be a whole number from 1 to {n} (K, the neighbours per "
                               f"mode), got k={k!r}")
-        image = to_rgb_array(req["visual"], name="visual image")
+        visual = req["visual"]
+        width, height = oriented_size(visual, "visual image")
         warnings: list[str] = []
         box = req.get("box")
         if box is None:
-            box = tvl_contact_box(image.shape[1], image.shape[0])
+            box = tvl_contact_box(width, height)
             warnings.append(f"no contact box given: used TVL's centred crop {list(box)}")
-        crop = fit_within(crop_box(image, box), QUERY_MAX_SIDE)
+        crop = crop_box(visual, box, max_side=QUERY_MAX_SIDE, name="visual image")
         frame, background = self._tactile_inputs(req, warnings)
         return {"prepared": True, "crop": crop, "frame": frame, "background": background,
                 "box": box, "k": int(k), "label": req.get("label"), "warnings": warnings,
