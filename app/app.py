@@ -31,7 +31,11 @@ log = logging.getLogger(__name__)
 # A few structured close-ups (indices < 46), then wild scenes, spread over the test split.
 EXAMPLES = [0, 12, 40, 60, 140, 190, 290, 390]
 THUMBNAIL_SIDE = 128
-MAX_K = 20
+VISUAL_HEIGHT = 420  # the preview's display height: inputs end well above a 900 px fold
+# after Run, the answer is scrolled into view (the inputs stay just above it)
+SHOW_ANSWER_JS = ("() => document.getElementById('description')"
+                  "?.scrollIntoView({behavior: 'smooth', block: 'nearest'})")
+MAX_K = handlers.MAX_K
 SESSION_TTL_S = 2 * 3600
 
 CSS = """
@@ -102,8 +106,7 @@ def _header(pipeline) -> str:
                     f"({time.perf_counter() - pipeline.started:.0f} s so far): browse "
                     "examples meanwhile; a query waits until they are ready")
         return f"{title}`{pipeline.name}` · ⛔ {status}"
-    return (f"{title}`{pipeline.encoders.name}` · corpus of {len(pipeline.corpus.entries):,} "
-            "ImageNet-T entries")
+    return f"{title}`{pipeline.encoders.name}` · {view.corpus_provenance(pipeline.corpus)}"
 
 
 def _layout(pipeline, world, conditions) -> SimpleNamespace:
@@ -143,11 +146,9 @@ def _layout(pipeline, world, conditions) -> SimpleNamespace:
             with gr.Row():
                 ui.fig_note = gr.Markdown(elem_id="bench-note")
                 ui.reload = gr.Button("Reload", size="sm", min_width=80, scale=0)
-            ui.figures = []
-            for row in range(0, MAX_FIGURES, 2):
-                with gr.Row():
-                    ui.figures += [gr.Plot(visible=False, elem_id=f"bench-fig-{row + j}")
-                                   for j in range(2)]
+            # one figure per row: the charts' legends and axis labels need the full width
+            ui.figures = [gr.Plot(visible=False, elem_id=f"bench-fig-{i}")
+                          for i in range(MAX_FIGURES)]
             ui.report = gr.Markdown(elem_id="bench-report")
     with gr.Row(visible=False):  # the /query API's own inputs and output
         ui.api_visual = gr.File(label="visual image", file_types=["image"])
@@ -158,35 +159,51 @@ def _layout(pipeline, world, conditions) -> SimpleNamespace:
 
 
 def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int) -> None:
+    # inputs, then the answer right below them (description and trust first); the examples
+    # sit beside the inputs, never between the inputs and the answer
     with gr.Row():
         with gr.Column(scale=3):
             ui.visual = gr.Image(
                 label="Visual image — click two opposite corners of the contact box",
                 type="filepath", image_mode=None, sources=["upload", "clipboard"],
-                format="png", height=PREVIEW_SIDE, elem_id="visual")
+                format="png", height=VISUAL_HEIGHT, elem_id="visual")
             with gr.Row():
-                ui.fields = [gr.Number(label=n, precision=0, elem_id=f"box-{n}",
-                                       min_width=60) for n in ("x0", "y0", "x1", "y1")]
+                # text fields: empty until a box is marked (a Number would show 0 0 0 0,
+                # which reads as a real zero-size box)
+                ui.fields = [gr.Textbox(value="", label=n, placeholder="—", max_lines=1,
+                                        elem_id=f"box-{n}", min_width=60)
+                             for n in ("x0", "y0", "x1", "y1")]
                 ui.reset = gr.Button("Default box", size="sm", min_width=60)
             ui.box_note = gr.Markdown(elem_id="box-note")
         with gr.Column(scale=2):
-            ui.tactile = gr.Image(label="Tactile image (DIGIT / GelSight frame)",
-                                  type="filepath", image_mode=None, format="png",
-                                  sources=["upload", "clipboard"], height=300,
-                                  elem_id="tactile")
+            with gr.Row():
+                ui.tactile = gr.Image(label="Tactile image (DIGIT / GelSight frame)",
+                                      type="filepath", image_mode=None, format="png",
+                                      sources=["upload", "clipboard"], height=230,
+                                      elem_id="tactile", scale=3)
+                ui.background = gr.Image(label="Sensor background (optional)",
+                                         type="filepath", image_mode=None, format="png",
+                                         sources=["upload"], height=230, scale=2,
+                                         elem_id="background")
             ui.k = gr.Slider(1, min(MAX_K, n_corpus), value=min(5, n_corpus), step=1,
-                             label="K (neighbours per query)", elem_id="k")
+                             label=f"K (neighbours per query, 1–{min(MAX_K, n_corpus)})",
+                             elem_id="k")
             ui.run = gr.Button("Run query", variant="primary", elem_id="run")
             ui.status = gr.Markdown(elem_id="status")
-    with gr.Accordion("Examples from the world's test split (ground-truth label shown)"):
-        ui.examples = gr.Gallery(
-            handlers.example_gallery(world, EXAMPLES), columns=len(EXAMPLES), height=200,
-            allow_preview=False, show_label=False, elem_id="examples",
-            elem_classes="ra-gallery")
-        with gr.Row():
-            ui.index = gr.Number(label=f"or any test index (0–{test_size - 1})", value=0,
-                                 precision=0, minimum=0, maximum=test_size - 1)
-            ui.load = gr.Button("Load example", size="sm")
+            # closed: open, it would push the answer below the fold
+            with gr.Accordion("Examples from the world's test split (ground-truth label shown)",
+                              open=False, elem_id="examples-box"):
+                ui.examples = gr.Gallery(
+                    handlers.example_gallery(world, EXAMPLES), columns=4, height=220,
+                    allow_preview=False, show_label=False, elem_id="examples",
+                    elem_classes="ra-gallery")
+                with gr.Row():
+                    ui.index = gr.Number(label=f"or any test index (0–{test_size - 1})",
+                                         value=0, precision=0, minimum=0,
+                                         maximum=test_size - 1)
+                    ui.load = gr.Button("Load example", size="sm")
+    with gr.Row():
+        ui.description = gr.Markdown(elem_id="description")
     ui.galleries, ui.tables = [], []
     with gr.Row(equal_height=False):
         for mode in view.MODES:
@@ -196,9 +213,7 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int) -> N
                     show_label=False, columns=3, height=300, object_fit="contain",
                     elem_id=f"gallery-{mode}"))
                 ui.tables.append(gr.HTML(elem_id=f"table-{mode}"))
-    with gr.Row():
-        ui.plot = gr.Plot(label="PCA", elem_id="pca", scale=3)
-        ui.description = gr.Markdown(elem_id="description")
+    ui.plot = gr.Plot(label="PCA", elem_id="pca")
     ui.timings = gr.Markdown(elem_id="timings", elem_classes="ra-timings")
     with gr.Accordion("Raw result (the JSON that the /query API and `ratouch query` return)",
                       open=False):
@@ -210,9 +225,12 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
     """Connect events to the handlers. Only `/query` is an API; the UI's events are private."""
     box_out = [ui.state, ui.visual, *ui.fields, ui.box_note]
     example_out = [ui.state, ui.visual, ui.tactile, *ui.fields, ui.box_note]
-    query_in = [ui.state, ui.tactile, *ui.fields, ui.k]
+    query_in = [ui.state, ui.tactile, *ui.fields, ui.k, ui.background]
     query_out = [ui.status, *ui.galleries, *ui.tables, ui.plot, ui.description, ui.timings,
                  ui.raw]
+    # uploads reach the handlers undecoded (preprocess=False): the library decodes them with
+    # its bounds and its messages, which name the file and its role
+    raw = dict(preprocess=False)
     fail_in = [ui.subset, ui.condition, ui.fail_view]
     fail_out = [ui.fail_status, ui.fail_summary, ui.cases]
     bench_out = [ui.report, ui.fig_note, *ui.figures]
@@ -231,9 +249,10 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
         x, y = evt.index
         return handlers.click_box(state, x, y, (a, b, c, d))
 
-    def show_query(state, tac, a, b, c, d, k, progress=gr.Progress()):
+    def show_query(state, tac, a, b, c, d, k, bg, progress=gr.Progress()):
+        largest = MAX_K if _pending(pipeline) else min(MAX_K, len(pipeline.corpus.entries))
         return tuple(handlers.run_query(pipeline, thumbnail, state, tac, a, b, c, d, k,
-                                        progress))
+                                        progress, background=bg, largest_k=largest))
 
     def failures_tab(subset, condition, view_label, compute, progress=None):
         return tuple(handlers.failures_tab(pipeline, options, shared, compute, subset,
@@ -253,7 +272,9 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
         return _header(pipeline), gr.Timer(active=_pending(pipeline))
 
     gr.on([demo.load, ui.timer.tick], poll_header, None, [ui.header, ui.timer], **light)
-    ui.visual.upload(handlers.upload_visual, ui.visual, box_out, **private)
+    ui.visual.upload(handlers.visual_uploaded, ui.visual, box_out + query_out, **raw, **private)
+    ui.tactile.upload(handlers.upload_tactile, ui.tactile, [ui.tactile, *query_out], **raw,
+                      **private)
     ui.visual.clear(lambda: handlers.reset_box(None), None, box_out, **light)
     ui.examples.select(select_example, None, example_out, **private)
     ui.load.click(lambda i: handlers.load_example(world, i), ui.index, example_out, **private)
@@ -261,13 +282,14 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
     gr.on([f.submit for f in ui.fields] + [f.blur for f in ui.fields], handlers.typed_box,
           [ui.state, *ui.fields], [ui.state, ui.visual, ui.box_note], **light)
     ui.reset.click(handlers.reset_box, ui.state, box_out, **light)
-    ui.run.click(show_query, query_in, query_out, **queries, **private)
+    ui.run.click(show_query, query_in, query_out, **queries, **raw, **private).then(
+        None, None, None, js=SHOW_ANSWER_JS, **private)
     # failure cases: read from the cache when the tab opens, computed only on request
     gr.on([ui.failures_tab.select, ui.subset.change, ui.condition.change, ui.fail_view.change],
           show_failures, fail_in, fail_out, **private)
     ui.compute.click(compute_failures, fail_in, fail_out, concurrency_limit=1, **private)
     ui.cases.select(open_case, None, [*example_out, ui.tabs], **private).success(
-        show_query, query_in, query_out, **queries, **private)
+        show_query, query_in, query_out, **queries, **raw, **private)
     gr.on([ui.bench_tab.select, ui.reload.click],
           lambda: handlers.benchmarks(docs, MAX_FIGURES), None, bench_out, **private)
     ui.api_button.click(functools.partial(handlers.api_query, pipeline),

@@ -19,6 +19,7 @@ from PIL import Image
 from app import box as boxes
 from app import view
 from app.plot import pca_figure
+from ratouch.encoders.preprocess import QUERY_MAX_SIDE, to_rgb_array
 from ratouch.errors import DataError, RATouchError
 from ratouch.eval import failures
 
@@ -29,6 +30,30 @@ USER_ERRORS = (RATouchError, OSError, Image.DecompressionBombError)
 
 Fields = tuple[Any, Any, Any, Any]
 NO_BOX: Fields = (None, None, None, None)
+MAX_K = 20  # the app's largest K (neighbours per query mode)
+
+
+def upload_path(value: Any) -> str | np.ndarray | None:
+    """What an image component sends without gradio's own decoding (`preprocess=False`):
+    the uploaded file's {"path": ...} becomes its server path; None and arrays stay."""
+    if isinstance(value, dict):
+        return value.get("path")
+    return value
+
+
+def parse_k(k: Any, largest: int = MAX_K) -> int:
+    """K as typed or sent: a whole number from 1 to `largest`.
+
+    Raises:
+        DataError: naming K and the value, for anything else (2.5, "", "five", 0, 21).
+    """
+    try:
+        value = float(k)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if not (value.is_integer() and 1 <= value <= largest):
+        raise DataError(f"K must be a whole number from 1 to {largest}, got K={k!r}")
+    return int(value)
 
 
 def user_message(e: BaseException, files: dict[str, Any] | None = None) -> str:
@@ -49,8 +74,9 @@ def user_message(e: BaseException, files: dict[str, Any] | None = None) -> str:
         log.error("unexpected error in an app handler", exc_info=e)
         return f"internal error ({type(e).__name__}); it has been logged on the server"
     for role, path in (files or {}).items():
-        if isinstance(path, str) and path:
-            msg = msg.replace(path, f"{Path(path).name} ({role})")
+        if isinstance(path, str) and path:  # the first mention with its role, then the name
+            msg = msg.replace(path, f"{Path(path).name} ({role})", 1)
+            msg = msg.replace(path, Path(path).name)
     return msg
 
 
@@ -75,12 +101,14 @@ def _box_note(visual: boxes.Visual | None, box) -> str:
 
 # ---------------------------------------------------------------------- loading the images
 
-def upload_visual(path: str | None) -> tuple:
-    """A visual image was uploaded: check it, preview it, clear the box.
+def upload_visual(value: Any) -> tuple:
+    """A visual image was uploaded (the component's value, raw or a path): check it, preview
+    it, clear the box.
 
     Returns:
         (visual state, preview, x0, y0, x1, y1, box note)
     """
+    path = upload_path(value)
     if path is None:
         return (None, None, *NO_BOX, "")
     try:
@@ -88,6 +116,38 @@ def upload_visual(path: str | None) -> tuple:
     except USER_ERRORS as e:
         return (None, None, *NO_BOX, f"⛔ {_fail(e, {'visual image': path})}")
     return (visual, boxes.draw(visual, None), *NO_BOX, _box_note(visual, None))
+
+
+def visual_uploaded(value: Any) -> tuple:
+    """`upload_visual`, then the results: kept, or cleared (with the message) when the file
+    cannot be used, so that an old answer is never mistaken for the new one.
+
+    Returns:
+        (visual state, preview, x0, y0, x1, y1, box note, *QueryView)
+    """
+    out = upload_visual(value)
+    if out[0] is None and out[-1].startswith("⛔"):
+        return (*out, *error_view(out[-1][2:]))
+    return (*out, *(gr.update() for _ in QueryView._fields))
+
+
+def upload_tactile(value: Any) -> tuple:
+    """A tactile image was uploaded (the component's raw value): decode it now (bounded, as
+    the query will), so that an unreadable file is named, with its role, at once; it is then
+    removed and the previous results are cleared.
+
+    Returns:
+        (tactile image, *QueryView)
+    """
+    path = upload_path(value)
+    keep = tuple(gr.update() for _ in QueryView._fields)
+    if path is None or not isinstance(path, str):
+        return (gr.update(), *keep)
+    try:
+        to_rgb_array(path, name="tactile image", max_side=QUERY_MAX_SIDE)
+    except USER_ERRORS as e:
+        return (None, *error_view(_fail(e, {"tactile image": path})))
+    return (gr.update(), *keep)
 
 
 def example_gallery(world, indices: list[int]) -> list[tuple[np.ndarray, str]]:
@@ -186,21 +246,28 @@ def error_view(message: str) -> QueryView:
 
 
 def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual | None,
-              tactile: str | np.ndarray | None, x0, y0, x1, y1, k, progress=None) -> QueryView:
-    """Run `pipe.query` on the session's image, the tactile image and the box, and format it."""
+              tactile: Any, x0, y0, x1, y1, k, progress=None, background: Any = None,
+              largest_k: int = MAX_K) -> QueryView:
+    """Run `pipe.query` on the session's image, the tactile image (and the sensor's
+    background frame, if given) and the box, and format it. `tactile` and `background` may
+    be the components' raw values."""
+    tactile, background = upload_path(tactile), upload_path(background)
     try:
         if visual is None:
             raise DataError("upload a visual image or pick an example first")
         box = boxes.fields_to_box(x0, y0, x1, y1)
+        k = parse_k(k, largest_k)
         if progress is not None:
             progress(0.05, desc="encoding, retrieving, generating…")
-        result = pipe.query(visual.source, tactile, box=box, k=int(k), label=visual.label)
+        extra = {} if background is None else {"background": background}
+        result = pipe.query(visual.source, tactile, box=box, k=k, label=visual.label, **extra)
         t0 = time.perf_counter()
         if progress is not None:
             progress(0.9, desc="thumbnails…")
         galleries = [view.gallery_items(result, m, thumbnail) for m in view.MODES]
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
-        files = {"visual image": getattr(visual, "source", None), "tactile image": tactile}
+        files = {"visual image": getattr(visual, "source", None), "tactile image": tactile,
+                 "background image": background}
         return error_view(_fail(e, files))
     tables = [view.neighbour_table(result, m) for m in view.MODES]
     try:  # a ground-truth label (test-split examples): score both descriptions against it
@@ -225,7 +292,7 @@ def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k) 
         if visual is None:
             raise DataError("a visual image is required")
         box = boxes.fields_to_box(x0, y0, x1, y1)
-        return pipe.query(visual, tactile, box=box, k=int(5 if k is None else k))
+        return pipe.query(visual, tactile, box=box, k=parse_k(5 if k is None else k))
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         files = {"visual image": visual, "tactile image": tactile}
         raise gr.Error(user_message(e, files), print_exception=False) from e

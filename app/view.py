@@ -38,20 +38,43 @@ def share_mark(modes: list[str]) -> str:
     return "◆" * (len(modes) - 1) + " " + "·".join(MODE_LETTER[m] for m in modes)
 
 
+def group_by_caption(neighbours: Sequence[dict]) -> list[tuple[int, dict, int]]:
+    """(rank of the best, best neighbour, count) per distinct tactile caption, best first:
+    the top-K often repeats one caption, which a gallery then shows once (×count)."""
+    groups: dict[str, list] = {}
+    for rank, n in enumerate(neighbours, 1):
+        groups.setdefault(n["caption"], [rank, n, 0])[2] += 1
+    return [tuple(g) for g in groups.values()]
+
+
 def gallery_items(result: dict, mode: str, thumbnail: Callable[[int], np.ndarray]
                   ) -> list[tuple[np.ndarray, str]]:
-    """(thumbnail, caption) per neighbour of one mode, best first. The caption leads with
-    what fits under a thumbnail (rank, similarity, ◆ per other mode sharing it, class);
-    the gallery's preview shows the rest (tactile caption, which modes share it)."""
+    """(thumbnail, caption) per distinct tactile caption among one mode's neighbours, best
+    first (×n when n neighbours share it; the table below lists the raw top-K). The caption
+    leads with what fits under a thumbnail (rank, similarity, ×n, ◆ per other mode sharing
+    it, class); the gallery's preview shows the rest (tactile caption, which modes share it)."""
     shared = shared_modes(result["neighbours"])
     items = []
-    for rank, n in enumerate(result["neighbours"].get(mode, []), 1):
+    for rank, n, count in group_by_caption(result["neighbours"].get(mode, [])):
         modes = shared[n["id"]]
         stars = " " + "◆" * (len(modes) - 1) if len(modes) > 1 else ""
         tail = f" · shared by {'·'.join(MODE_LETTER[m] for m in modes)}" if stars else ""
-        items.append((thumbnail(n["id"]), f"{rank}. {n['score']:.3f}{stars} · "
+        times = f" ×{count}" if count > 1 else ""
+        items.append((thumbnail(n["id"]), f"{rank}. {n['score']:.3f}{times}{stars} · "
                                           f"{n['class_name']} · {n['caption']}{tail}"))
     return items
+
+
+def corpus_provenance(corpus) -> str:
+    """What the corpus is, for the header: the world's own ImageNet-T-recipe corpus, or the
+    user's (with its image source)."""
+    manifest = getattr(corpus, "manifest", None) or {}
+    n = len(corpus.entries)
+    if manifest.get("source", "world") == "world":
+        return (f"corpus of {n:,} procedural-world renders with tactile captions made by "
+                "the ImageNet-T recipe (not ImageNet photos)")
+    return (f"corpus of {n:,} entries of your own corpus (images from "
+            f"{escape(str(manifest['source']))}, folder {escape(str(corpus.folder))})")
 
 
 def neighbour_table(result: dict, mode: str) -> str:
@@ -84,12 +107,18 @@ def description_md(result: dict, label: str | None,
     d = result["description"]
     scores = scores or {}
 
+    tactile = (result.get("trust") or {}).get("tactile") or {}
+    empty = ("**no contact detected**: nothing is pressed into the gel, so there is no "
+             "material to describe" if tactile.get("no_contact") else
+             "_not available: needs a tactile image_")
+
     def line(title: str, key: str) -> str:
-        text = d.get(key) or "_not available: needs a tactile image_"
+        text = d.get(key) or empty
         score = scores.get(key)
         return f"**{title}:** {text}" + (f" · judge **{score:.1f}**/10" if score else "")
 
-    parts = ["### Tactile description", line("RA-Touch (with retrieval)", "ra_touch"),
+    parts = ["### Tactile description", *trust_lines(result),
+             line("RA-Touch (with retrieval)", "ra_touch"),
              line("Baseline (no retrieval)", "baseline")]
     if label:
         parts.append(f"**Ground-truth label:** {label}")
@@ -98,6 +127,33 @@ def description_md(result: dict, label: str | None,
                      "description against the ground-truth label (as in `ratouch eval tvl`)"
                      "</span>")
     return "\n\n".join(parts)
+
+
+TRUST_WORDS = ("no contact detected", "unlike the")
+
+
+def trust_lines(result: dict) -> list[str]:
+    """The trust block of a result, shown above the descriptions: one line of scores, then
+    its warnings (an uncalibrated pipeline says that nothing is checked)."""
+    trust = result.get("trust")
+    warned = [w for w in result.get("warnings", []) if any(t in w for t in TRUST_WORDS)
+              or w.startswith("no trust calibration")]
+    if not trust:
+        return [f"> ⚠️ {w}" for w in warned]
+    cells = []
+    for mode in ("visual", "tactile"):
+        t = trust.get(mode)
+        if not t:
+            continue
+        mark = "⚠️ unfamiliar" if t["novel"] else "✓ familiar"
+        cells.append(f"{mode} novelty {t['novelty']:.2f} (flag > {t['threshold']:.2f}) {mark}")
+        if "contact" in t:
+            mark = "⛔ no contact" if t["no_contact"] else "✓ contact"
+            against = ", vs background" if t.get("background") else ""
+            cells.append(f"contact {t['contact']:.2f} (flag < {t['contact_threshold']:.2f}"
+                         f"{against}) {mark}")
+    lines = ["**Trust:** " + " · ".join(cells)]
+    return lines + [f"> ⚠️ **{w}**" for w in warned]
 
 
 def status_md(title: str, warnings: list[str], box: list[int] | None = None) -> str:
@@ -226,7 +282,7 @@ def report_md(docs: Path, figures: Sequence[Path] = ()) -> str:
         stem = Path(target).stem
         if stem in interactive:
             return (f"*[figure “{alt or stem}”: the interactive chart "
-                    f"**{figure_title(Path(stem))}** below]*")
+                    f"**{figure_title(Path(stem))}** above]*")
         local = (docs / target).resolve()
         if local.is_file() and local.is_relative_to(docs.resolve()):
             return f"![{alt}](/gradio_api/file={local})"

@@ -165,6 +165,14 @@ def _add_train(sub) -> None:
     g.add_argument("--seed", type=_nonneg_int, default=0)
     g.add_argument("--stage1-steps", type=_pos_int, default=None)
     g.add_argument("--stage2-steps", type=_pos_int, default=None)
+    tr = tsub.add_parser("trust", help="calibrate the trust signals (novelty, no contact) on "
+                                       "the world's validation renders")
+    tr.add_argument("--encoder", default="default-s")
+    tr.add_argument("--seed", type=_nonneg_int, default=0)
+    tr.add_argument("--false-alarm", type=float, default=0.02,
+                    help="share of in-distribution validation inputs each signal may flag")
+    tr.add_argument("--out", default=None,
+                    help="calibration JSON (default: assets/trust/ENCODER.json)")
     a = tsub.add_parser("all", help="encoders, retriever and generators, in order")
     a.add_argument("--seed", type=_nonneg_int, default=0)
 
@@ -288,6 +296,9 @@ def _add_query(sub) -> None:
     q = sub.add_parser("query", help="one RA-Touch query: neighbours, description, PCA, timings")
     q.add_argument("--vision", required=True, help="visual image file")
     q.add_argument("--tactile", default=None, help="tactile image file (optional)")
+    q.add_argument("--background", default=None,
+                   help="the tactile sensor's no-contact frame (optional; same size as the "
+                        "tactile image), for the no-contact check")
     q.add_argument("--box", type=_box, default=None, help="contact box x0,y0,x1,y1 in pixels")
     q.add_argument("--k", type=_pos_int, default=5)
     q.add_argument("--label", default=None, help="ground-truth caption, if known (for the PCA)")
@@ -329,6 +340,12 @@ def _add_bench(sub) -> None:
                     help="render processes (local) or embedding actors (ray)")
     cb.add_argument("--encoder", default="default-s")
     cb.add_argument("--json", action="store_true")
+    up = bsub.add_parser("upload", help="a huge tactile upload: its latency, where the time "
+                                        "goes, and the delay of a normal query beside it")
+    up.add_argument("--encoder", default="default-s")
+    up.add_argument("--corpus", default=None)
+    up.add_argument("--side", type=_pos_int, default=6000, help="side of the square PNG")
+    up.add_argument("--repeats", type=_pos_int, default=3)
     w = bsub.add_parser("world", help="corpus + test split generation throughput")
     w.add_argument("--corpus-size", default="10k")
     w.add_argument("--workers", type=_pos_int, default=2)
@@ -438,6 +455,8 @@ def _run_train(args: argparse.Namespace) -> int:
                                        ("stage2_steps", args.stage2_steps)) if v}
         print(json.dumps(recipes.generator_recipe(args.encoder, args.seed, **overrides)))
         return 0
+    if args.train_cmd == "trust":
+        return _train_trust(args)
     if args.train_cmd == "all":
         args.model, args.out, args.steps, args.threads = None, None, None, 2
         args.n_pairs, args.n_corpus = 12_000, 8_000
@@ -446,6 +465,22 @@ def _run_train(args: argparse.Namespace) -> int:
         print(json.dumps(recipes.generator_recipe(seed=args.seed)))
         return 0
     return _train_encoders(args)
+
+
+def _train_trust(args: argparse.Namespace) -> int:
+
+    from ratouch.encoders.factory import create_model
+    from ratouch.paths import trust_calibration
+    from ratouch.train.trust import TrustConfig, calibrate
+
+    cal = calibrate(create_model(args.encoder),
+                    TrustConfig(seed=args.seed, false_alarm=args.false_alarm))
+    out = cal.save(args.out or trust_calibration(args.encoder))
+    print(json.dumps({"written": str(out), "contact_threshold": cal.contact_threshold,
+                      "contact_threshold_bg": cal.contact_threshold_bg,
+                      "visual_threshold": cal.visual.threshold,
+                      "tactile_threshold": cal.tactile.threshold, **cal.meta}, indent=1))
+    return 0
 
 
 def _train_encoders(args: argparse.Namespace) -> int:
@@ -468,11 +503,13 @@ def _run_query(args: argparse.Namespace) -> int:
 
     from ratouch.serve.pipeline import RATouchPipeline
 
-    for path in (args.vision, args.tactile):
+    for role, path in (("visual image", args.vision), ("tactile image", args.tactile),
+                       ("background image", args.background)):
         if path is not None and not Path(path).is_file():
-            raise _usage(f"image file {path} does not exist")
+            raise _usage(f"{role} file {path} does not exist")
     pipe = RATouchPipeline.load(args.encoder, corpus=args.corpus)
-    result = pipe.query(args.vision, args.tactile, box=args.box, k=args.k, label=args.label)
+    result = pipe.query(args.vision, args.tactile, box=args.box, k=args.k, label=args.label,
+                        background=args.background)
     print(json.dumps(result, indent=1))
     return 0
 
@@ -649,6 +686,12 @@ def _run_bench(args: argparse.Namespace) -> int:
 
         r = bench_query(args.encoder, args.corpus, n=args.n)
         print(json.dumps(r, indent=None if args.json else 1))
+        return 0
+    if args.bench_cmd == "upload":
+        from ratouch.bench.upload import bench_upload
+
+        print(json.dumps(bench_upload(args.encoder, args.corpus, args.side, args.repeats),
+                         indent=1))
         return 0
     if args.bench_cmd == "retrieval":
 

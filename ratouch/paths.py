@@ -43,6 +43,11 @@ def generator_weights(encoder: str, kind: str) -> Path:
     return ASSETS / "generator" / encoder / kind
 
 
+def trust_calibration(encoder: str) -> Path:
+    """The shipped trust calibration (novelty and no-contact thresholds) of an encoder."""
+    return ASSETS / "trust" / f"{encoder}.json"
+
+
 def tvl_judge_dir() -> Path:
     """The published TVL result files with GPT-4 scores (read, never copied into the repo)."""
     env = os.environ.get(TVL_JUDGE_ENV)

@@ -424,7 +424,7 @@ def test_benchmarks_tab_without_and_with_a_report(tmp_path):
     assert [p.name for p in view.list_figures(tmp_path)] == [
         "tradeoff.json", "b_recall.json", "broken.json"]
     report, note, *slots = handlers.benchmarks(tmp_path, 3)
-    assert "interactive chart **tradeoff** below" in report
+    assert "interactive chart **tradeoff** above" in report
     assert f"/gradio_api/file={(figs / 'local.png').resolve()}" in report
     assert "gone.png) not found" in report and "| a | b |" in report
     assert f"[interactive](/gradio_api/file={(figs / 'tradeoff.html').resolve()})" in report
@@ -503,7 +503,8 @@ def test_the_batcher_answers_concurrent_queries_together(monkeypatch):
         return [DataError(f"bad {r['k']}") if r["k"] == 13 else {"k": r["k"]}
                 for r in requests]
 
-    b = serving.QueryBatcher(SimpleNamespace(corpus="the corpus", query_many=fake_many),
+    b = serving.QueryBatcher(SimpleNamespace(corpus="the corpus", query_many=fake_many,
+                                             prepare_request=dict),
                              max_batch=4)
     assert b.corpus == "the corpus"
     out, errors = {}, {}
@@ -606,12 +607,17 @@ def test_real_pipeline_example_query(real_pipeline, world):
     visual, _, tactile, *box, _ = handlers.load_example(world, 60)
     v = handlers.run_query(real_pipeline, thumb, visual, tactile, *box, 5)
     assert not v.status.startswith("**⛔"), v.status
-    assert [len(g) for g in (v.gallery_image, v.gallery_tactile, v.gallery_joint)] == [5] * 3
+    # one gallery item per distinct caption, the raw top-5 in the JSON and the tables
+    for mode, g in zip(("image", "tactile", "joint"),
+                       (v.gallery_image, v.gallery_tactile, v.gallery_joint)):
+        ns = v.raw["neighbours"][mode]
+        assert len(ns) == 5 and len(g) == len({n["caption"] for n in ns}), mode
     assert v.raw["description"]["ra_touch"] and v.raw["description"]["baseline"]
     assert any(t.name == "ground truth" for t in v.plot.data)
     visual = handlers.load_example(world, 60)[0]
     v = handlers.run_query(real_pipeline, thumb, visual, None, None, None, None, None, 3)
-    assert len(v.gallery_image) == 3 and "image-only" in v.status
+    assert len(v.raw["neighbours"]["image"]) == 3 and 1 <= len(v.gallery_image) <= 3
+    assert "image-only" in v.status
 
 
 # ------------------------------------------------------------------------- load
@@ -752,3 +758,91 @@ def test_load_real_app_sixteen_clients():
     print("\n" + load_test.format_report(report))
     assert report["failures"] == 0 and report["not_run"] == 0, report["failure_examples"]
     assert all(report["targets"].values()), report["targets"]
+
+
+# ------------------------------------------------------------------------- issue 13: real uploads
+
+def test_unreadable_tactile_upload_is_named_and_clears_old_results(fake, pair_files, tmp_path):
+    from app import handlers
+
+    good = handlers.upload_visual(str(pair_files[0]))[0]
+    old = handlers.run_query(fake, _thumb, good, str(pair_files[1]), None, None, None, None, 5)
+    assert old.gallery_joint  # a previous answer is on the page
+    text = _bytes_file(tmp_path, "notes.png", b"this is not an image")
+    # the browser sends the upload undecoded (preprocess=False): {"path": ...}
+    tactile, *view_out = handlers.upload_tactile({"path": text, "orig_name": "notes.png"})
+    v = handlers.QueryView(*view_out)
+    assert tactile is None  # the unusable file is removed from the input
+    assert "notes.png (tactile image)" in v.status and v.status.startswith("**⛔")
+    assert v.gallery_joint == [] and v.description == "" and v.raw is None
+    # a bad visual upload also clears the results, and says which file and role
+    out = handlers.visual_uploaded({"path": text})
+    v = handlers.QueryView(*out[7:])
+    assert out[0] is None and "notes.png (visual image)" in v.status and v.gallery_image == []
+    # a good tactile upload leaves everything as it is
+    assert handlers.upload_tactile({"path": str(pair_files[1])})[1] == gr_update()
+
+
+def gr_update():
+    import gradio as gr
+
+    return gr.update()
+
+
+@pytest.mark.parametrize("k", [2.5, 0, 21, "", None, "five", float("nan")])
+def test_bad_k_is_named(fake, pair_files, k):
+    from app import handlers
+
+    good = handlers.upload_visual(str(pair_files[0]))[0]
+    v = handlers.run_query(fake, _thumb, good, str(pair_files[1]), None, None, None, None, k)
+    assert "K must be a whole number from 1 to 20" in v.status and v.raw is None
+    assert handlers.parse_k(7.0) == 7 and handlers.parse_k("3") == 3
+
+
+def test_duplicate_captions_are_grouped_in_galleries_but_not_in_tables():
+    from app import view
+
+    ns = [{"id": i, "score": 0.5 - i / 100, "class_name": "sand castle",
+           "caption": "grainy, hard" if i < 4 else "soft", "source": "w"} for i in range(5)]
+    result = {"neighbours": {"joint": ns}}
+    items = view.gallery_items(result, "joint", _thumb)
+    assert [c for _, c in items] == ["1. 0.500 ×4 · sand castle · grainy, hard",
+                                     "5. 0.460 · sand castle · soft"]
+    assert view.neighbour_table(result, "joint").count("<tr") == 6  # raw top-5 + header
+
+
+def test_trust_is_shown_above_the_descriptions():
+    from app import view
+
+    result = {"description": {"ra_touch": "", "baseline": ""},
+              "warnings": ["no contact detected: the tactile image looks like ..."],
+              "trust": {"visual": {"novelty": 1.2, "threshold": 1.5, "novel": False},
+                        "tactile": {"novelty": 2.1, "threshold": 1.4, "novel": True,
+                                    "contact": 0.9, "contact_threshold": 2.3,
+                                    "no_contact": True, "background": False}}}
+    md = view.description_md(result, None)
+    assert md.index("**Trust:**") < md.index("RA-Touch (with retrieval)")
+    assert "⛔ no contact" in md and "⚠️ unfamiliar" in md and "✓ familiar" in md
+    assert "**no contact detected**: nothing is pressed" in md
+    assert "> ⚠️ **no contact detected" in md
+
+
+def test_header_says_what_the_corpus_is(fake):
+    from types import SimpleNamespace
+
+    from app import view
+
+    assert "procedural-world renders" in view.corpus_provenance(fake.corpus)
+    mine = SimpleNamespace(entries=[1, 2], manifest={"source": "/data/my_list.txt"},
+                           folder="/data/corpus")
+    assert "your own corpus (images from /data/my_list.txt" in view.corpus_provenance(mine)
+
+
+def test_query_api_k_error_names_k(served, pair_files):
+    from gradio_client import Client, handle_file
+
+    url, _, _ = served
+    client = Client(url, verbose=False)
+    with pytest.raises(Exception, match="K must be a whole number from 1 to 20, got K=2.5"):
+        client.predict(handle_file(str(pair_files[0])), None, None, None, None, None, 2.5,
+                       api_name="/query")

@@ -91,8 +91,8 @@ def test_upload_mark_box_query_in_chromium(app_url, page, tmp_path, world):
 
     page.locator("#run").click()
     page.locator("#description").get_by_text("RA-Touch (with retrieval)").wait_for()
-    for mode in ("image", "tactile", "joint"):
-        assert page.locator(f"#gallery-{mode} img").count() == 5, mode
+    for mode in ("image", "tactile", "joint"):  # galleries: one item per distinct caption
+        assert 1 <= page.locator(f"#gallery-{mode} img").count() <= 5, mode
         assert page.locator(f"#table-{mode} tr").count() == 6, mode
     page.locator("#pca .js-plotly-plot").wait_for()
     assert "contact box [16, 24, 96, 112]" in page.locator("#status").inner_text()
@@ -103,6 +103,7 @@ def test_upload_mark_box_query_in_chromium(app_url, page, tmp_path, world):
     shutil.copy(shot, SCREENSHOT_COPY)
 
     # an example pair from the test split brings its ground-truth label
+    page.get_by_text("Examples from the world's test split").click()  # a closed accordion
     page.locator("#examples .thumbnail-item").first.click()
     page.get_by_text("Ground-truth label:").first.wait_for()
     page.locator("#run").click()
@@ -136,7 +137,7 @@ def test_failure_cases_open_in_explore_in_chromium(app_url, page, tmp_path):
     assert condition == "noisy touch"
     page.locator("#description").get_by_text("judge").first.wait_for()
     assert page.locator("#visual img").first.is_visible()  # back in Explore
-    assert page.locator("#gallery-joint img").count() == 5
+    assert 1 <= page.locator("#gallery-joint img").count() <= 5
     page.locator("#pca .js-plotly-plot").wait_for()
     page.wait_for_timeout(500)
     page.screenshot(path=str(tmp_path / "ratouch_case.png"), full_page=True)
@@ -144,3 +145,75 @@ def test_failure_cases_open_in_explore_in_chromium(app_url, page, tmp_path):
 
     page.get_by_role("tab", name="Benchmarks").click()
     page.locator("#bench-report").get_by_text("Not generated yet").wait_for()
+
+
+def _visible_now(page, selector: str) -> bool:
+    """Whether an element's top lies inside the viewport as it is (no scrolling)."""
+    return page.evaluate(
+        "(s) => { const r = document.querySelector(s).getBoundingClientRect();"
+        " return r.top >= 0 && r.top < window.innerHeight; }", selector)
+
+
+def test_real_uploads_in_chromium(app_url, page, tmp_path, world):
+    """Issue 13 as a user meets it at 1440x900: empty box fields before an upload; an
+    unreadable tactile file is named with its role and clears the previous answer; a frame
+    with nothing pressed into the gel says "no contact detected" instead of a material; a
+    6000x6000 tactile upload is answered; the answer is visible without scrolling."""
+    if not HAVE_ASSETS:
+        pytest.skip("trust signals need the real pipeline (trained assets)")
+    from ratouch.world.config import WorldConfig
+    from ratouch.world.generator import World
+
+    page.set_viewport_size({"width": 1440, "height": 900})
+    page.set_default_timeout(120_000)
+    s = world.sample("test", 60)
+    Image.fromarray(s.visual).save(tmp_path / "visual.png")
+    Image.fromarray(s.tactile).save(tmp_path / "tactile.png")
+    (tmp_path / "notes.png").write_bytes(b"this is a text file, not an image")
+    empty = World(WorldConfig(seed=0).with_stress(no_contact=1.0)).sample("test", 60)
+    Image.fromarray(empty.tactile).save(tmp_path / "no_contact.png")
+    Image.fromarray(s.tactile).resize((6000, 6000), Image.BILINEAR).save(
+        tmp_path / "huge.png", compress_level=1)
+
+    page.goto(app_url)
+    assert [_field(page, n) for n in ("x0", "y0", "x1", "y1")] == [""] * 4
+    page.locator("#visual input[type=file]").set_input_files(str(tmp_path / "visual.png"))
+    page.get_by_text("No box marked").wait_for()
+    page.locator("#tactile input[type=file]").set_input_files(str(tmp_path / "tactile.png"))
+    page.locator("#run").click()
+    page.locator("#description").get_by_text("RA-Touch (with retrieval)").wait_for()
+    page.locator("#description").get_by_text("Trust:").wait_for()
+    assert _visible_now(page, "#description") and _visible_now(page, "#run")
+    assert page.locator("#gallery-joint img").count() >= 1
+
+    # an unreadable tactile file: named, with its role, and the old answer is gone
+    page.locator("#tactile button[aria-label='Remove Image']").first.click()
+    page.locator("#tactile input[type=file]").set_input_files(str(tmp_path / "notes.png"))
+    page.locator("#status").get_by_text("notes.png (tactile image)").wait_for()
+    assert page.locator("#gallery-joint img").count() == 0
+    assert "RA-Touch" not in page.locator("#description").inner_text()
+    page.screenshot(path=str(tmp_path / "unreadable.png"), full_page=True)
+
+    # a frame with nothing pressed into the gel
+    page.locator("#tactile input[type=file]").set_input_files(str(tmp_path / "no_contact.png"))
+    page.locator("#run").click()
+    page.locator("#description").get_by_text("no contact detected").first.wait_for()
+    assert "⛔ no contact" in page.locator("#description").inner_text()
+    page.screenshot(path=str(tmp_path / "no_contact_shot.png"), full_page=True)
+
+    # a huge tactile image is answered (the work is bounded by the model's input size)
+    page.locator("#tactile button[aria-label='Remove Image']").first.click()
+    page.locator("#tactile input[type=file]").set_input_files(str(tmp_path / "huge.png"))
+    page.wait_for_timeout(1000)
+    page.locator("#run").click()
+    # the new answer replaces the no-contact one: a material description, contact found
+    page.wait_for_function(
+        "() => { const d = document.querySelector('#description').innerText;"
+        " return d.includes('✓ contact') && !d.includes('no contact detected'); }",
+        timeout=120_000)
+    assert "⛔" not in page.locator("#status").inner_text()
+    assert "decode" in page.locator("#timings").inner_text()
+    assert page.locator("#gallery-joint img").count() >= 1
+    shot = tmp_path / "ratouch_uploads.png"
+    page.screenshot(path=str(shot))
+    shutil.copy(shot, Path("/tmp/ratouch_uploads.png"))

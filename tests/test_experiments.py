@@ -111,3 +111,21 @@ def test_withheld_materials_table(lab, tmp_path):
     assert "withheld materials" in rep.markdown and ", ".join(held) in rep.markdown
     with pytest.raises(ConfigError):
         small.withheld_materials(10_000)
+
+
+def test_score_charts_show_paired_differences_with_cis():
+    """7.94 vs 7.98 must be visible: the chart plots differences from the baseline with their
+    paired 95 % CIs, not bars from zero."""
+    from ratouch.eval.experiments import _diff_chart, paired_difference
+
+    rng = np.random.default_rng(0)
+    base = rng.uniform(7, 9, 200)
+    better = base + 0.04 + rng.normal(0, 0.05, 200)
+    mean, lo, hi = paired_difference(base, better)
+    assert lo < 0.04 < hi and lo > 0 and mean == pytest.approx(0.04, abs=0.01)
+    subsets = ["structured"] * 20 + ["wild"] * 180
+    fig = _diff_chart("t", ["RA-Touch"], [{"scores": better}], {"scores": base}, subsets)
+    assert [t.type for t in fig.data] == ["scatter"] * 3
+    overall = fig.data[2]
+    assert overall.y[0] == pytest.approx(mean) and overall.error_y.array[0] == pytest.approx(
+        hi - mean)

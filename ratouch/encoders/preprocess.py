@@ -68,6 +68,11 @@ MIN_SIDE = 8
 MAX_PIXELS = 50_000_000
 #: Largest accepted output size for the tensor builders.
 MAX_TENSOR_SIZE = 4096
+#: Longer side an upload is reduced to before any per-pixel work when it serves a query: a
+#: DIGIT / GelSight-Mini frame's native 320 x 240 passes untouched, and it is above every
+#: encoder's input side (default backend 64 px, TVL 224 px), so a 36-megapixel upload costs
+#: what a 0.08-megapixel one does after decoding.
+QUERY_MAX_SIDE = 320
 
 # Half-width of the contact crop relative to the longer image side, as in TVL
 # (``im_scale_range[1]``); the crop side is sqrt(2) * scale * max(H, W).
@@ -232,13 +237,34 @@ def _array_to_rgb(arr: np.ndarray, what: str) -> np.ndarray:
     return np.ascontiguousarray(_channels_to_rgb(arr, what))
 
 
-def _pil_to_rgb(img: Image.Image, what: str) -> np.ndarray:
-    """Normalise a PIL image of any mode to ``(H, W, 3)`` ``uint8`` (EXIF orientation applied)."""
+def _reduce_pil(img: Image.Image, max_side: int) -> Image.Image:
+    """Shrink a loaded PIL image so its longer side is at most ``max_side`` (integer-factor
+    ``reduce`` first, then an antialiased bilinear resize), keeping the aspect ratio."""
+    longer = max(img.width, img.height)
+    if longer <= max_side:
+        return img
+    scale = max_side / longer
+    size = (max(1, round(img.width * scale)), max(1, round(img.height * scale)))
+    return img.resize(size, Image.Resampling.BILINEAR, reducing_gap=2.0)
+
+
+#: PIL modes that PIL resizes directly (the others are reduced after conversion to RGB).
+_REDUCIBLE_MODES = ("RGB", "RGBA", "L", "LA", "RGBa", "La", "I", "F")
+
+
+def _pil_to_rgb(img: Image.Image, what: str, max_side: int | None = None) -> np.ndarray:
+    """Normalise a PIL image of any mode to ``(H, W, 3)`` ``uint8`` (EXIF orientation applied),
+    reduced to ``max_side`` (when given) before any per-pixel conversion."""
     _check_size(img.width, img.height, what)
+    if max_side is not None and getattr(img, "format", None) == "JPEG":
+        img.draft("RGB", (max_side, max_side))  # JPEG: decode at a reduced scale directly
     try:
         img.load()
     except (OSError, ValueError, SyntaxError) as e:  # truncated or corrupt file data
         raise DataError(f"cannot decode {what}: {e}") from e
+    if max_side is not None and img.mode in _REDUCIBLE_MODES:
+        # reduce first: the EXIF rotation keeps the longer side, and copies the image
+        img = _reduce_pil(img, max_side)
     try:
         rotated = ImageOps.exif_transpose(img)
     except Exception as e:  # broken EXIF blocks must not make the image unusable
@@ -286,7 +312,16 @@ def _open_image(path: str | os.PathLike[str], role: str = "image") -> Image.Imag
         raise DataError(f"cannot read {role} {path_str} as an image: {e}") from e
 
 
-def to_rgb_array(image: ImageLike, name: str | None = None) -> np.ndarray:
+def fit_within(arr: np.ndarray, max_side: int | None) -> np.ndarray:
+    """An ``(H, W, 3)`` ``uint8`` array reduced (antialiased, aspect kept) so that its longer
+    side is at most ``max_side`` pixels (unchanged if it already is, or ``max_side`` is None)."""
+    if max_side is None or max(arr.shape[:2]) <= max_side:
+        return arr
+    return np.asarray(_reduce_pil(Image.fromarray(arr), max_side), dtype=np.uint8)
+
+
+def to_rgb_array(image: ImageLike, name: str | None = None,
+                 max_side: int | None = None) -> np.ndarray:
     """Normalise an image of any kind into an ``(H, W, 3)`` ``uint8`` RGB array.
 
     Accepts PIL images of any mode (``1``, ``L``, ``LA``, ``P``, ``PA``, ``RGB``, ``RGBA``,
@@ -300,10 +335,14 @@ def to_rgb_array(image: ImageLike, name: str | None = None) -> np.ndarray:
     Args:
         image: The image.
         name: How to name the image in error messages (defaults to "image" or the path).
+        max_side: When given, the image is reduced (aspect ratio kept, antialiased) so its
+            longer side is at most this many pixels, inside PIL and before any per-pixel
+            numpy work (a JPEG is even decoded at a reduced scale): the work per upload is
+            then bounded by ``max_side`` rather than by the upload's size.
 
     Returns:
         A C-contiguous ``(H, W, 3)`` ``uint8`` array (a new array unless ``image`` already
-        was one of that exact kind).
+        was one of that exact kind and needed no reduction).
 
     Raises:
         DataNotFoundError: If ``image`` is a path that does not exist.
@@ -313,12 +352,12 @@ def to_rgb_array(image: ImageLike, name: str | None = None) -> np.ndarray:
     if isinstance(image, (str, os.PathLike)):
         what = name or f"image {os.fspath(image)}"
         with _open_image(image, name or "image") as img:
-            return _pil_to_rgb(img, what)
+            return fit_within(_pil_to_rgb(img, what, max_side), max_side)
     what = name or "image"
     if isinstance(image, Image.Image):
-        return _pil_to_rgb(image, what)
+        return fit_within(_pil_to_rgb(image, what, max_side), max_side)
     if isinstance(image, np.ndarray):
-        return _array_to_rgb(image, what)
+        return fit_within(_array_to_rgb(image, what), max_side)
     if isinstance(image, torch.Tensor):
         raise DataError(f"{what} is a torch.Tensor; pass a numpy array (H, W, C) or a PIL image")
     raise DataError(f"{what} must be a PIL image, a numpy array or a file path, "
@@ -328,25 +367,33 @@ def to_rgb_array(image: ImageLike, name: str | None = None) -> np.ndarray:
 # --------------------------------------------------------------------------- boxes
 
 
-def crop_box(image: ImageLike, box: Sequence[float]) -> np.ndarray:
-    """Crop ``box = (x0, y0, x1, y1)`` (pixels, x1/y1 exclusive) out of an image.
-
-    Fractional coordinates are widened to whole pixels (x0/y0 floored, x1/y1 ceiled).
-    A box partially outside the image is clipped to it.
-
-    Args:
-        image: Any image :func:`to_rgb_array` accepts.
-        box: ``(x0, y0, x1, y1)`` with ``x0 < x1`` and ``y0 < y1``.
-
-    Returns:
-        The ``(h, w, 3)`` ``uint8`` crop (a copy).
+def oriented_size(image: ImageLike, name: str = "image") -> tuple[int, int]:
+    """``(width, height)`` of an image as :func:`to_rgb_array` returns it (EXIF orientation
+    applied); a file's is read from its header, without decoding the pixels.
 
     Raises:
-        DataError: If the box is malformed, empty, inverted or entirely outside the image
-            (the message names the box and the image size).
+        DataNotFoundError / DataError: as :func:`to_rgb_array` for unusable images.
     """
-    arr = to_rgb_array(image)
-    height, width = arr.shape[:2]
+    if isinstance(image, (str, os.PathLike)):
+        with _open_image(image, name) as img:
+            return _oriented(img, name)
+    if isinstance(image, Image.Image):
+        return _oriented(image, name)
+    height, width = to_rgb_array(image, name).shape[:2]  # arrays are decoded already
+    return width, height
+
+
+def _oriented(img: Image.Image, what: str) -> tuple[int, int]:
+    _check_size(img.width, img.height, what)
+    try:
+        orientation = img.getexif().get(0x0112, 1)
+    except Exception:  # noqa: BLE001 - broken EXIF is ignored, as in _pil_to_rgb
+        orientation = 1
+    return (img.height, img.width) if orientation in (5, 6, 7, 8) else (img.width, img.height)
+
+
+def _clip_box(box: Sequence[float], width: int, height: int) -> tuple[int, int, int, int]:
+    """A box as whole pixels clipped to a ``width`` x ``height`` image (see :func:`crop_box`)."""
     try:
         values = [float(v) for v in box]
     except (TypeError, ValueError) as e:
@@ -369,7 +416,43 @@ def crop_box(image: ImageLike, box: Sequence[float]) -> np.ndarray:
     if (cx0, cy0, cx1, cy1) != (ix0, iy0, ix1, iy1):
         log.debug("box %s clipped to (%d, %d, %d, %d) for a %dx%d image",
                   tuple(box), cx0, cy0, cx1, cy1, width, height)
-    return arr[cy0:cy1, cx0:cx1].copy()
+    return cx0, cy0, cx1, cy1
+
+
+def crop_box(image: ImageLike, box: Sequence[float], max_side: int | None = None,
+             name: str | None = None) -> np.ndarray:
+    """Crop ``box = (x0, y0, x1, y1)`` (pixels, x1/y1 exclusive) out of an image.
+
+    Fractional coordinates are widened to whole pixels (x0/y0 floored, x1/y1 ceiled).
+    A box partially outside the image is clipped to it.
+
+    Args:
+        image: Any image :func:`to_rgb_array` accepts.
+        box: ``(x0, y0, x1, y1)`` with ``x0 < x1`` and ``y0 < y1``, in pixels of the image.
+        max_side: When given, the crop is returned with its longer side at most this many
+            pixels, and a file or PIL image is reduced inside PIL before it becomes an array
+            (the work is bounded by ``max_side``, not by the image's pixels).
+        name: How to name the image in error messages.
+
+    Returns:
+        The ``(h, w, 3)`` ``uint8`` crop (a copy).
+
+    Raises:
+        DataError: If the box is malformed, empty, inverted or entirely outside the image
+            (the message names the box and the image size).
+    """
+    if max_side is None or isinstance(image, np.ndarray):
+        arr = to_rgb_array(image, name)
+        cx0, cy0, cx1, cy1 = _clip_box(box, arr.shape[1], arr.shape[0])
+        return fit_within(arr[cy0:cy1, cx0:cx1].copy(), max_side)
+    width, height = oriented_size(image, name or "image")
+    cx0, cy0, cx1, cy1 = _clip_box(box, width, height)
+    factor = min(1.0, max_side / max(cx1 - cx0, cy1 - cy0))
+    arr = to_rgb_array(image, name, max_side=max(MIN_SIDE, math.ceil(max(width, height) * factor)))
+    sx, sy = arr.shape[1] / width, arr.shape[0] / height
+    rx0, ry0 = math.floor(cx0 * sx), math.floor(cy0 * sy)
+    rx1, ry1 = max(math.ceil(cx1 * sx), rx0 + 1), max(math.ceil(cy1 * sy), ry0 + 1)
+    return fit_within(arr[ry0:ry1, rx0:rx1].copy(), max_side)
 
 
 def tvl_contact_box(width: int, height: int, version: str = "v1",

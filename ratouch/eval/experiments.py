@@ -393,17 +393,41 @@ JUDGE_COLS = ["SSVTP (structured) [95% CI]", "HCT (wild) [95% CI]", "TVL (overal
               "adjective F1", "adjectives / answer"]
 
 
-def _bar(title: str, names: Sequence[str], results: Sequence[dict]):
+def paired_difference(a: np.ndarray, b: np.ndarray, level: float = 0.95
+                      ) -> tuple[float, float, float]:
+    """Mean of the paired differences b - a and its `level` t-interval (lo, hi)."""
+    from scipy.stats import t as student_t
+
+    d = np.asarray(b, np.float64) - np.asarray(a, np.float64)
+    mean = float(d.mean())
+    if len(d) < 2 or not np.any(d - mean):
+        return mean, mean, mean
+    half = float(student_t.ppf(0.5 + level / 2, len(d) - 1) * d.std(ddof=1) / np.sqrt(len(d)))
+    return mean, mean - half, mean + half
+
+
+def _diff_chart(title: str, names: Sequence[str], results: Sequence[dict], base: dict,
+                subsets: Sequence[str]):
+    """Each setting's judge-score difference from the baseline with its paired 95 % CI, per
+    subset: the differences are a few hundredths, invisible on bars drawn from zero."""
     import plotly.graph_objects as go
 
+    subs = np.array(subsets)
     fig = go.Figure()
-    for key, label in (("SSVTP", "SSVTP (structured)"), ("HCT", "HCT (wild)"),
-                       ("overall", "TVL (overall)")):
-        fig.add_bar(name=label, x=list(names), y=[r["means"][key] for r in results])
-    fig.update_layout(title=title, barmode="group", yaxis_title="offline judge score (1-10)",
-                      template="plotly_white", height=420, width=760)
-    lo = min(min(r["means"].values()) for r in results)
-    fig.update_yaxes(range=[max(1.0, lo - 0.5), None])
+    for key, label, sel in (("SSVTP", "SSVTP (structured)", subs == "structured"),
+                            ("HCT", "HCT (wild)", subs == "wild"),
+                            ("overall", "TVL (overall)", np.ones(len(subs), bool))):
+        stats = [paired_difference(np.array(base["scores"])[sel], np.array(r["scores"])[sel])
+                 for r in results]
+        fig.add_scatter(name=label, x=list(names), y=[m for m, _, _ in stats], mode="markers",
+                        marker={"size": 9}, error_y={"type": "data", "symmetric": False,
+                                                     "array": [hi - m for m, _, hi in stats],
+                                                     "arrayminus": [m - lo for m, lo, _ in stats]})
+    fig.add_hline(y=0, line_dash="dot", annotation_text="baseline (no retrieval)")
+    fig.update_layout(title=title, template="plotly_white", height=440, autosize=True,
+                      yaxis_title="judge score − baseline (paired 95 % CI)",
+                      scattermode="group", legend={"orientation": "h", "y": -0.35},
+                      margin={"b": 160})
     return fig
 
 
@@ -415,7 +439,8 @@ def _simple(lab: Lab, name: str, title: str, rows: Sequence[tuple[str, Variant]]
     named = [("baseline (no retrieval)", BASELINE)] + list(rows)
     table = _table(["setting"] + JUDGE_COLS, [_row(lab, n, res[v], base) for n, v in named])
     md = table + ("\n\n" + note if note else "")
-    fig = _bar(title, [n for n, _ in named], [res[v] for _, v in named])
+    fig = _diff_chart(title, [n for n, _ in rows], [res[v] for _, v in rows], base,
+                      lab.test.subsets)
     data = {n: res[v]["means"] for n, v in named}
     return Report(name, title, md, fig, data, time.perf_counter() - t0)
 
@@ -582,8 +607,10 @@ def table6_withheld(lab: Lab) -> Report:
             p = float(ttest_rel(y, x).pvalue) if len(x) > 1 and np.any(y - x) else 1.0
             cells.append(f"{x.mean():.3f} -> {y.mean():.3f} ({y.mean() - x.mean():+.3f}, "
                          f"p={p:.2g}, n={int(sel.sum())})")
+            _, lo, hi = paired_difference(x, y)
             data.setdefault(name, {})[gname] = {"baseline": round(float(x.mean()), 4),
                                                 "ra_touch": round(float(y.mean()), 4),
+                                                "ci95": [round(lo, 4), round(hi, 4)],
                                                 "p": p, "n": int(sel.sum())}
         rows.append(cells)
     md = (_table(["paired training data", *(f"{g}: baseline -> RA-Touch" for g, _ in groups)],
@@ -594,15 +621,19 @@ def table6_withheld(lab: Lab) -> Report:
     import plotly.graph_objects as go
 
     fig = go.Figure()
-    for sysname, idx in (("baseline", 0), ("RA-Touch", 1)):
-        fig.add_bar(name=sysname, x=[f"{r}: {g}" for r in data for g in data[r]],
-                    y=[data[r][g]["baseline" if idx == 0 else "ra_touch"]
-                       for r in data for g in data[r]])
+    for r in data:  # RA-Touch - baseline per subset, with its paired 95 % CI
+        diffs = [v["ra_touch"] - v["baseline"] for v in data[r].values()]
+        fig.add_scatter(name=r, x=list(data[r]), y=diffs, mode="markers", marker={"size": 9},
+                        error_y={"type": "data", "symmetric": False,
+                                 "array": [v["ci95"][1] - d for v, d in zip(data[r].values(),
+                                                                            diffs)],
+                                 "arrayminus": [d - v["ci95"][0] for v, d in
+                                                zip(data[r].values(), diffs)]})
+    fig.add_hline(y=0, line_dash="dot", annotation_text="baseline (no retrieval)")
     fig.update_layout(title="Table 6 - materials withheld from the paired training data",
-                      barmode="group", template="plotly_white", height=440, width=900,
-                      yaxis_title="offline judge score (1-10)")
-    fig.update_yaxes(range=[max(1.0, min(min(v["baseline"], v["ra_touch"]) for r in data.values()
-                                         for v in r.values()) - 0.5), None])
+                      template="plotly_white", height=440, autosize=True, scattermode="group",
+                      yaxis_title="RA-Touch − baseline judge score (paired 95 % CI)",
+                      legend={"orientation": "h", "y": -0.25})
     return Report("table6", "Table 6 - low resource: materials withheld from training (not in "
                   "the paper)", md, fig, data, time.perf_counter() - t0)
 

@@ -20,6 +20,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 import torch
+from PIL import Image
 
 from ratouch.checkpoint import load_into, read_checkpoint
 from ratouch.corpus.embed import (
@@ -30,15 +31,27 @@ from ratouch.corpus.embed import (
 )
 from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
 from ratouch.encoders.factory import create_model
-from ratouch.encoders.preprocess import crop_box, to_rgb_array, tvl_contact_box
-from ratouch.errors import ConfigError, RATouchError
+from ratouch.encoders.preprocess import (
+    QUERY_MAX_SIDE,
+    crop_box,
+    oriented_size,
+    to_rgb_array,
+    tvl_contact_box,
+)
+from ratouch.errors import ConfigError, DataError, RATouchError
 from ratouch.model.generator import load_generator
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.model.retriever import RetrieverConfig, TactileGuidedRetriever
-from ratouch.paths import cache_dir, generator_weights, retriever_weights
+from ratouch.paths import (
+    cache_dir,
+    generator_weights,
+    retriever_weights,
+    trust_calibration,
+)
 from ratouch.search.index import IndexConfig
 from ratouch.search.pca import PCA2D
 from ratouch.search.retrieval import QUERY_MODES, CorpusIndex, CorpusSearch
+from ratouch.serve.trust import TrustCalibration
 
 #: What `RATouchPipeline.corpus_embeddings` serves.
 CORPUS_EMBEDDING_KINDS = ("image", "tactile_caption", "class_name", "visual_description")
@@ -94,6 +107,16 @@ def load_tgr(encoder: str, folder: str | os.PathLike | None = None):
     return model.eval()
 
 
+def load_trust(encoder: str) -> TrustCalibration | None:
+    """The shipped trust calibration of an encoder, or None (logged) when it has none."""
+    path = trust_calibration(encoder)
+    if not path.is_file():
+        log.warning("no trust calibration for %s (%s): `ratouch train trust --encoder %s`",
+                    encoder, path, encoder)
+        return None
+    return TrustCalibration.load(path)
+
+
 class RATouchPipeline:
     """Encoders, corpus index, Tactile-Guided Retriever, the two generators and the PCA frame.
 
@@ -102,8 +125,9 @@ class RATouchPipeline:
     """
 
     def __init__(self, retriever: CorpusSearch, tgr, generator_ra, generator_base,
-                 pca: PCA2D | None = None):
+                 pca: PCA2D | None = None, trust: TrustCalibration | None = None):
         self.retriever = retriever
+        self.trust = trust  # None: queries say that nothing flags unfamiliar inputs
         self.encoders = retriever.encoders
         self.corpus = retriever.corpus
         self.tgr = tgr
@@ -134,7 +158,7 @@ class RATouchPipeline:
             gen_base = load_generator(generator_weights(encoder, "baseline"))
             for gen in (gen_ra, gen_base):  # inference only: fold LoRA into the weights
                 gen.decoder.merge_lora()
-        return cls(retriever, tgr, gen_ra, gen_base)
+        return cls(retriever, tgr, gen_ra, gen_base, trust=load_trust(encoder))
 
     # ----------------------------------------------------------------- building blocks
 
@@ -222,28 +246,60 @@ class RATouchPipeline:
     # ----------------------------------------------------------------- the query
 
     def prepare_request(self, req: Mapping[str, Any]) -> dict:
-        """Check and decode one request (what `query` does before any model runs)."""
+        """Check and decode one request (what `query` does before any model runs).
+
+        The work is bounded whatever the upload's size: the visual crop and the tactile
+        frame (and its background) are reduced to `QUERY_MAX_SIDE` pixels inside PIL before
+        any per-pixel work. The result can be passed to `query_many` in place of the
+        request (a server decodes in the caller's thread, outside the shared batch)."""
+        if req.get("prepared"):
+            return dict(req)
+        t0 = time.perf_counter()
         k = req.get("k", 5)
         n = len(self.corpus.entries)
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= n:
-            raise ConfigError(f"k must be an integer in 1..{n}, got {k!r}")
-        image = to_rgb_array(req["visual"], name="visual image")
+            raise ConfigError(f"k must be a whole number from 1 to {n} (K, the neighbours per "
+                              f"mode), got k={k!r}")
+        visual = req["visual"]
+        width, height = oriented_size(visual, "visual image")
         warnings: list[str] = []
         box = req.get("box")
         if box is None:
-            box = tvl_contact_box(image.shape[1], image.shape[0])
+            box = tvl_contact_box(width, height)
             warnings.append(f"no contact box given: used TVL's centred crop {list(box)}")
-        crop = crop_box(image, box)
-        tactile = req.get("tactile")
-        frame = to_rgb_array(tactile, name="tactile image") if tactile is not None else None
-        if frame is None:
+        crop = crop_box(visual, box, max_side=QUERY_MAX_SIDE, name="visual image")
+        frame, background = self._tactile_inputs(req, warnings)
+        return {"prepared": True, "crop": crop, "frame": frame, "background": background,
+                "box": box, "k": int(k), "label": req.get("label"), "warnings": warnings,
+                "decode_ms": round((time.perf_counter() - t0) * 1000, 2)}
+
+    @staticmethod
+    def _tactile_inputs(req: Mapping[str, Any], warnings: list[str]
+                        ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The request's tactile frame and sensor background, decoded and reduced."""
+        tactile, background = req.get("tactile"), req.get("background")
+        if tactile is None:
             warnings.append("no tactile image: image-only retrieval; the tactile and joint "
                             "queries and the RA-Touch description are not available")
-        return {"crop": crop, "frame": frame, "box": box, "k": int(k),
-                "label": req.get("label"), "warnings": warnings}
+            if background is not None:
+                warnings.append("a background frame was given without a tactile image: ignored")
+            return None, None
+        size = _source_size(tactile)
+        frame = to_rgb_array(tactile, name="tactile image", max_side=QUERY_MAX_SIDE)
+        if background is None:
+            return frame, None
+        bg_size = _source_size(background)
+        bg = to_rgb_array(background, name="background image", max_side=QUERY_MAX_SIDE)
+        if (bg_size or bg.shape[1::-1]) != (size or frame.shape[1::-1]):
+            w, h = bg_size or bg.shape[1::-1]
+            fw, fh = size or frame.shape[1::-1]
+            raise DataError(f"the background image is {w}x{h} (WxH) but the tactile image is "
+                            f"{fw}x{fh}; the background must be the same sensor's no-contact "
+                            "frame at the same size")
+        return frame, bg
 
     def query(self, visual: Any, tactile: Any = None, box=None, k: int = 5,
-              label: str | None = None) -> dict:
+              label: str | None = None, background: Any = None) -> dict:
         """Run the whole RA-Touch query for one visuo-tactile pair.
 
         Args:
@@ -253,15 +309,23 @@ class RATouchPipeline:
                 centred crop and says so in `warnings`.
             k: neighbours per mode.
             label: the ground-truth tactile caption, when known (plotted in the PCA).
+            background: the tactile sensor's no-contact frame (same size as `tactile`), or
+                None: used by the no-contact check (and by encoders trained on
+                background-subtracted frames).
 
         Returns:
             {"neighbours": {"image"|"tactile"|"joint": [{"id", "score", "class_name",
             "caption", "description", "source"}]}, "description": {"ra_touch", "baseline"},
             "pca": {"points": [{"role", "x", "y", "id"?}], "explained": [..]},
-            "timings_ms": {stage: ms, ..., "total": ms}, "warnings": [...], "box": [...]}
+            "timings_ms": {stage: ms, ..., "total": ms, "decode": this request's decoding
+            (part of "preprocess", or done before the batch by a server)}, "warnings": [...], "box": [...],
+            "trust": {"visual": {"novelty", "threshold", "novel"}, "tactile": {"novelty",
+            "threshold", "novel", "contact", "contact_threshold", "no_contact", "background"}
+            or None} or None (no calibration)}. A frame without contact gets empty
+            descriptions and a "no contact detected" warning instead of a material guess.
         """
         out = self.query_many([{"visual": visual, "tactile": tactile, "box": box, "k": k,
-                                "label": label}])[0]
+                                "label": label, "background": background}])[0]
         if isinstance(out, Exception):
             raise out
         return out
@@ -270,7 +334,8 @@ class RATouchPipeline:
         """Several `query` calls at once (`query` is this with one request).
 
         Args:
-            requests: `query`'s arguments by name (visual required; tactile, box, k, label).
+            requests: `query`'s arguments by name (visual required; tactile, box, k, label,
+                background), or what `prepare_request` made of them.
 
         Returns:
             Per request, in order: `query`'s result, or the exception `query` would have
@@ -290,8 +355,13 @@ class RATouchPipeline:
             return out
         clock.lap("preprocess")
         queries, touch = self._encode(items, clock)
+        trust = [self._assess(it, q) for it, q in zip(items, queries)]
+        clock.lap("trust")
         results = self._search(items, queries)
         clock.lap("search")
+        # a frame without contact has no material to describe: no generation for it
+        touch = [j for j in touch if not (trust[j] and (trust[j]["tactile"] or {})
+                                          .get("no_contact"))]
         ra, base = self._generate(items, queries, results, touch, clock)
         points = self._points(items, queries, results)
         clock.lap("pca")
@@ -303,9 +373,21 @@ class RATouchPipeline:
                                for mode, (sc, ii) in results[j].items()},
                 "description": {"ra_touch": ra.get(j, ""), "baseline": base.get(j, "")},
                 "pca": {"points": points[j], "explained": explained},
-                "timings_ms": dict(timings), "warnings": it["warnings"],
-                "box": [int(v) for v in it["box"]]}
+                "timings_ms": {**timings, "decode": it["decode_ms"]},
+                "warnings": it["warnings"] + (trust[j] or {}).get("warnings", []),
+                "box": [int(v) for v in it["box"]],
+                "trust": None if trust[j] is None else
+                {m: trust[j][m] for m in ("visual", "tactile")}}
         return out
+
+    def _assess(self, item: dict, queries: dict) -> dict | None:
+        """The trust block of one prepared request (None, with a warning, uncalibrated)."""
+        if self.trust is None:
+            item["warnings"].append(f"no trust calibration for encoder {self.encoders.name}: "
+                                    "inputs unlike the training data are not flagged")
+            return None
+        return self.trust.assess(queries["image"], queries.get("tactile"), item["frame"],
+                                 item.get("background"))
 
     def _encode(self, items: list[dict], clock: "_Laps") -> tuple[list[dict], list[int]]:
         """Per item {mode: (1, D) query}; and which items have a tactile frame."""
@@ -314,7 +396,9 @@ class RATouchPipeline:
         queries: list[dict[str, np.ndarray]] = [{"image": V[j:j + 1]} for j in range(len(items))]
         touch = [j for j, it in enumerate(items) if it["frame"] is not None]
         if touch:
-            T = self.encoders.encode_tactile([items[j]["frame"] for j in touch])
+            bgs = [items[j].get("background") for j in touch]
+            T = self.encoders.encode_tactile([items[j]["frame"] for j in touch],
+                                             bgs if any(b is not None for b in bgs) else None)
             clock.lap("encode_tactile")
             J = self.joint_query(V[touch], T)
             for r, j in enumerate(touch):
@@ -362,6 +446,20 @@ class RATouchPipeline:
             for j, (x, y) in zip(labelled, xy):
                 points[j].append({"role": "ground_truth", "x": float(x), "y": float(y)})
         return points
+
+
+def _source_size(image: Any) -> tuple[int, int] | None:
+    """(W, H) of an image before any reduction: PIL images and arrays directly, files from
+    their header (no decoding); None if a file cannot be opened (decoding then says why)."""
+    if isinstance(image, Image.Image):
+        return image.size
+    if isinstance(image, np.ndarray) and image.ndim >= 2:
+        return int(image.shape[1]), int(image.shape[0])
+    try:
+        with Image.open(image) as img:
+            return img.size
+    except Exception:  # noqa: BLE001 - to_rgb_array reports unreadable files properly
+        return None
 
 
 class _Laps:

@@ -1,0 +1,175 @@
+"""Trust signals and bounded uploads, as a user of the pipeline meets them: a frame with nothing
+pressed into the gel, an input unlike the world, a huge or hostile image file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from ratouch.encoders.preprocess import QUERY_MAX_SIDE, to_rgb_array
+from ratouch.errors import DataError
+from ratouch.paths import REPO, trust_calibration
+from ratouch.serve.trust import Novelty, TrustCalibration, contact_score
+from ratouch.world.config import WorldConfig
+from ratouch.world.generator import World
+
+REFERENCE = REPO.parent / "shared" / "data" / "reference_tactile"
+
+
+@pytest.fixture(scope="module")
+def no_contact_world() -> World:
+    return World(WorldConfig(seed=0).with_stress(no_contact=1.0))
+
+
+def test_shipped_calibration_meets_its_targets():
+    cal = TrustCalibration.load(trust_calibration("default-s"))
+    m = cal.meta["measured"]
+    assert m["no_contact_detected_test"] >= 0.9 and m["no_contact_detected_test_bg"] >= 0.9
+    for key in ("visual_false_alarm_test", "tactile_false_alarm_test",
+                "no_contact_false_alarm_test", "no_contact_false_alarm_test_bg"):
+        assert m[key] <= 0.05, key
+    assert cal.meta["validation"].startswith("train[")  # thresholds never set on the test split
+
+
+def test_no_contact_frame_gets_no_material_description(pipeline, no_contact_world):
+    s = no_contact_world.sample("test", 33)
+    assert not s.contact
+    r = pipeline.query(s.visual, s.tactile, box=s.box)
+    assert r["trust"]["tactile"]["no_contact"] is True
+    assert r["description"] == {"ra_touch": "", "baseline": ""}
+    assert any(w.startswith("no contact detected") for w in r["warnings"])
+    json.dumps(r)
+    # with the sensor's own background the check compares against it, and says so
+    bg = no_contact_world.background_image(s.sensor)
+    r = pipeline.query(s.visual, s.tactile, box=s.box, background=bg)
+    assert r["trust"]["tactile"]["background"] is True and r["trust"]["tactile"]["no_contact"]
+    assert "against the background frame" in " ".join(r["warnings"])
+
+
+def test_contact_frame_is_described_and_not_flagged(pipeline, world):
+    s = world.sample("test", 33)
+    r = pipeline.query(s.visual, s.tactile, box=s.box,
+                       background=world.background_image(s.sensor))
+    t = r["trust"]
+    assert t["tactile"]["no_contact"] is False and t["tactile"]["contact"] > 0
+    assert {"novelty", "threshold", "novel"} <= set(t["visual"])
+    assert r["description"]["ra_touch"] and r["description"]["baseline"]
+
+
+def test_a_checkerboard_is_flagged_as_unlike_the_training_data(pipeline, world):
+    s = world.sample("test", 34)
+    yy, xx = np.mgrid[0:240, 0:320]
+    board = np.repeat((((yy // 40 + xx // 40) % 2) * 255).astype(np.uint8)[..., None], 3, 2)
+    r = pipeline.query(board, board, box=(0, 0, 320, 240))
+    assert r["trust"]["visual"]["novel"] and r["trust"]["tactile"]["novel"]
+    assert sum("unlike the" in w for w in r["warnings"]) == 2
+    assert not pipeline.query(s.visual, s.tactile, box=s.box)["trust"]["visual"]["novel"]
+
+
+def test_background_of_another_size_is_refused(pipeline, world):
+    s = world.sample("test", 35)
+    with pytest.raises(DataError, match="background image is 50x60"):
+        pipeline.query(s.visual, s.tactile, background=np.zeros((60, 50, 3), np.uint8))
+
+
+def test_huge_tactile_upload_is_reduced_before_any_pixel_work(pipeline, world, tmp_path):
+    s = world.sample("test", 36)
+    big = np.asarray(Image.fromarray(s.tactile).resize((1800, 2400), Image.BILINEAR))
+    Image.fromarray(big).save(tmp_path / "big.png")
+    prepared = pipeline.prepare_request({"visual": s.visual, "tactile": tmp_path / "big.png",
+                                         "box": s.box})
+    assert max(prepared["frame"].shape[:2]) == QUERY_MAX_SIDE
+    r = pipeline.query(s.visual, tmp_path / "big.png", box=s.box)
+    small = pipeline.query(s.visual, s.tactile, box=s.box)
+    assert r["trust"]["tactile"]["no_contact"] is False and r["description"]["ra_touch"]
+    # the contact score is measured at a fixed resolution: the upload's size hardly moves it
+    assert r["trust"]["tactile"]["contact"] == pytest.approx(
+        small["trust"]["tactile"]["contact"], rel=0.25)
+
+
+def test_decompression_bomb_is_refused_with_role_and_size(pipeline, world, tmp_path):
+    Image.new("1", (10_000, 6_000)).save(tmp_path / "bomb.png")  # 60 Mpx, a few kB on disk
+    s = world.sample("test", 37)
+    with pytest.raises(DataError, match=r"tactile image is 10000x6000 .* 60\.0 megapixels"):
+        pipeline.query(s.visual, tmp_path / "bomb.png", box=s.box)
+
+
+def test_jpeg_is_decoded_at_reduced_scale_with_exif_rotation(tmp_path):
+    a = np.zeros((1200, 3000, 3), np.uint8)
+    a[:, :300] = 255  # a white band on the left: at the top once rotated by EXIF tag 6
+    img = Image.fromarray(a)
+    exif = img.getexif()
+    exif[0x0112] = 6
+    img.save(tmp_path / "r.jpg", exif=exif.tobytes())
+    out = to_rgb_array(tmp_path / "r.jpg", max_side=QUERY_MAX_SIDE)
+    assert out.shape == (320, 128, 3)
+    assert out[:20].mean() > 200 and out[-100:].mean() < 30
+
+
+def test_contact_score_needs_a_matching_background(world):
+    s = world.sample("test", 38)
+    with pytest.raises(DataError, match="background is 10x10"):
+        contact_score(s.tactile, np.zeros((10, 10, 3), np.uint8))
+
+
+def test_calibration_round_trips_and_rejects_other_files(tmp_path):
+    rng = np.random.default_rng(0)
+    nov = Novelty.fit(rng.normal(size=(100, 8)), rank=3).with_threshold(1.5)
+    cal = TrustCalibration("enc", nov, nov, 2.0, 3.0, {"seed": 0})
+    back = TrustCalibration.load(cal.save(tmp_path / "t.json"))
+    x = rng.normal(size=(5, 8))
+    assert np.allclose(back.visual.score(x), nov.score(x), rtol=1e-4)
+    assert back.contact_threshold == 2.0 and back.meta == {"seed": 0}
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(DataError, match="not a trust calibration"):
+        TrustCalibration.load(tmp_path / "bad.json")
+
+
+@pytest.mark.skipif(not REFERENCE.is_dir(), reason="no real reference frames beside the repo")
+def test_real_digit_frames_sanity_check(pipeline):
+    """The two real DIGIT frames (never used for calibration): the sensor background is
+    flagged as no contact, the pressed frame is not (and is flagged as unfamiliar)."""
+    cal = pipeline.trust
+    enc = pipeline.encoders
+    out = {}
+    for name in ("digit_tacto_bg_digit_240_320.png", "digit_aurova_digit_raw.png"):
+        frame = to_rgb_array(Path(REFERENCE, name), max_side=QUERY_MAX_SIDE)
+        out[name] = cal.assess(enc.encode_image([frame]), enc.encode_tactile([frame]), frame)
+    assert out["digit_tacto_bg_digit_240_320.png"]["tactile"]["no_contact"]
+    assert not out["digit_aurova_digit_raw.png"]["tactile"]["no_contact"]
+    assert out["digit_aurova_digit_raw.png"]["tactile"]["novel"]
+
+
+@pytest.mark.slow
+def test_calibration_is_reproducible(tmp_path):
+    """`calibrate` with the same seed gives the same thresholds (small sizes)."""
+    from ratouch.encoders.factory import create_model
+    from ratouch.train.trust import TrustConfig, calibrate
+
+    enc = create_model("default-s")
+    cfg = TrustConfig(n_reference=120, n_validation=100)
+    a, b = calibrate(enc, cfg, progress=False), calibrate(enc, cfg, progress=False)
+    assert a.contact_threshold == b.contact_threshold
+    assert a.visual.threshold == b.visual.threshold
+    assert a.meta["measured"]["no_contact_detected_test"] >= 0.9
+
+
+def test_huge_visual_crop_matches_the_full_resolution_crop(tmp_path):
+    """A crop reduced inside PIL (bounded work) shows what the full-resolution crop shows."""
+    from ratouch.encoders.preprocess import crop_box, fit_within
+
+    rng = np.random.default_rng(0)
+    small = rng.integers(0, 256, (60, 80, 3), dtype=np.uint8)
+    big = np.asarray(Image.fromarray(small).resize((4000, 3000), Image.NEAREST))
+    Image.fromarray(big).save(tmp_path / "big.jpg", quality=95)
+    box = (1000, 500, 2600, 2100)
+    fast = crop_box(tmp_path / "big.jpg", box, max_side=QUERY_MAX_SIDE)
+    slow = fit_within(crop_box(to_rgb_array(tmp_path / "big.jpg"), box), QUERY_MAX_SIDE)
+    assert fast.shape == slow.shape == (320, 320, 3)
+    assert np.abs(fast.astype(int) - slow.astype(int)).mean() < 8
+    with pytest.raises(DataError, match="outside the 4000x3000"):
+        crop_box(tmp_path / "big.jpg", (5000, 5000, 5100, 5100), max_side=QUERY_MAX_SIDE)
