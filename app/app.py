@@ -22,7 +22,6 @@ if __package__ in (None, ""):  # run as a script (`python app/app.py`, as `ratou
 import gradio as gr  # noqa: E402
 
 from app import handlers, view  # noqa: E402
-from app.box import PREVIEW_SIDE  # noqa: E402
 from ratouch.paths import DOCS  # noqa: E402
 from ratouch.serve.batcher import QueryBatcher  # noqa: E402
 
