@@ -22,6 +22,7 @@ if __package__ in (None, ""):  # run as a script (`python app/app.py`, as `ratou
 import gradio as gr  # noqa: E402
 
 from app import handlers, view  # noqa: E402
+from ratouch.errors import RATouchError  # noqa: E402
 from ratouch.paths import DOCS  # noqa: E402
 from ratouch.serve.batcher import QueryBatcher  # noqa: E402
 
@@ -73,9 +74,15 @@ def build_demo(pipeline, world=None, failure_options: dict | None = None,
         docs: the folder holding `results.md` and `figures/*.json` (default: the repo's docs/).
     """
     from ratouch.eval import failures  # heavy (torch): imported when the page is built
+    from ratouch.eval.judge import OfflineJudge
     from ratouch.world.generator import World
 
     world = world or World()
+    try:  # scores the descriptions of labelled examples; shared, read-only
+        judge = OfflineJudge()
+    except RATouchError as e:  # e.g. no judge calibration: the view simply has no scores
+        log.warning("no judge scores: %s", e)
+        judge = None
     options = {"world": world.cfg, "k": 5, "conditions": failures.DEFAULT_CONDITIONS,
                **(failure_options or {})}
     docs = Path(docs) if docs is not None else DOCS
@@ -86,7 +93,7 @@ def build_demo(pipeline, world=None, failure_options: dict | None = None,
 
     with gr.Blocks(title="RA-Touch Explorer", delete_cache=(1800, SESSION_TTL_S)) as demo:
         ui = _layout(pipeline, world, options["conditions"])
-        _wire(demo, ui, pipeline, world, thumbnail, options, docs)
+        _wire(demo, ui, pipeline, world, thumbnail, options, docs, judge)
     demo.ratouch_docs = docs  # `launch` serves its images (and nothing else from disk)
     return demo
 
@@ -220,7 +227,7 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int) -> N
 
 
 def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, options: dict,
-          docs: Path) -> None:
+          docs: Path, judge) -> None:
     """Connect events to the handlers. Only `/query` is an API; the UI's events are private."""
     box_out = [ui.state, ui.visual, *ui.fields, ui.box_note]
     example_out = [ui.state, ui.visual, ui.tactile, *ui.fields, ui.box_note]
@@ -251,7 +258,8 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
     def show_query(state, tac, a, b, c, d, k, bg, progress=gr.Progress()):
         largest = MAX_K if _pending(pipeline) else min(MAX_K, len(pipeline.corpus.entries))
         return tuple(handlers.run_query(pipeline, thumbnail, state, tac, a, b, c, d, k,
-                                        progress, background=bg, largest_k=largest))
+                                        progress, background=bg, largest_k=largest,
+                                        judge=judge))
 
     def failures_tab(subset, condition, view_label, compute, progress=None):
         return tuple(handlers.failures_tab(pipeline, options, shared, compute, subset,
@@ -311,7 +319,6 @@ def main(argv: list[str] | None = None) -> None:
     # heavy (torch, faiss, transformers): imported here, after the arguments are parsed, and
     # the models loaded in the background, so that the server answers at once
     from app.loading import BackgroundPipeline
-    from ratouch.errors import RATouchError
     from ratouch.serve.pipeline import RATouchPipeline
 
     # serve at once; the models load meanwhile and a query waits for them. Concurrent

@@ -247,10 +247,10 @@ def error_view(message: str) -> QueryView:
 
 def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual | None,
               tactile: Any, x0, y0, x1, y1, k, progress=None, background: Any = None,
-              largest_k: int = MAX_K) -> QueryView:
+              largest_k: int = MAX_K, judge=None) -> QueryView:
     """Run `pipe.query` on the session's image, the tactile image (and the sensor's
     background frame, if given) and the box, and format it. `tactile` and `background` may
-    be the components' raw values."""
+    be the components' raw values; `judge` scores the descriptions of labelled examples."""
     tactile, background = upload_path(tactile), upload_path(background)
     try:
         if visual is None:
@@ -270,11 +270,8 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
                  "background image": background}
         return error_view(_fail(e, files))
     tables = [view.neighbour_table(result, m) for m in view.MODES]
-    try:  # a ground-truth label (test-split examples): score both descriptions against it
-        scores = failures.judge_scores(visual.label, result["description"])
-    except RATouchError as e:  # e.g. no judge calibration: the view simply has no scores
-        log.warning("no judge scores: %s", e)
-        scores = {}
+    # a ground-truth label (test-split examples): score both descriptions against it
+    scores = failures.judge_scores(visual.label, result["description"], judge) if judge else {}
     render_ms = (time.perf_counter() - t0) * 1000
     return QueryView(view.status_md(visual.title, result["warnings"], result.get("box")),
                      *galleries, *tables, pca_figure(result, visual.label),

@@ -164,13 +164,16 @@ def test_example_pair_brings_its_box_label_and_tactile(fake, world):
     s = world.sample("test", 7)
     assert fields == list(s.box) and visual.label == s.caption and s.caption in note
     assert np.array_equal(tactile, s.tactile)
-    v = handlers.run_query(fake, _thumb, visual, tactile, *fields, 5)
+    from ratouch.eval.failures import judge_scores
+    from ratouch.eval.judge import OfflineJudge
+
+    judge = OfflineJudge()
+    v = handlers.run_query(fake, _thumb, visual, tactile, *fields, 5, judge=judge)
     assert fake.calls[-1]["label"] == s.caption
     assert f"Ground-truth label:** {s.caption}" in v.description
     # both descriptions carry the offline judge's score against the label
-    from ratouch.eval.failures import judge_scores
-
-    scores = judge_scores(s.caption, {"ra_touch": "soft and grainy", "baseline": "smooth"})
+    scores = judge_scores(s.caption, {"ra_touch": "soft and grainy", "baseline": "smooth"},
+                          judge)
     assert f"soft and grainy · judge **{scores['ra_touch']:.1f}**/10" in v.description
     assert f"smooth · judge **{scores['baseline']:.1f}**/10" in v.description
     assert any(t.name == "ground truth" for t in v.plot.data)
@@ -378,6 +381,7 @@ def test_opening_a_case_brings_its_stressed_inputs_and_label(fake):
 
     from app import handlers
     from ratouch.eval.failures import case_sample
+    from ratouch.eval.judge import OfflineJudge
     from ratouch.world.config import WorldConfig
 
     visual, preview, tactile, *box, note = handlers.open_case(WorldConfig(),
@@ -386,8 +390,10 @@ def test_opening_a_case_brings_its_stressed_inputs_and_label(fake):
     assert np.array_equal(tactile, s.tactile) and box == list(s.box)
     assert visual.label == s.caption and "noisy touch" in visual.title
     assert "condition **noisy touch**" in note
-    v = handlers.run_query(fake, _thumb, visual, tactile, *box, 5)
+    v = handlers.run_query(fake, _thumb, visual, tactile, *box, 5, judge=OfflineJudge())
     assert fake.calls[-1]["label"] == s.caption and "judge **" in v.description
+    v = handlers.run_query(fake, _thumb, visual, tactile, *box, 5)  # no judge: no scores
+    assert "judge **" not in v.description
     for bad in (["fog", 1], ["natural", 402], ["natural"], None):
         with pytest.raises(gr.Error):
             handlers.open_case(WorldConfig(), bad)

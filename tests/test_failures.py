@@ -192,11 +192,12 @@ def test_views_filter_and_sort():
 
 
 def test_judge_scores_of_a_query_result():
+    judge = OfflineJudge()
     scores = failures.judge_scores("hard, smooth, cool", {"ra_touch": "hard, smooth, cool",
-                                                         "baseline": "soft, fuzzy"})
+                                                         "baseline": "soft, fuzzy"}, judge)
     assert scores["ra_touch"] > scores["baseline"] >= 1
-    assert failures.judge_scores(None, {"ra_touch": "hard"}) == {}
-    assert failures.judge_scores("hard", {"ra_touch": ""}) == {"ra_touch": None}
+    assert failures.judge_scores(None, {"ra_touch": "hard"}, judge) == {}
+    assert failures.judge_scores("hard", {"ra_touch": ""}, judge) == {"ra_touch": None}
 
 
 def test_bad_settings_are_refused(fake):

@@ -21,7 +21,6 @@ import logging
 import threading
 import time
 from dataclasses import asdict
-from functools import lru_cache
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
@@ -99,13 +98,7 @@ def case_inputs(condition: str, index: int, world: WorldConfig | None = None
 
 # --------------------------------------------------------------------------- judging
 
-@lru_cache(maxsize=1)
-def _offline_judge():
-
-    return OfflineJudge()
-
-
-def judge_scores(label: str | None, descriptions: Mapping[str, str | None]
+def judge_scores(label: str | None, descriptions: Mapping[str, str | None], judge
                  ) -> dict[str, float | None]:
     """Offline-judge score (1-10) of each description against the ground-truth label.
 
@@ -113,7 +106,6 @@ def judge_scores(label: str | None, descriptions: Mapping[str, str | None]
     not generated), not the judge's 1."""
     if not label:
         return {}
-    judge = _offline_judge()
     return {name: (round(judge.score(label, text), 2) if text else None)
             for name, text in descriptions.items()}
 
@@ -146,7 +138,7 @@ def failure_cases(pipeline, world: WorldConfig | None = None, k: int = 5,
     conditions = _check_conditions(conditions)
     if not 1 <= int(k) <= len(pipeline.corpus.entries):
         raise ConfigError(f"k must be in 1..{len(pipeline.corpus.entries)}, got {k}")
-    judge = judge or _offline_judge()
+    judge = judge or OfflineJudge()
     entry_mats = entry_materials(pipeline.corpus)
     if not entry_mats.size or not all(entry_mats):
         raise DataError("the corpus entries carry no material: failure cases need a world "
@@ -237,7 +229,7 @@ def settings(pipeline, world: WorldConfig | None = None, k: int = 5,
             "conditions": {c: CONDITIONS[c] for c in conditions},
             "indices": None if indices is None else [int(i) for i in indices],
             "corpus_size": len(pipeline.corpus.entries),
-            "judge": _offline_judge().params, "assets": asset_manifests(pipeline)}
+            "judge": OfflineJudge().params, "assets": asset_manifests(pipeline)}
 
 
 def cache_path(pipeline, world: WorldConfig | None = None, k: int = 5,
