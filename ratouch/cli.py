@@ -254,6 +254,14 @@ def _box(text: str) -> tuple[int, int, int, int]:
     return box
 
 
+def _id_list(text: str) -> list[int]:
+    try:
+        return [int(x) for x in text.split(",") if x.strip()]
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of "
+                                         f"corpus ids") from e
+
+
 def _add_query(sub) -> None:
     q = sub.add_parser("query", help="one RA-Touch query: neighbours, description, PCA, timings")
     q.add_argument("--vision", required=True, help="visual image file")
@@ -264,6 +272,13 @@ def _add_query(sub) -> None:
     q.add_argument("--encoder", default="default-s")
     q.add_argument("--corpus", default=None, help="corpus folder (default: the cached 10k)")
     q.add_argument("--json", action="store_true", help="print JSON (the default output)")
+    q.add_argument("--drop", type=_id_list, default=None, metavar="IDS",
+                   help="comma-separated corpus ids: regenerate the RA-Touch description "
+                        "without these joint neighbours (printed under 'regenerated')")
+    q.add_argument("--neighbours-from", default=None, metavar="FILE",
+                   help="regenerate the RA-Touch description with other neighbours: a JSON "
+                        "file holding another query's output (its joint neighbours are used) "
+                        "or a list of corpus ids")
 
 
 def _add_bench(sub) -> None:
@@ -416,10 +431,39 @@ def _run_query(args: argparse.Namespace) -> int:
     for path in (args.vision, args.tactile):
         if path is not None and not Path(path).is_file():
             raise _usage(f"image file {path} does not exist")
+    swap = _neighbours_file(args.neighbours_from) if args.neighbours_from else None
     pipe = RATouchPipeline.load(args.encoder, corpus=args.corpus)
     result = pipe.query(args.vision, args.tactile, box=args.box, k=args.k, label=args.label)
+    if args.drop is not None or swap is not None:
+        ids = swap if swap is not None else [n["id"] for n in result["neighbours"]["joint"]]
+        missing = sorted(set(args.drop or ()) - set(ids))
+        if missing:
+            raise _usage(f"--drop: {missing} are not among the neighbours {ids}")
+        ids = [i for i in ids if i not in set(args.drop or ())]
+        result["regenerated"] = pipe.regenerate(args.vision, args.tactile, ids, box=args.box)
     print(json.dumps(result, indent=1))
     return 0
+
+
+def _neighbours_file(path: str) -> list[int]:
+    """Corpus ids from --neighbours-from: a query's JSON output (its joint neighbours, or a
+    regenerated set's) or a JSON list of ids."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise _usage(f"--neighbours-from {path}: not a readable JSON file ({e})") from e
+    if isinstance(data, dict):
+        data = data.get("regenerated", data)
+        nb = data.get("neighbours") if isinstance(data, dict) else None
+        if isinstance(nb, dict):  # a query's output: {"image"|"tactile"|"joint": [...]}
+            nb = nb.get("joint")
+        data = [n.get("id") if isinstance(n, dict) else n for n in nb] \
+            if isinstance(nb, list) else None
+    if not isinstance(data, list) or not all(isinstance(i, int) and not isinstance(i, bool)
+                                             for i in data):
+        raise _usage(f"--neighbours-from {path}: expected a query's JSON output or a list of "
+                     f"corpus ids")
+    return data
 
 
 def _run_eval(args: argparse.Namespace) -> int:
