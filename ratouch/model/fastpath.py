@@ -20,34 +20,13 @@ the same descriptions on the whole test split.
 
 from __future__ import annotations
 
-import contextlib
-from typing import Iterator, Sequence
+from typing import Sequence
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-
-@contextlib.contextmanager
-def one_thread() -> Iterator[None]:
-    """Run the enclosed torch ops on one intra-op thread (this thread only).
-
-    A decoding step is ~100 tiny ops whose matmuls read weights at memory speed; splitting
-    them over two OpenMP threads saves little and, when the cores are shared (other requests,
-    other processes), each op waits at a barrier for a descheduled thread: measured 480 ms
-    instead of 21 ms per query on a loaded 2-core machine. `torch.set_num_threads` sets the
-    OpenMP/MKL count of the calling thread (and the default for threads started later), so
-    it is set and restored here, in this thread.
-    """
-    before = torch.get_num_threads()
-    if before == 1:
-        yield
-        return
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
+from ratouch.threads import intra_op_threads
 
 
 def supports(model: nn.Module) -> bool:
@@ -207,7 +186,9 @@ class GreedyStack:
         if C + n > self.max_positions:
             raise ValueError(f"context {C} + {n} new tokens exceed the model's "
                              f"{self.max_positions} positions")
-        with one_thread():
+        # one intra-op thread: a step is ~100 tiny ops whose matmuls read the weights at memory
+        # speed; a second OpenMP thread saves little and stalls whenever cores are shared
+        with intra_op_threads(1):
             return self._greedy(context, n, eos_id)
 
     def _greedy(self, context: Tensor, n: int, eos_id: int) -> Tensor:

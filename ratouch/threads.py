@@ -1,0 +1,29 @@
+"""How many intra-op threads torch uses for a stretch of work, in the calling thread only.
+
+`torch.set_num_threads` sets the OpenMP/MKL thread count of the calling thread (and the default
+of threads started later); other running threads keep theirs. Small ops split over two OpenMP
+threads on shared cores wait at a barrier for a descheduled thread, and waiting threads spin,
+burning CPU: on this 2-core machine under load a decoding pass took 480 ms instead of 21 ms,
+and a batch of queries 90 instead of 12.5 CPU-ms per query.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Iterator
+
+import torch
+
+
+@contextlib.contextmanager
+def intra_op_threads(n: int) -> Iterator[None]:
+    """Run the enclosed torch ops of this thread on `n` intra-op threads, then restore."""
+    before = torch.get_num_threads()
+    if before == n:
+        yield
+        return
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
