@@ -115,6 +115,21 @@ class GreedyStack:
         self.embed = torch.stack([m.get_input_embeddings().weight.detach()
                                   for m in models]).clone()                         # (G,V,D)
 
+    def step_bytes(self) -> int:
+        """Weight bytes one decoding step reads (each shared weight once; the embedding
+        table is only indexed, so it is left out)."""
+        tensors = [t for layer in self.layers for t in layer.values()] + [self.norm,
+                                                                            self.lm_head]
+        return sum(t.numel() * t.element_size() for t in tensors)
+
+    def step_flops(self, rows: int) -> int:
+        """Multiply-add FLOPs of one position of `rows` sequences per model, over the G
+        models (matmuls only; attention over a few dozen positions is negligible)."""
+        per_model = sum(t[0].numel() if t.dim() == 3 else t.numel()
+                        for layer in self.layers for k, t in layer.items()
+                        if k not in ("ln1", "ln2")) + self.lm_head[0].numel()
+        return 2 * per_model * rows * self.G
+
     @staticmethod
     def _mm(x: Tensor, w: Tensor, add: Tensor | None = None) -> Tensor:
         """(add +) x @ w for x (G, N, in) and a shared (in, out) or stacked (G, in, out) w."""
