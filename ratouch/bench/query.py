@@ -19,8 +19,8 @@ from ratouch.corpus.imagenet_t import (
 )
 from ratouch.model.decoder import generate_together
 from ratouch.model.fastpath import GreedyStack
-from ratouch.serve.pipeline import RATouchPipeline
-from ratouch.threads import intra_op_threads, default_corpus
+from ratouch.serve.pipeline import RATouchPipeline, default_corpus
+from ratouch.threads import intra_op_threads
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import write_split
 from ratouch.world.generator import World
