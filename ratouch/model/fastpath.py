@@ -48,7 +48,14 @@ def weights_version(models: Sequence[nn.Module]) -> tuple:
     """Identity and in-place-update counters of the models' weights: a `GreedyStack` built
     from them is stale once this changes (an optimiser step or `load_state_dict` bumps
     a tensor's `_version`)."""
-    return tuple((id(m), tuple(p._version for p in m.parameters())) for m in models)
+    return tuple((id(m), tuple(_version(p) for p in m.parameters())) for m in models)
+
+
+def _version(p: Tensor) -> int:
+    try:
+        return p._version
+    except RuntimeError:  # an inference tensor keeps no counter (and is never trained)
+        return -1
 
 
 class GreedyStack:
