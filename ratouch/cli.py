@@ -436,10 +436,10 @@ def _run_query(args: argparse.Namespace) -> int:
     result = pipe.query(args.vision, args.tactile, box=args.box, k=args.k, label=args.label)
     if args.drop is not None or swap is not None:
         ids = swap if swap is not None else [n["id"] for n in result["neighbours"]["joint"]]
-        missing = sorted(set(args.drop or ()) - set(ids))
-        if missing:
-            raise _usage(f"--drop: {missing} are not among the neighbours {ids}")
-        ids = [i for i in ids if i not in set(args.drop or ())]
+        drop = set(args.drop or ())
+        if drop - set(ids):
+            raise _usage(f"--drop: {sorted(drop - set(ids))} are not among the neighbours {ids}")
+        ids = [i for i in ids if i not in drop]
         result["regenerated"] = pipe.regenerate(args.vision, args.tactile, ids, box=args.box)
     print(json.dumps(result, indent=1))
     return 0
