@@ -425,13 +425,19 @@ def _train_encoders(args: argparse.Namespace) -> int:
 
 
 def _run_query(args: argparse.Namespace) -> int:
-
-    from ratouch.serve.pipeline import RATouchPipeline
+    from ratouch.threads import intra_op_threads
 
     for path in (args.vision, args.tactile):
         if path is not None and not Path(path).is_file():
             raise _usage(f"image file {path} does not exist")
     swap = _neighbours_file(args.neighbours_from) if args.neighbours_from else None
+    with intra_op_threads(1):  # the serving setting (see ratouch.threads)
+        return _query(args, swap)
+
+
+def _query(args: argparse.Namespace, swap: list[int] | None) -> int:
+    from ratouch.serve.pipeline import RATouchPipeline
+
     pipe = RATouchPipeline.load(args.encoder, corpus=args.corpus)
     result = pipe.query(args.vision, args.tactile, box=args.box, k=args.k, label=args.label)
     if args.drop is not None or swap is not None:
@@ -619,7 +625,10 @@ def _run_bench(args: argparse.Namespace) -> int:
         return _bench_tradeoff(args)
     if args.bench_cmd == "query":
 
-        r = bench_query(args.encoder, args.corpus, n=args.n)
+        from ratouch.threads import intra_op_threads
+
+        with intra_op_threads(1):  # as `ratouch query` and the app serve (ratouch.threads)
+            r = bench_query(args.encoder, args.corpus, n=args.n)
         print(json.dumps(r, indent=None if args.json else 1))
         return 0
     if args.bench_cmd == "retrieval":

@@ -9,6 +9,8 @@ hand-written forward of the same LLaMA architecture for greedy decoding only:
 * keys and values written into a cache preallocated for the whole generation;
 * q/k/v and gate/up projections fused into one matmul each, the residual adds fused into the
   output matmuls (`torch.baddbmm`);
+* one intra-op thread is the setting to serve with (`ratouch.threads`): a step is ~100 tiny
+  ops, and a second OpenMP thread on shared cores stalls them;
 * G decoders of one shape (RA-Touch's and the baseline's) decode together: their weights are
   stacked, so every matmul is one batched matmul over the G models and one step of Python
   serves both.
@@ -25,8 +27,6 @@ from typing import Sequence
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
-
-from ratouch.threads import intra_op_threads
 
 
 def supports(model: nn.Module) -> bool:
@@ -200,6 +200,8 @@ class GreedyStack:
 
         Returns:
             (G, B, steps) token ids, steps <= n (fewer when every row has ended).
+
+        Runs on the calling thread's intra-op threads: serve with one (`ratouch.threads`).
         """
         G, B, C, D = context.shape
         assert G == self.G and D == self.D, (tuple(context.shape), self.G, self.D)
@@ -208,13 +210,6 @@ class GreedyStack:
         if C + n > self.max_positions:
             raise ValueError(f"context {C} + {n} new tokens exceed the model's "
                              f"{self.max_positions} positions")
-        # one intra-op thread: a step is ~100 tiny ops whose matmuls read the weights at memory
-        # speed; a second OpenMP thread saves little and stalls whenever cores are shared
-        with intra_op_threads(1):
-            return self._greedy(context, n, eos_id)
-
-    def _greedy(self, context: Tensor, n: int, eos_id: int) -> Tensor:
-        G, B, C, D = context.shape
         cos, sin = self._cos, self._sin
         cache = [torch.empty(2, G, B, self.H, C + n, self.hd) for _ in self.layers]
         x = self._forward(context.reshape(G, B * C, D).float(), cache, 0, cos[:C], sin[:C])

@@ -40,7 +40,6 @@ from ratouch.paths import cache_dir, generator_weights, retriever_weights
 from ratouch.search.index import IndexConfig
 from ratouch.search.pca import PCA2D
 from ratouch.search.retrieval import QUERY_MODES, CorpusIndex, CorpusSearch
-from ratouch.threads import intra_op_threads
 
 #: What `RATouchPipeline.corpus_embeddings` serves.
 CORPUS_EMBEDDING_KINDS = ("image", "tactile_caption", "class_name", "visual_description")
@@ -100,7 +99,9 @@ class RATouchPipeline:
     """Encoders, corpus index, Tactile-Guided Retriever, the two generators and the PCA frame.
 
     Read-only once loaded (the corpus embeddings of other caption kinds are computed once, on
-    first use); `query` and `query_many` may be called from several threads.
+    first use); `query` and `query_many` may be called from several threads. Serve it with
+    one intra-op thread per calling thread (`ratouch.threads`), as the app's batcher and
+    `ratouch query` do.
     """
 
     def __init__(self, retriever: CorpusSearch, tgr, generator_ra, generator_base,
@@ -241,9 +242,8 @@ class RATouchPipeline:
         q = self.joint_query(V, T)[0]
         text = self.corpus_embeddings("tactile_caption")[ids]        # (K, D)
         scores = text @ q / np.maximum(np.linalg.norm(text, axis=1) * np.linalg.norm(q), 1e-12)
-        with intra_op_threads(1):
-            p_ra, weights = self.ra_prefix(V, T, ids[None])
-            ra = describe_together([self.generator_ra], [p_ra])[0][0]
+        p_ra, weights = self.ra_prefix(V, T, ids[None])
+        ra = describe_together([self.generator_ra], [p_ra])[0][0]
         clock.lap("generate")
         return {"description": {"ra_touch": ra},
                 "neighbours": [self.neighbour_entry(i, s) for i, s in zip(ids, scores)],
@@ -414,19 +414,18 @@ class RATouchPipeline:
         for r, j in enumerate(touch):
             by_k.setdefault(items[j]["k"], []).append(r)
         p_ra: list = [None] * len(touch)
-        with intra_op_threads(1):  # tiny ops: a second thread only waits (ratouch.threads)
-            for rows in by_k.values():
-                nb = np.concatenate([results[touch[r]]["joint"][1] for r in rows])
-                prefix, weights = self.ra_prefix(V[rows], T[rows], nb)
-                for n, r in enumerate(rows):
-                    p_ra[r] = prefix[n]
-                    attention[touch[r]] = {name: [round(float(x), 4) for x in w[n]]
-                                           for name, w in weights.items()}
-            with torch.inference_mode():
-                p_base = self.generator_base.prefix(torch.from_numpy(V), torch.from_numpy(T))
-            texts_ra, texts_base = describe_together(
-                [self.generator_ra, self.generator_base], [torch.stack(p_ra), p_base],
-                cache=self._stack)
+        for rows in by_k.values():
+            nb = np.concatenate([results[touch[r]]["joint"][1] for r in rows])
+            prefix, weights = self.ra_prefix(V[rows], T[rows], nb)
+            for n, r in enumerate(rows):
+                p_ra[r] = prefix[n]
+                attention[touch[r]] = {name: [round(float(x), 4) for x in w[n]]
+                                       for name, w in weights.items()}
+        with torch.inference_mode():
+            p_base = self.generator_base.prefix(torch.from_numpy(V), torch.from_numpy(T))
+        texts_ra, texts_base = describe_together(
+            [self.generator_ra, self.generator_base], [torch.stack(p_ra), p_base],
+            cache=self._stack)
         ra.update(zip(touch, texts_ra))
         base.update(zip(touch, texts_base))
         clock.lap("generate")
