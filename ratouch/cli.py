@@ -292,6 +292,14 @@ def _box(text: str) -> tuple[int, int, int, int]:
     return box
 
 
+def _id_list(text: str) -> list[int]:
+    try:
+        return [int(x) for x in text.split(",") if x.strip()]
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of "
+                                         f"corpus ids") from e
+
+
 def _add_query(sub) -> None:
     q = sub.add_parser("query", help="one RA-Touch query: neighbours, description, PCA, timings")
     q.add_argument("--vision", required=True, help="visual image file")
@@ -305,6 +313,13 @@ def _add_query(sub) -> None:
     q.add_argument("--encoder", default="default-s")
     q.add_argument("--corpus", default=None, help="corpus folder (default: the cached 10k)")
     q.add_argument("--json", action="store_true", help="print JSON (the default output)")
+    q.add_argument("--drop", type=_id_list, default=None, metavar="IDS",
+                   help="comma-separated corpus ids: regenerate the RA-Touch description "
+                        "without these joint neighbours (printed under 'regenerated')")
+    q.add_argument("--neighbours-from", default=None, metavar="FILE",
+                   help="regenerate the RA-Touch description with other neighbours: a JSON "
+                        "file holding another query's output (its joint neighbours are used) "
+                        "or a list of corpus ids")
 
 
 def _add_bench(sub) -> None:
@@ -500,18 +515,53 @@ def _train_encoders(args: argparse.Namespace) -> int:
 
 
 def _run_query(args: argparse.Namespace) -> int:
-
-    from ratouch.serve.pipeline import RATouchPipeline
+    from ratouch.threads import intra_op_threads
 
     for role, path in (("visual image", args.vision), ("tactile image", args.tactile),
                        ("background image", args.background)):
         if path is not None and not Path(path).is_file():
             raise _usage(f"{role} file {path} does not exist")
+    swap = _neighbours_file(args.neighbours_from) if args.neighbours_from else None
+    with intra_op_threads(1):  # the serving setting (see ratouch.threads)
+        return _query(args, swap)
+
+
+def _query(args: argparse.Namespace, swap: list[int] | None) -> int:
+    from ratouch.serve.pipeline import RATouchPipeline
+
     pipe = RATouchPipeline.load(args.encoder, corpus=args.corpus)
     result = pipe.query(args.vision, args.tactile, box=args.box, k=args.k, label=args.label,
                         background=args.background)
+    if args.drop is not None or swap is not None:
+        ids = swap if swap is not None else [n["id"] for n in result["neighbours"]["joint"]]
+        drop = set(args.drop or ())
+        if drop - set(ids):
+            raise _usage(f"--drop: {sorted(drop - set(ids))} are not among the neighbours {ids}")
+        ids = [i for i in ids if i not in drop]
+        result["regenerated"] = pipe.regenerate(args.vision, args.tactile, ids, box=args.box)
     print(json.dumps(result, indent=1))
     return 0
+
+
+def _neighbours_file(path: str) -> list[int]:
+    """Corpus ids from --neighbours-from: a query's JSON output (its joint neighbours, or a
+    regenerated set's) or a JSON list of ids."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise _usage(f"--neighbours-from {path}: not a readable JSON file ({e})") from e
+    if isinstance(data, dict):
+        data = data.get("regenerated", data)
+        nb = data.get("neighbours") if isinstance(data, dict) else None
+        if isinstance(nb, dict):  # a query's output: {"image"|"tactile"|"joint": [...]}
+            nb = nb.get("joint")
+        data = [n.get("id") if isinstance(n, dict) else n for n in nb] \
+            if isinstance(nb, list) else None
+    if not isinstance(data, list) or not all(isinstance(i, int) and not isinstance(i, bool)
+                                             for i in data):
+        raise _usage(f"--neighbours-from {path}: expected a query's JSON output or a list of "
+                     f"corpus ids")
+    return data
 
 
 def _run_eval(args: argparse.Namespace) -> int:
@@ -684,7 +734,10 @@ def _run_bench(args: argparse.Namespace) -> int:
         return 0
     if args.bench_cmd == "query":
 
-        r = bench_query(args.encoder, args.corpus, n=args.n)
+        from ratouch.threads import intra_op_threads
+
+        with intra_op_threads(1):  # as `ratouch query` and the app serve (ratouch.threads)
+            r = bench_query(args.encoder, args.corpus, n=args.n)
         print(json.dumps(r, indent=None if args.json else 1))
         return 0
     if args.bench_cmd == "upload":

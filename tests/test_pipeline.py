@@ -69,3 +69,79 @@ def test_cli_query_json(tmp_path, shipped_corpus, world, capsys):
     (tmp_path / "bad.png").write_text("not an image")
     assert main(["query", "--vision", str(tmp_path / "bad.png"), "--corpus",
                  str(shipped_corpus)]) == 2
+
+
+# --- retrieval a user can take apart: attention, regenerate with other neighbours ------------
+
+def test_query_reports_the_integrators_attention(pipeline, world):
+    s = world.sample("test", 170)
+    r = pipeline.query(s.visual, s.tactile, box=s.box, k=4)
+    for path in ("image", "text"):
+        w = r["attention"][path]
+        assert len(w) == 4 and all(x >= 0 for x in w)
+        assert sum(w) == pytest.approx(1.0, abs=1e-3)
+    assert pipeline.query(s.visual, None, box=s.box)["attention"] == {}
+
+
+def test_regenerate_with_pinned_dropped_and_swapped_neighbours(pipeline, world):
+    from ratouch.errors import ConfigError
+
+    s, other = world.sample("test", 180), world.sample("test", 30)
+    r = pipeline.query(s.visual, s.tactile, box=s.box, k=5)
+    ids = [n["id"] for n in r["neighbours"]["joint"]]
+    same = pipeline.regenerate(s.visual, s.tactile, ids, box=s.box)
+    assert same["description"]["ra_touch"] == r["description"]["ra_touch"]
+    assert same["attention"] == r["attention"]
+    assert [n["id"] for n in same["neighbours"]] == ids
+    assert [n["score"] for n in same["neighbours"]] == pytest.approx(
+        [n["score"] for n in r["neighbours"]["joint"]], abs=2e-4)
+    kept = pipeline.regenerate(s.visual, s.tactile, ids[:2], box=s.box)
+    assert len(kept["attention"]["text"]) == 2
+    assert sum(kept["attention"]["image"]) == pytest.approx(1.0, abs=1e-3)
+    swapped_ids = [n["id"] for n in pipeline.query(other.visual, other.tactile,
+                                                   box=other.box)["neighbours"]["joint"]]
+    swapped = pipeline.regenerate(s.visual, s.tactile, swapped_ids, box=s.box)
+    assert [n["id"] for n in swapped["neighbours"]] == swapped_ids
+    # no neighbours at all: the integrator adds nothing, so p' is the baseline prompt
+    assert pipeline.regenerate(s.visual, s.tactile, [], box=s.box)["attention"] == {}
+    for bad in ([len(pipeline.corpus)], [-1], [ids[0], ids[0]], ["3"]):
+        with pytest.raises(ConfigError, match="neighbour ids"):
+            pipeline.regenerate(s.visual, s.tactile, bad, box=s.box)
+    with pytest.raises(ConfigError, match="tactile"):
+        pipeline.regenerate(s.visual, None, ids, box=s.box)
+
+
+def test_cli_query_drop_and_neighbours_from(tmp_path, shipped_corpus, world, capsys):
+    from ratouch.cli import main
+
+    def query(s, name, *extra):
+        Image.fromarray(s.visual).save(tmp_path / f"{name}v.png")
+        Image.fromarray(s.tactile).save(tmp_path / f"{name}t.png")
+        code = main(["query", "--vision", str(tmp_path / f"{name}v.png"), "--tactile",
+                     str(tmp_path / f"{name}t.png"), "--box", ",".join(map(str, s.box)),
+                     "--corpus", str(shipped_corpus), *extra])
+        return code, capsys.readouterr()
+
+    code, out = query(world.sample("test", 190), "a")
+    first = json.loads(out.out)
+    ids = [n["id"] for n in first["neighbours"]["joint"]]
+    assert "regenerated" not in first
+    code, out = query(world.sample("test", 190), "a", "--drop", f"{ids[0]},{ids[3]}")
+    r = json.loads(out.out)
+    assert code == 0
+    assert [n["id"] for n in r["regenerated"]["neighbours"]] == [ids[1], ids[2], ids[4]]
+    assert r["regenerated"]["description"]["ra_touch"]
+    (tmp_path / "first.json").write_text(json.dumps(first))
+    code, out = query(world.sample("test", 40), "b", "--neighbours-from",
+                      str(tmp_path / "first.json"))
+    assert [n["id"] for n in json.loads(out.out)["regenerated"]["neighbours"]] == ids
+    (tmp_path / "ids.json").write_text(json.dumps(ids[:2]))
+    code, out = query(world.sample("test", 40), "b", "--neighbours-from",
+                      str(tmp_path / "ids.json"), "--drop", str(ids[1]))
+    assert [n["id"] for n in json.loads(out.out)["regenerated"]["neighbours"]] == ids[:1]
+    code, out = query(world.sample("test", 40), "b", "--drop", "999999")
+    assert code == 2 and "--drop" in out.err
+    (tmp_path / "junk.json").write_text('{"neighbours": 3}')
+    code, out = query(world.sample("test", 40), "b", "--neighbours-from",
+                      str(tmp_path / "junk.json"))
+    assert code == 2 and "neighbours-from" in out.err

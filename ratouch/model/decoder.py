@@ -34,6 +34,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.model.fastpath import StackCache, supports
 
 logger = logging.getLogger(__name__)
 
@@ -252,6 +253,7 @@ class Decoder(nn.Module):
         self.register_buffer("head_ids", torch.tensor(head, dtype=torch.long), persistent=False)
         self.register_buffer("prompt_ids", torch.tensor(prompt, dtype=torch.long),
                              persistent=False)
+        self._fast = StackCache()
 
     @property
     def hidden(self) -> int:
@@ -310,9 +312,15 @@ class Decoder(nn.Module):
         return F.cross_entropy(logits.float().reshape(B * T, -1), labels.reshape(B * T),
                                ignore_index=_IGNORE)
 
+    @property
+    def fast(self) -> bool:
+        """Whether `generate` takes the fast path (`ratouch.model.fastpath`): a small decoder
+        with its LoRA merged (`merge_lora`) or without LoRA."""
+        return self.cfg.kind == "small" and supports(self.model)
+
     @torch.inference_mode()
     def generate(self, prefix: Tensor, max_new_tokens: int | None = None,
-                 use_cache: bool = True) -> list[str]:
+                 use_cache: bool = True, fast: bool = True) -> list[str]:
         """Greedy descriptions for a batch of prefixes.
 
         Every row shares one context length, so the batch needs no padding; each row stops at
@@ -323,20 +331,42 @@ class Decoder(nn.Module):
             prefix: (B, P, D') prompt embeddings.
             max_new_tokens: limit per row; None takes `cfg.max_new_tokens`.
             use_cache: reuse keys/values (the default); False recomputes the whole sequence
-                at every step (a slow reference).
+                at every step through transformers (a slow reference).
+            fast: take the hand-written fast path where it applies (see `fast`); False
+                decodes through transformers with its key/value cache (the reference).
 
         Returns:
             B raw decoded strings (see `clean_description`).
         """
+        return generate_together([self], [prefix], max_new_tokens, use_cache, fast)[0]
+
+    def _max_new(self, max_new_tokens: int | None) -> int:
         n = self.cfg.max_new_tokens if max_new_tokens is None else max_new_tokens
         if isinstance(n, bool) or not isinstance(n, int) or n < 0:
             raise ConfigError(f"max_new_tokens must be a non-negative integer, got {n!r}")
+        return n
+
+    def _hf_greedy(self, context: Tensor, n: int, use_cache: bool) -> Tensor:
+        """(B, <=n) greedy tokens through transformers, in eval mode."""
         was_training = self.training
         self.eval()
         try:
-            tokens = self._greedy(self._context(prefix), n, use_cache)  # (B, <=n)
+            return self._greedy(context, n, use_cache)
         finally:
             self.train(was_training)
+
+    @staticmethod
+    def _fast_greedy(decoders: Sequence["Decoder"], contexts: Tensor, n: int,
+                     cache: StackCache) -> Tensor:
+        """(G, B, <=n) greedy tokens of G fast-path decoders; contexts (G, B, C, D')."""
+        try:
+            return cache.get([d.model for d in decoders]).greedy(
+                contexts, n, decoders[0].tokenizer.eos_id)
+        except ValueError as e:
+            raise ConfigError(str(e)) from e
+
+    def decode_rows(self, tokens: Tensor) -> list[str]:
+        """Text of each row of greedy tokens (B, steps), cut at its first <eos>."""
         eos = self.tokenizer.eos_id
         out = []
         for row in tokens.tolist():
@@ -450,6 +480,43 @@ class Decoder(nn.Module):
         base = self.model.get_base_model() if self.has_lora else self.model
         return {k.replace(".base_layer.", "."): v for k, v in base.state_dict().items()
                 if "lora_" not in k}
+
+
+@torch.inference_mode()
+def generate_together(decoders: Sequence[Decoder], prefixes: Sequence[Tensor],
+                      max_new_tokens: int | None = None, use_cache: bool = True,
+                      fast: bool = True, cache: StackCache | None = None) -> list[list[str]]:
+    """Greedy descriptions from several decoders, decoded together where they can be.
+
+    Decoders on the fast path (`Decoder.fast`) whose prefixes have one shape run as one
+    stacked model (`ratouch.model.fastpath.GreedyStack`): one Python step serves all of them,
+    and weights they share are read once. Any other decoder runs alone, on its own path.
+
+    Args:
+        decoders: G decoders.
+        prefixes: G prefix batches, each (B, P, D').
+        max_new_tokens: limit per row; None takes the first decoder's `cfg.max_new_tokens`.
+        use_cache, fast: as in `Decoder.generate`.
+        cache: where the stack of several decoders is kept between calls (built anew per
+            call without one); a single decoder keeps its own.
+
+    Returns:
+        Per decoder, its B raw decoded strings.
+    """
+    if len(decoders) != len(prefixes) or not decoders:
+        raise ConfigError(f"{len(decoders)} decoders for {len(prefixes)} prefix batches")
+    n = decoders[0]._max_new(max_new_tokens)
+    contexts = [d._context(p) for d, p in zip(decoders, prefixes)]   # each (B, C, D')
+    together = use_cache and fast and all(d.fast for d in decoders) and \
+        len({(tuple(c.shape), d.tokenizer.eos_id) for d, c in zip(decoders, contexts)}) == 1
+    if not together:
+        return [d.decode_rows(d._fast_greedy([d], c[None], n, d._fast)[0]
+                              if use_cache and fast and d.fast else d._hf_greedy(c, n, use_cache))
+                for d, c in zip(decoders, contexts)]
+    if len(decoders) == 1:
+        cache = decoders[0]._fast
+    tokens = Decoder._fast_greedy(decoders, torch.stack(contexts), n, cache or StackCache())
+    return [d.decode_rows(t) for d, t in zip(decoders, tokens)]
 
 
 def build_small_decoder(cfg: DecoderConfig, words: Sequence[str] | TactileTokenizer,

@@ -41,7 +41,9 @@ from ratouch.model.decoder import (
     TactileTokenizer,
     build_decoder,
     clean_description,
+    generate_together,
 )
+from ratouch.model.fastpath import StackCache
 
 logger = logging.getLogger(__name__)
 
@@ -172,6 +174,28 @@ class RATouchGenerator(nn.Module):
         finally:
             self.train(was_training)
         return [clean_description(t) for t in texts] if clean else texts
+
+
+def describe_together(generators: Sequence[RATouchGenerator], prefixes: Sequence[Tensor],
+                      max_new_tokens: int | None = None, clean: bool = True,
+                      cache: StackCache | None = None) -> list[list[str]]:
+    """Descriptions from several generators' prefixes at once (RA-Touch's and the
+    baseline's), their decoders decoding together where they can (`generate_together`).
+
+    Args:
+        generators: G generators.
+        prefixes: per generator, its (B, n_prefix, D') `prefix` output.
+        max_new_tokens, clean: as in `describe`.
+        cache: keeps the decoders' stacked weights between calls (see `generate_together`).
+
+    Returns:
+        Per generator, its B descriptions.
+    """
+    if len(generators) != len(prefixes):
+        raise ConfigError(f"{len(generators)} generators for {len(prefixes)} prefix batches")
+    texts = generate_together([g.decoder for g in generators], prefixes, max_new_tokens,
+                              cache=cache)
+    return [[clean_description(t) for t in ts] if clean else ts for ts in texts]
 
 
 def trainable_parameters(gen: RATouchGenerator, stage: str,

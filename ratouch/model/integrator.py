@@ -115,6 +115,23 @@ class TextureAwareIntegrator(nn.Module):
                             f"got {tuple(padding.shape)}")
         return ca(t, r, r, key_padding_mask=padding, need_weights=False)[0].squeeze(1)  # (B, D)
 
+    def _query(self, T: Tensor, mask: Tensor | None
+               ) -> tuple[Tensor, Tensor | None, Tensor | None]:
+        """T as the attention query (B, 1, D), the key padding (B, K) and the rows without
+        any real neighbour (B,), the last two None without a mask."""
+        if T.dim() != 2 or T.shape[1] != self.cfg.dim:
+            raise DataError(f"T must have shape (B, {self.cfg.dim}), got {tuple(T.shape)}")
+        if mask is None:
+            return T.unsqueeze(1), None, None
+        if mask.dtype != torch.bool or mask.dim() != 2 or mask.shape[0] != T.shape[0]:
+            raise DataError(f"mask must be a bool tensor of shape ({T.shape[0]}, K), "
+                            f"got {mask.dtype} {tuple(mask.shape)}")
+        empty = ~mask.any(dim=1)  # (B,)
+        # Rows with no real neighbour would softmax over nothing (NaN); let them attend to
+        # everything here and zero their delta (and weights) afterwards.
+        padding = ~(mask | empty.unsqueeze(1))  # (B, K)  True = ignore (torch convention)
+        return T.unsqueeze(1), padding, empty
+
     def forward(self, T: Tensor, Rv: Tensor | None, Rl: Tensor | None,
                 mask: Tensor | None = None) -> Tensor:
         """Computes the prompt delta δ; the caller forms p' = p + δ.
@@ -130,19 +147,7 @@ class TextureAwareIntegrator(nn.Module):
         Returns:
             (B, out_dim) delta δ.
         """
-        if T.dim() != 2 or T.shape[1] != self.cfg.dim:
-            raise DataError(f"T must have shape (B, {self.cfg.dim}), got {tuple(T.shape)}")
-        t = T.unsqueeze(1)  # (B, 1, D)
-        padding, empty = None, None
-        if mask is not None:
-            if mask.dtype != torch.bool or mask.dim() != 2 or mask.shape[0] != T.shape[0]:
-                raise DataError(f"mask must be a bool tensor of shape ({T.shape[0]}, K), "
-                                f"got {mask.dtype} {tuple(mask.shape)}")
-            empty = ~mask.any(dim=1)  # (B,)
-            # Rows with no real neighbour would softmax over nothing (NaN); let them attend to
-            # everything here and zero their delta below.
-            padding = ~(mask | empty.unsqueeze(1))  # (B, K)  True = ignore (torch convention)
-
+        t, padding, empty = self._query(T, mask)
         fused = 0
         if self.image_ca is not None:
             fused = fused + self._attend(self.image_ca, t, Rv, "Rv", padding)  # (B, D)  a^V
@@ -153,6 +158,28 @@ class TextureAwareIntegrator(nn.Module):
         if empty is not None:
             delta = delta.masked_fill(empty.unsqueeze(1), 0.0)  # (B, D')
         return delta
+
+    def attention(self, T: Tensor, Rv: Tensor | None, Rl: Tensor | None,
+                  mask: Tensor | None = None) -> dict[str, Tensor]:
+        """How much each retrieved neighbour weighs in eq. 4: the cross-attention weights of T
+        over the K images ("image") and the K texts ("text"), averaged over heads.
+
+        Args: as in `forward`.
+
+        Returns:
+            {"image": (B, K), "text": (B, K)} (a disabled path is absent); each row sums to 1
+            over its real neighbours, 0 on masked ones (all 0 for a row without any).
+        """
+        t, padding, empty = self._query(T, mask)
+        out = {}
+        for name, ca, r in (("image", self.image_ca, Rv), ("text", self.text_ca, Rl)):
+            if ca is None:
+                continue
+            self._attend(ca, t, r, "Rv" if name == "image" else "Rl", padding)  # shape checks
+            w = ca(t, r, r, key_padding_mask=padding, need_weights=True,
+                   average_attn_weights=True)[1].squeeze(1)  # (B, K)
+            out[name] = w if empty is None else w.masked_fill(empty.unsqueeze(1), 0.0)
+        return out
 
 
 class SumIntegrator(nn.Module):

@@ -15,6 +15,7 @@ import time
 from typing import Any
 
 from ratouch.errors import ConfigError
+from ratouch.threads import intra_op_threads
 
 log = logging.getLogger(__name__)
 
@@ -41,14 +42,23 @@ class QueryBatcher:
         max_batch: most requests in one batch.
         max_wait_s: how long a batch waits for company; 0 answers what is there at once
             (requests that arrive while a batch runs form the next one anyway).
+        threads: intra-op threads of the batch worker. 1 (the default) leaves the other
+            cores to the server's HTTP work, and on shared cores it costs far less CPU per
+            query (measured: 12.5 vs 90 CPU-ms per query in batches of 10, see
+            `ratouch.threads`); None keeps torch's setting.
     """
 
-    def __init__(self, pipeline, max_batch: int = 16, max_wait_s: float = 0.0):
+    def __init__(self, pipeline, max_batch: int = 16, max_wait_s: float = 0.0,
+                 threads: int | None = 1):
         if max_batch < 1:
             raise ConfigError(f"max_batch must be >= 1, got {max_batch}")
+        if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int)
+                                    or threads < 1):
+            raise ConfigError(f"threads must be None or an integer >= 1, got {threads!r}")
         self.pipeline = pipeline
         self.max_batch = max_batch
         self.max_wait_s = max_wait_s
+        self.threads = threads
         self.batches: list[int] = []  # sizes of the recent batches (the last 1000)
         self._queue: list[_Pending] = []
         self._cv = threading.Condition()
@@ -87,6 +97,12 @@ class QueryBatcher:
             return batch
 
     def _run(self) -> None:
+        if self.threads is None:
+            return self._loop()
+        with intra_op_threads(self.threads):
+            self._loop()
+
+    def _loop(self) -> None:
         while True:
             batch = self._take()
             try:

@@ -39,7 +39,8 @@ from ratouch.encoders.preprocess import (
     tvl_contact_box,
 )
 from ratouch.errors import ConfigError, DataError, RATouchError
-from ratouch.model.generator import load_generator
+from ratouch.model.fastpath import StackCache
+from ratouch.model.generator import describe_together, load_generator
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.model.retriever import RetrieverConfig, TactileGuidedRetriever
 from ratouch.paths import (
@@ -121,7 +122,9 @@ class RATouchPipeline:
     """Encoders, corpus index, Tactile-Guided Retriever, the two generators and the PCA frame.
 
     Read-only once loaded (the corpus embeddings of other caption kinds are computed once, on
-    first use); `query` and `query_many` may be called from several threads.
+    first use); `query` and `query_many` may be called from several threads. Serve it with
+    one intra-op thread per calling thread (`ratouch.threads`), as the app's batcher and
+    `ratouch query` do.
     """
 
     def __init__(self, retriever: CorpusSearch, tgr, generator_ra, generator_base,
@@ -138,6 +141,7 @@ class RATouchPipeline:
         self._corpus_emb: dict[str, np.ndarray] = {"image": image_emb,
                                                    "tactile_caption": text_emb}
         self._emb_lock = threading.Lock()
+        self._stack = StackCache()  # the two decoders' weights, stacked to decode together
         # the fixed reference frame: the first 2000 entries' image and text embeddings
         self.pca = pca or PCA2D.fit(np.concatenate([np.asarray(image_emb[:2000]),
                                                     np.asarray(text_emb[:2000])]))
@@ -219,6 +223,66 @@ class RATouchPipeline:
                 return self.generator_base.describe(v, t)
             rv, rl = self.neighbour_embeddings(ids)
             return self.generator_ra.describe(v, t, torch.from_numpy(rv), torch.from_numpy(rl))
+
+    def ra_prefix(self, V: np.ndarray, T: np.ndarray, ids: np.ndarray
+                  ) -> tuple[torch.Tensor, dict[str, np.ndarray]]:
+        """RA-Touch's prompt p' for (B, D) V and T with neighbours `ids` (B, K), and the
+        integrator's attention over them ({"image"|"text": (B, K)}, empty without an
+        integrator that reports it). With K = 0 there is nothing to integrate: p' = p."""
+        gen = self.generator_ra
+        v, t = torch.from_numpy(V), torch.from_numpy(T)
+        with torch.inference_mode():
+            if ids.shape[1] == 0:
+                return gen.prefix(v, t), {}
+            rv, rl = (torch.from_numpy(x) for x in self.neighbour_embeddings(ids))
+            attend = getattr(gen.integrator, "attention", None)
+            weights = {} if attend is None else {
+                name: w.numpy() for name, w in attend(t, rv, rl).items()}
+            return gen.prefix(v, t, rv, rl), weights
+
+    def regenerate(self, visual: Any, tactile: Any, neighbours: Sequence[int],
+                   box=None) -> dict:
+        """The RA-Touch description again, read with the neighbours you choose: the original
+        ones with some dropped or pinned, or another query's (the interactive form of the
+        neighbour-shuffle control).
+
+        Args:
+            visual, tactile, box: the pair, as in `query` (a tactile image is required).
+            neighbours: corpus ids RA-Touch reads, in any number (none: the integrator adds
+                nothing, p' = p).
+
+        Returns:
+            {"description": {"ra_touch"}, "neighbours": [entries as in `query`, scored by the
+            joint query], "attention": {"image"|"text": [per neighbour]}, "timings_ms"}.
+        """
+        clock = _Laps()
+        ids = self._neighbour_ids(neighbours)
+        req = self.prepare_request({"visual": visual, "tactile": tactile, "box": box})
+        if req["frame"] is None:
+            raise ConfigError("regenerating the RA-Touch description needs a tactile image")
+        V = self.encoders.encode_image([req["crop"]])
+        T = self.encoders.encode_tactile([req["frame"]])
+        clock.lap("encode")
+        q = self.joint_query(V, T)[0]
+        text = self.corpus_embeddings("tactile_caption")[ids]        # (K, D)
+        scores = text @ q / np.maximum(np.linalg.norm(text, axis=1) * np.linalg.norm(q), 1e-12)
+        p_ra, weights = self.ra_prefix(V, T, ids[None])
+        ra = describe_together([self.generator_ra], [p_ra])[0][0]
+        clock.lap("generate")
+        return {"description": {"ra_touch": ra},
+                "neighbours": [self.neighbour_entry(i, s) for i, s in zip(ids, scores)],
+                "attention": {k: [round(float(x), 4) for x in w[0]] for k, w in weights.items()},
+                "timings_ms": clock.done(1), "warnings": req["warnings"]}
+
+    def _neighbour_ids(self, neighbours: Sequence[int]) -> np.ndarray:
+        n = len(self.corpus.entries)
+        bad = [i for i in neighbours if isinstance(i, bool)
+               or not isinstance(i, (int, np.integer)) or not 0 <= i < n]
+        if bad:
+            raise ConfigError(f"neighbour ids must be corpus ids in 0..{n - 1}, got {bad[:5]}")
+        if len(set(int(i) for i in neighbours)) != len(neighbours):
+            raise ConfigError(f"neighbour ids repeat: {list(neighbours)}")
+        return np.asarray([int(i) for i in neighbours], dtype=np.int64)
 
     def neighbour_entry(self, i: int, score: float) -> dict:
         """One neighbour as `query` reports it."""
@@ -316,6 +380,7 @@ class RATouchPipeline:
         Returns:
             {"neighbours": {"image"|"tactile"|"joint": [{"id", "score", "class_name",
             "caption", "description", "source"}]}, "description": {"ra_touch", "baseline"},
+            "attention": {"image"|"text": [RA-Touch's integrator weight per joint neighbour]},
             "pca": {"points": [{"role", "x", "y", "id"?}], "explained": [..]},
             "timings_ms": {stage: ms, ..., "total": ms, "decode": this request's decoding
             (part of "preprocess", or done before the batch by a server)}, "warnings": [...], "box": [...],
@@ -362,7 +427,7 @@ class RATouchPipeline:
         # a frame without contact has no material to describe: no generation for it
         touch = [j for j in touch if not (trust[j] and (trust[j]["tactile"] or {})
                                           .get("no_contact"))]
-        ra, base = self._generate(items, queries, results, touch, clock)
+        ra, base, attention = self._generate(items, queries, results, touch, clock)
         points = self._points(items, queries, results)
         clock.lap("pca")
         timings = clock.done(len(items))
@@ -372,6 +437,7 @@ class RATouchPipeline:
                 "neighbours": {mode: [self.neighbour_entry(i, s) for s, i in zip(sc[0], ii[0])]
                                for mode, (sc, ii) in results[j].items()},
                 "description": {"ra_touch": ra.get(j, ""), "baseline": base.get(j, "")},
+                "attention": attention.get(j, {}),
                 "pca": {"points": points[j], "explained": explained},
                 "timings_ms": {**timings, "decode": it["decode_ms"]},
                 "warnings": it["warnings"] + (trust[j] or {}).get("warnings", []),
@@ -418,24 +484,36 @@ class RATouchPipeline:
             results[j][m] = (scores[r:r + 1, :k], ids[r:r + 1, :k])
         return results
 
-    def _generate(self, items, queries, results, touch, clock) -> tuple[dict, dict]:
-        """RA-Touch (one generator batch per K) and baseline descriptions of the touch items."""
+    def _generate(self, items, queries, results, touch, clock) -> tuple[dict, dict, dict]:
+        """RA-Touch and baseline descriptions of the touch items, decoded together (one
+        RA-Touch prompt batch per K), and RA-Touch's attention over each item's neighbours."""
         ra: dict[int, str] = {}
         base: dict[int, str] = {}
+        attention: dict[int, dict] = {}
         if not touch:
-            return ra, base
+            return ra, base, attention
         V = np.concatenate([queries[j]["image"] for j in touch])
         T = np.concatenate([queries[j]["tactile"] for j in touch])
         by_k: dict[int, list[int]] = {}
         for r, j in enumerate(touch):
             by_k.setdefault(items[j]["k"], []).append(r)
+        p_ra: list = [None] * len(touch)
         for rows in by_k.values():
             nb = np.concatenate([results[touch[r]]["joint"][1] for r in rows])
-            ra.update(zip([touch[r] for r in rows], self.describe(V[rows], T[rows], nb)))
-        clock.lap("generate_ra")
-        base.update(zip(touch, self.describe(V, T, None)))
-        clock.lap("generate_baseline")
-        return ra, base
+            prefix, weights = self.ra_prefix(V[rows], T[rows], nb)
+            for n, r in enumerate(rows):
+                p_ra[r] = prefix[n]
+                attention[touch[r]] = {name: [round(float(x), 4) for x in w[n]]
+                                       for name, w in weights.items()}
+        with torch.inference_mode():
+            p_base = self.generator_base.prefix(torch.from_numpy(V), torch.from_numpy(T))
+        texts_ra, texts_base = describe_together(
+            [self.generator_ra, self.generator_base], [torch.stack(p_ra), p_base],
+            cache=self._stack)
+        ra.update(zip(touch, texts_ra))
+        base.update(zip(touch, texts_base))
+        clock.lap("generate")
+        return ra, base, attention
 
     def _points(self, items, queries, results) -> list[list[dict]]:
         points = [self.pca_points(queries[j], results[j], None) for j in range(len(items))]
