@@ -18,15 +18,16 @@ def test_worker_runs_batches_on_its_own_thread_count():
         seen.append(torch.get_num_threads())
         return [{"k": r["k"]} for r in requests]
 
+    pipe = SimpleNamespace(query_many=fake_many, prepare_request=dict)
     before = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
-        assert QueryBatcher(SimpleNamespace(query_many=fake_many)).query("v", k=3) == {"k": 3}
-        assert QueryBatcher(SimpleNamespace(query_many=fake_many), threads=None).query("v")
+        assert QueryBatcher(pipe).query("v", k=3) == {"k": 3}
+        assert QueryBatcher(pipe, threads=None).query("v")
         assert torch.get_num_threads() == 2  # the caller's setting is untouched
     finally:
         torch.set_num_threads(before)
     assert seen[0] == 1
     for bad in (0, 1.5, True):
         with pytest.raises(ConfigError, match="threads"):
-            QueryBatcher(SimpleNamespace(query_many=fake_many), threads=bad)
+            QueryBatcher(pipe, threads=bad)
