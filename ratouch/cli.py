@@ -442,7 +442,7 @@ def _run_corpus(args: argparse.Namespace) -> int:
 
 
 def _run_corpus_ray(args: argparse.Namespace, rc) -> int:
-    from ratouch.corpus.ray_build import RayOptions, build_corpus_ray
+    from ratouch.build.ray_corpus import RayOptions, build_corpus_ray
 
     if args.no_embed:
         raise _usage("--no-embed is not supported with --engine ray (it embeds as it goes)")

@@ -6,11 +6,18 @@ from __future__ import annotations
 
 import contextlib
 import json
+import socket
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
+
+from ratouch.encoders.preprocess import crop_box, to_rgb_array, tvl_contact_box
+from ratouch.errors import DataError
+from ratouch.paths import generator_weights
 
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import write_split
@@ -201,18 +208,92 @@ def serve_fake_llm(monkeypatch, reply: str):
         server.server_close()
 
 
+#: The shipped default-s retriever and generators are in assets/ (a clone has them).
+HAVE_ASSETS = (generator_weights("default-s", "ra") / "manifest.json").is_file()
+
+
 @pytest.fixture(scope="session")
 def real_pipeline(tmp_path_factory):
     """The real pipeline (shipped default-s weights) on a 600-entry world corpus, built once
-    per session."""
+    per session and shared, read-only, by every test that needs it."""
     from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
-    from ratouch.paths import generator_weights
     from ratouch.serve.pipeline import RATouchPipeline, embed_and_index
 
-    if not (generator_weights("default-s", "ra") / "manifest.json").is_file():
+    if not HAVE_ASSETS:
         pytest.skip("the trained retriever/generator weights are not in assets/")
     folder = tmp_path_factory.getbasetemp() / "app-corpus-600"
     if not (folder / MANIFEST).is_file():
         build_corpus(folder, 600, progress=False)
     embed_and_index(folder, "default-s", workers=1, progress=False)  # a no-op once done
     return RATouchPipeline.load("default-s", corpus=folder)
+
+
+# ------------------------------------------------------------------------- a fake pipeline
+# for the app's tests: the query's output shape, with the library's real input checks
+
+class FakeCorpus:
+    def __init__(self, n: int):
+        self.entries = [SimpleNamespace(class_name=f"class{i % 7}", caption=f"soft, grainy {i}",
+                                        source=f"world:0:{i % 7}:{i}", material="")
+                        for i in range(n)]
+
+    def thumbnail(self, i: int, size: int = 96) -> np.ndarray:
+        rng = np.random.default_rng(i)
+        return np.full((size, size, 3), rng.integers(0, 255, 3), np.uint8)
+
+
+class FakePipeline:
+    """`RATouchPipeline.query`'s output shape, with the library's real input checks.
+
+    The image query returns ids 0..k-1, the tactile query 2..k+1, the joint one 1..k: ids 2..k-1
+    are shared by all three modes, 1 by image and joint, k by tactile and joint.
+    """
+
+    def __init__(self, n: int = 60, delay_s: float = 0.0):
+        self.corpus = FakeCorpus(n)
+        self.encoders = SimpleNamespace(name="fake", dim=8)
+        self.delay_s = delay_s
+        self.calls: list[dict] = []
+
+    def query(self, visual, tactile=None, box=None, k=5, label=None) -> dict:
+        image = to_rgb_array(visual, name="visual image")
+        warnings = []
+        if box is None:
+            box = tvl_contact_box(image.shape[1], image.shape[0])
+            warnings.append(f"no contact box given: used TVL's centred crop {list(box)}")
+        crop_box(image, box)
+        frame = to_rgb_array(tactile, name="tactile image") if tactile is not None else None
+        if not 1 <= k <= len(self.corpus.entries):
+            raise DataError(f"k must be in 1..{len(self.corpus.entries)}, got {k}")
+        self.calls.append({"shape": image.shape, "box": list(box), "k": k, "label": label,
+                           "tactile": frame is not None})
+        time.sleep(self.delay_s)
+        starts = {"image": 0, "tactile": 2, "joint": 1} if frame is not None else {"image": 0}
+        if frame is None:
+            warnings.append("no tactile image: image-only retrieval; the tactile and joint "
+                            "queries and the RA-Touch description are not available")
+        neighbours = {m: [self._neighbour(i, 0.9 - 0.01 * r)
+                          for r, i in enumerate(range(s, s + k))] for m, s in starts.items()}
+        points = [{"role": f"query_{m}", "x": float(j), "y": 1.0} for j, m in enumerate(starts)]
+        points += [{"role": f"neighbour_{m}", "x": 0.1 * n["id"], "y": -0.1 * n["id"],
+                    "id": n["id"]} for m, ns in neighbours.items() for n in ns]
+        if label:
+            points.append({"role": "ground_truth", "x": 0.5, "y": 0.5})
+        return {"neighbours": neighbours,
+                "description": {"ra_touch": "soft and grainy" if frame is not None else "",
+                                "baseline": "smooth" if frame is not None else ""},
+                "pca": {"points": points, "explained": [0.3, 0.2]},
+                "timings_ms": {"preprocess": 1.0, "encode_image": 2.0, "total": 3.0},
+                "warnings": warnings, "box": [int(v) for v in box]}
+
+    def _neighbour(self, i: int, score: float) -> dict:
+        e = self.corpus.entries[i]
+        return {"id": i, "score": round(score, 4), "class_name": e.class_name,
+                "caption": e.caption, "description": "", "source": e.source}
+
+
+def free_port() -> int:
+    """A free TCP port on 127.0.0.1 (servers in tests listen there only)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from test_app import HAVE_ASSETS, FakePipeline, free_port, load_real_pipeline
+from conftest import HAVE_ASSETS, FakePipeline, free_port
 
 CHROMIUM = Path("/usr/bin/chromium")
 SCREENSHOT_COPY = Path("/tmp/ratouch_app.png")
@@ -26,13 +26,14 @@ pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def app_url(tmp_path_factory):
+def app_url(tmp_path_factory, request):
     """The app over the real pipeline on a small corpus if the trained assets exist, else
     over the fake pipeline, served on a free port of 127.0.0.1."""
     from app.app import build_demo, launch
     from ratouch.serve.batcher import QueryBatcher
 
-    pipe = QueryBatcher(load_real_pipeline(tmp_path_factory)) if HAVE_ASSETS else FakePipeline()
+    pipe = (QueryBatcher(request.getfixturevalue("real_pipeline")) if HAVE_ASSETS
+            else FakePipeline())
     demo = build_demo(pipe, failure_options=FAILURE_OPTIONS, docs=tmp_path_factory.mktemp("docs"))
     port = free_port()
     launch(demo, "127.0.0.1", port, block=False)

@@ -211,12 +211,8 @@ def test_bad_settings_are_refused(fake):
 
 
 @pytest.mark.slow
-def test_real_pipeline_failure_cases(tmp_path_factory):
-    from test_app import HAVE_ASSETS, load_real_pipeline
-
-    if not HAVE_ASSETS:
-        pytest.skip("the trained retriever/generator weights are not in assets/ yet")
-    pipe = load_real_pipeline(tmp_path_factory)
+def test_real_pipeline_failure_cases(real_pipeline):
+    pipe = real_pipeline
     table = failures.load_or_compute(pipe, conditions=("natural", "noisy touch"),
                                      indices=[0, 60, 200])
     rows = table["rows"]

@@ -15,14 +15,15 @@ one case's inputs from (condition, index) so it can be queried again.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import json
 import logging
-import threading
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -259,8 +260,16 @@ def load_cached(path: str | Path) -> dict | None:
     return table
 
 
-_locks: dict[Path, threading.Lock] = {}
-_locks_guard = threading.Lock()
+@contextlib.contextmanager
+def _exclusive(path: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``<path>.lock`` (between threads and processes alike)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.with_name(path.name + ".lock"), "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def load_or_compute(pipeline, world: WorldConfig | None = None, k: int = 5,
@@ -268,7 +277,7 @@ def load_or_compute(pipeline, world: WorldConfig | None = None, k: int = 5,
                     indices: Sequence[int] | None = None, progress: Progress | None = None,
                     cached_only: bool = False, refresh: bool = False) -> dict | None:
     """The failure-case table for these settings: read from the cache, else computed and
-    cached. Threads asking for the same table compute it once.
+    cached. Threads (and processes) asking for the same table compute it once.
 
     Args:
         cached_only: return None instead of computing when nothing is cached.
@@ -283,9 +292,7 @@ def load_or_compute(pipeline, world: WorldConfig | None = None, k: int = 5,
         return table
     if cached_only:
         return None
-    with _locks_guard:
-        lock = _locks.setdefault(path, threading.Lock())
-    with lock:
+    with _exclusive(path):
         if not refresh and (table := load_cached(path)) is not None:
             return table  # another thread computed it while this one waited
 

@@ -35,10 +35,11 @@ from torch import Tensor, nn
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.model.fastpath import StackCache, supports
+from ratouch.vocabulary import TVL_QUESTION
 
 logger = logging.getLogger(__name__)
 
-PROMPT = "This image gives tactile feelings of?"
+PROMPT = TVL_QUESTION  # the TVL benchmark's question, the paper's text prompt
 SPECIALS: tuple[str, ...] = ("<pad>", "<bos>", "<eos>", "<unk>")
 PUNCTUATION: tuple[str, ...] = (",", "?", ".")
 KINDS = ("small", "hf")
