@@ -24,6 +24,16 @@ from ratouch.world.dataset import write_split
 from ratouch.world.generator import World
 
 
+@pytest.fixture(scope="module")
+def one_thread():
+    """Tiny models on one intra-op thread (more only add overhead on shared cores); a test
+    module asks for it with `pytestmark = pytest.mark.usefixtures("one_thread")`."""
+    from ratouch.threads import intra_op_threads
+
+    with intra_op_threads(1):
+        yield
+
+
 @pytest.fixture(scope="session")
 def world() -> World:
     return World(WorldConfig(seed=0))

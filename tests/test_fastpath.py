@@ -18,12 +18,7 @@ from ratouch.vocabulary import TVL_ADJECTIVES
 WORDS = TVL_ADJECTIVES[:48]
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def decoder_with_lora(base_seed: int, lora_seed: int, merge: bool = True):

@@ -18,13 +18,7 @@ from ratouch.vocabulary import TVL_ADJECTIVES
 D, DP, K = 16, 32, 3  # encoder width D, decoder width D', neighbours K
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """Tiny models: intra-op threads only add overhead on a shared 2-core machine."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @dataclass
