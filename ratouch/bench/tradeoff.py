@@ -26,7 +26,7 @@ import torch
 
 from ratouch.bench.index import upstream_retrieve
 from ratouch.eval.experiments import Lab
-from ratouch.eval.judge import judge_results
+from ratouch.eval.judge import judge_results, mean_ci, score_stats
 from ratouch.eval.retrieval import entry_materials, material_precision
 from ratouch.eval.tvl import describe, records_for
 from ratouch.search.index import IndexConfig, VectorIndex
@@ -64,43 +64,71 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
     pairs = _raw_pairs(test, picks)
     joint = p.joint_query(test.V, test.T)
     entry_mats = entry_materials(p.corpus)
-    points = []
+    points, scores = [], []
     for kind in indexes:
         for size in sizes:
             ids_map, index = _subset_index(lab, kind, size)
             for k in ks:
                 t0 = time.perf_counter()
                 ids = ids_map[index.search(joint, k)[1]]
+                judged, per_sample = _judge_stats(lab, p.neighbour_embeddings(ids))
+                prec = material_precision(ids_map[index.search(joint, 5)[1]], test.materials,
+                                          entry_mats)
                 pt = {"encoder": lab.cfg.encoder, "index": kind, "corpus": len(ids_map), "k": k,
                       **_latency(p, pairs, lambda q: ids_map[index.search(q, k)[1]]),
-                      "judge": _judge_mean(lab, p.neighbour_embeddings(ids)),
-                      "precision_at_5": round(float(material_precision(
-                          ids_map[index.search(joint, 5)[1]], test.materials,
-                          entry_mats).mean()), 4),
-                      "system": "RA-Touch"}
+                      **judged, **_ci("precision_at_5", prec), "system": "RA-Touch"}
                 points.append(pt)
+                scores.append(per_sample)
                 say(f"{kind:<6}{len(ids_map):>7}{k:>4}  p50 {pt['p50_ms']:7.2f} ms  "
                     f"judge {pt['judge']:.3f}  P@5 {pt['precision_at_5']:.3f}  "
                     f"({time.perf_counter() - t0:.0f} s)")
+    reference = _mark_noise(points, scores, len(p.corpus))
     upstream = _upstream_point(lab, pairs, points)
-    floor = _judge_mean(lab, None)  # the baseline (no retrieval) as the floor
+    floor, _ = _judge_stats(lab, None)  # the baseline (no retrieval) as the floor
     points += _encoder_points(other_encoders, test, n_latency, say)
-    return {"points": points, "upstream": upstream, "baseline_judge": floor,
+    return {"points": points, "upstream": upstream, "baseline_judge": floor["judge"],
+            "baseline": floor, "reference": reference,
             "settings": {"n_latency": n_latency, "threads": 1, "test_pairs": len(test.labels),
                          "note": "RA-Touch generator trained with K=5 on the whole corpus; "
                                  "other points change retrieval at inference only"}}
 
 
-def _judge_mean(lab, neighbours: tuple[np.ndarray, np.ndarray] | None) -> float:
-    """The judge's overall mean on the test split: RA-Touch reading `neighbours` (Rv, Rl), or
-    the baseline when None."""
+def _judge_stats(lab, neighbours: tuple[np.ndarray, np.ndarray] | None
+                 ) -> tuple[dict, np.ndarray]:
+    """The judge on the test split, RA-Touch reading `neighbours` (Rv, Rl) or the baseline
+    when None: ({"judge", "judge_ci", "f1", "mean_length"}, per-sample scores)."""
     test, p = lab.test, lab.pipeline
     if neighbours is None:
         responses, system = describe(p.generator_base, test.V, test.T), "baseline"
     else:
         responses, system = describe(p.generator_ra, test.V, test.T, *neighbours), "ra-touch"
-    _, summary = judge_results(records_for(test, responses, system), lab.judge)
-    return round(summary["subsets"]["overall"]["mean"], 4)
+    rows, _ = judge_results(records_for(test, responses, system), lab.judge)
+    per_sample = np.array([r[lab.judge.key] for r in rows], float)
+    st = score_stats(test.labels, responses, per_sample)
+    return ({"judge": round(st["mean"], 4),
+             "judge_ci": [round(st["ci_low"], 4), round(st["ci_high"], 4)],
+             "f1": round(st["f1"], 4), "mean_length": round(st["mean_length"], 2)}, per_sample)
+
+
+def _ci(key: str, values: np.ndarray) -> dict:
+    """{key: mean, key_ci: [low, high]} with a seeded 95 % bootstrap CI over the queries."""
+    mean, lo, hi = mean_ci(values)
+    return {key: round(mean, 4), f"{key}_ci": [round(lo, 4), round(hi, 4)]}
+
+
+def _mark_noise(points: list[dict], scores: list[np.ndarray], full: int) -> dict | None:
+    """Each point's judge difference to the reference point (flat index over the whole corpus,
+    K=5: what the app serves), paired per test sample with its 95 % CI; `within_noise` when
+    the CI holds 0. Returns the reference's description (None when it was not measured)."""
+    ref = next((j for j, q in enumerate(points) if q["index"] == "flat"
+                and q["corpus"] == full and q["k"] == 5), None)
+    if ref is None:
+        return None
+    for q, s in zip(points, scores):
+        mean, lo, hi = mean_ci(s - scores[ref])
+        q["judge_vs_reference"] = {"diff": round(mean, 4), "ci": [round(lo, 4), round(hi, 4)],
+                                   "within_noise": bool(lo <= 0 <= hi)}
+    return {"index": "flat", "corpus": full, "k": 5}
 
 
 def _latency(p, pairs: tuple[list, list], search) -> dict[str, float]:
@@ -128,14 +156,14 @@ def _upstream_point(lab, pairs: tuple[list, list], points: list[dict]) -> dict:
     """The upstream recipe (torch re-normalisation + full matmul + topk) on the whole corpus;
     its quality is the flat K=5 point's (the same neighbours)."""
     p = lab.pipeline
-    corpus_t = torch.from_numpy(np.ascontiguousarray(p.corpus_embeddings("tactile_caption")))
+    corpus_t = torch.from_numpy(np.array(p.corpus_embeddings("tactile_caption"), np.float32))
     lat = _latency(p, pairs, lambda q: upstream_retrieve(corpus_t, torch.from_numpy(q), 5)
                    .numpy().reshape(1, -1))
     flat = next((q for q in points if q["index"] == "flat" and q["corpus"] == len(p.corpus)
                  and q["k"] == 5), None)
+    same = ("judge", "judge_ci", "f1", "mean_length", "precision_at_5", "precision_at_5_ci")
     return {"encoder": lab.cfg.encoder, "index": "upstream", "corpus": len(p.corpus), "k": 5,
-            **lat, "judge": flat["judge"] if flat else None,
-            "precision_at_5": flat["precision_at_5"] if flat else None,
+            **lat, **{key: (flat or {}).get(key) for key in same},
             "system": "RA-Touch, upstream retrieval"}
 
 
@@ -167,8 +195,8 @@ def _encoder_points(encoders: Sequence[str], test, n_latency: int,
         pt = {"encoder": name, "index": "flat", "corpus": len(retriever.corpus), "k": 5,
               "p50_ms": _p(times, 50), "p95_ms": _p(times, 95), "search_p50_ms": None,
               "judge": None,
-              "precision_at_5": round(float(material_precision(
-                  ids, split.materials, entry_materials(retriever.corpus)).mean()), 4),
+              **_ci("precision_at_5", material_precision(
+                  ids, split.materials, entry_materials(retriever.corpus))),
               "system": "retrieval only (tactile->text)"}
         out.append(pt)
         say(f"{name}: p50 {pt['p50_ms']:.2f} ms (encode + search), tactile->text P@5 "
@@ -208,7 +236,9 @@ def tradeoff_figure(result: dict):
                             "colorscale": "Viridis", "cmin": 3, "cmax": 4,
                             "showscale": col == 2,
                             "colorbar": {"title": "log10 corpus"}},
-                    text=[f"{q['index']} corpus {q['corpus']} K={q['k']}" for q in sel],
+                    error_y=_error_bars(sel, key),
+                    text=[f"{q['index']} corpus {q['corpus']} K={q['k']}" + _noise_note(q)
+                          for q in sel],
                     row=1, col=col)
         front = pareto([q for q in pts if q["system"] == "RA-Touch"], key)
         fig.add_scatter(x=[q["p50_ms"] for q in front], y=[q[key] for q in front],
@@ -233,21 +263,58 @@ def tradeoff_figure(result: dict):
             fig.add_hline(y=result["baseline_judge"], line_dash="dash", line_color="black",
                           annotation_text="baseline (no retrieval)", row=1, col=col)
     fig.update_xaxes(type="log", title="p50 latency per query, ms (warm, 1 thread)")
-    fig.update_layout(title="Speed against accuracy (marker size = K, colour = corpus size)",
+    fig.update_layout(title="Speed against accuracy (marker size = K, colour = corpus size; "
+                            "bars: 95 % CIs)",
                       template="plotly_white", height=500, width=1100,
                       legend={"orientation": "h", "y": -0.22})
     return fig
 
 
+def _error_bars(points: Sequence[dict], key: str) -> dict | None:
+    """Plotly error bars from each point's 95 % CI of `key` (None where none was measured)."""
+    cis = [q.get(f"{key}_ci") for q in points]
+    if any(ci is None for ci in cis):
+        return None
+    return {"type": "data", "symmetric": False, "thickness": 1,
+            "array": [ci[1] - q[key] for q, ci in zip(points, cis)],
+            "arrayminus": [q[key] - ci[0] for q, ci in zip(points, cis)]}
+
+
+def _noise_note(q: dict) -> str:
+    d = q.get("judge_vs_reference")
+    if not d:
+        return ""
+    return (f"<br>judge vs reference {d['diff']:+.3f} [{d['ci'][0]:+.3f}, {d['ci'][1]:+.3f}]"
+            + (" (inside the noise)" if d["within_noise"] else ""))
+
+
 def format_tradeoff(result: dict) -> str:
+    """The points as a table: latency, the judge with its 95 % CI, F1, length, P@5 with its
+    CI, and the judge difference to the reference point (`~` where it is inside the noise)."""
     lines = [f"{'encoder':<13}{'index':<9}{'corpus':>7}{'K':>4}{'p50 ms':>9}{'p95 ms':>9}"
-             f"{'search':>9}{'judge':>8}{'P@5':>7}  system"]
+             f"{'search':>9}  {'judge [95% CI]':<24}{'F1':>6}{'len':>5}  {'P@5 [95% CI]':<22}"
+             f"{'vs ref':>8}  system"]
     for q in result["points"] + [result["upstream"]]:
-        judge = f"{q['judge']:.3f}" if q["judge"] is not None else "-"
-        prec = f"{q['precision_at_5']:.3f}" if q["precision_at_5"] is not None else "-"
+        judge = (f"{q['judge']:.3f} [{q['judge_ci'][0]:.3f}, {q['judge_ci'][1]:.3f}]"
+                 if q.get("judge") is not None else "-")
+        f1 = f"{q['f1']:.3f}" if q.get("f1") is not None else "-"
+        length = f"{q['mean_length']:.1f}" if q.get("mean_length") is not None else "-"
+        prec = (f"{q['precision_at_5']:.3f} [{q['precision_at_5_ci'][0]:.3f}, "
+                f"{q['precision_at_5_ci'][1]:.3f}]" if q.get("precision_at_5") is not None
+                else "-")
         srch = f"{q['search_p50_ms']:.3f}" if q.get("search_p50_ms") is not None else "-"
+        d = q.get("judge_vs_reference")
+        vs = f"{d['diff']:+.3f}{'~' if d['within_noise'] else '*'}" if d else "-"
         lines.append(f"{q['encoder']:<13}{q['index']:<9}{q['corpus']:>7}{q['k']:>4}"
-                     f"{q['p50_ms']:>9.2f}{q['p95_ms']:>9.2f}{srch:>9}{judge:>8}{prec:>7}"
-                     f"  {q['system']}")
-    lines.append(f"baseline (no retrieval) judge: {result['baseline_judge']:.3f}")
+                     f"{q['p50_ms']:>9.2f}{q['p95_ms']:>9.2f}{srch:>9}  {judge:<24}{f1:>6}"
+                     f"{length:>5}  {prec:<22}{vs:>8}  {q['system']}")
+    b = result.get("baseline") or {"judge": result["baseline_judge"]}
+    lines.append(f"baseline (no retrieval) judge: {b['judge']:.3f}"
+                 + (f" [{b['judge_ci'][0]:.3f}, {b['judge_ci'][1]:.3f}], F1 {b['f1']:.3f}, "
+                    f"{b['mean_length']:.1f} adj" if "judge_ci" in b else ""))
+    if result.get("reference"):
+        r = result["reference"]
+        lines.append(f"vs ref: judge difference to the {r['index']} index over the whole corpus "
+                     f"({r['corpus']}) at K={r['k']}, paired per test sample; ~ = its 95 % CI "
+                     f"holds 0 (inside the noise), * = it does not")
     return "\n".join(lines)
