@@ -1,0 +1,37 @@
+"""Speed against accuracy: which differences the chart marks as inside the noise."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ratouch.bench.tradeoff import _mark_noise, format_tradeoff, pareto, tradeoff_figure
+
+
+def _point(index, corpus, k, judge, p50):
+    return {"encoder": "default-s", "index": index, "corpus": corpus, "k": k, "p50_ms": p50,
+            "p95_ms": p50 + 1, "search_p50_ms": 0.5, "judge": judge,
+            "judge_ci": [judge - 0.1, judge + 0.1], "f1": 0.6, "mean_length": 3.4,
+            "precision_at_5": 0.5, "precision_at_5_ci": [0.45, 0.55], "system": "RA-Touch"}
+
+
+def test_differences_to_the_served_point_are_marked_inside_or_outside_the_noise():
+    rng = np.random.default_rng(0)
+    ref = rng.uniform(6, 9, 400)
+    points = [_point("flat", 10000, 5, 8.0, 40.0), _point("hnsw", 10000, 5, 8.0, 30.0),
+              _point("flat", 1000, 5, 8.3, 20.0)]
+    scores = [ref, ref + rng.normal(0, 0.3, 400), ref + 0.3 + rng.normal(0, 0.3, 400)]
+    assert _mark_noise(points, scores, 10000) == {"index": "flat", "corpus": 10000, "k": 5}
+    marks = [q["judge_vs_reference"] for q in points]
+    assert marks[0] == {"diff": 0.0, "ci": [0.0, 0.0], "within_noise": True}
+    assert marks[1]["within_noise"] and marks[1]["ci"][0] < 0 < marks[1]["ci"][1]
+    assert not marks[2]["within_noise"] and marks[2]["ci"][0] > 0.2
+    assert _mark_noise([_point("hnsw", 1000, 1, 8.0, 1.0)], [ref], 10000) is None
+    result = {"points": points, "upstream": {**points[0], "index": "upstream"},
+              "baseline_judge": 7.9, "reference": {"index": "flat", "corpus": 10000, "k": 5}}
+    table = format_tradeoff(result)
+    assert "+0.000~" in table and "*" in table.splitlines()[3]
+    assert [q["index"] for q in pareto(points, "judge")] == ["flat"]  # 20 ms, best judge
+    fig = tradeoff_figure(result)
+    bars = [t.error_y for t in fig.data if t.name == "flat"]  # judge panel, then P@5 panel
+    np.testing.assert_allclose(bars[0].array, [0.1, 0.1])
+    np.testing.assert_allclose(bars[1].arrayminus, [0.05, 0.05])
