@@ -210,6 +210,13 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int) -> N
                     ui.load = gr.Button("Load example", size="sm")
     with gr.Row():
         ui.description = gr.Markdown(elem_id="description")
+    with gr.Accordion("Take retrieval apart: untick neighbours RA-Touch reads and regenerate "
+                      "its description", open=False, elem_id="apart"):
+        ui.keep = gr.CheckboxGroup(label="the joint query's neighbours (similarity; the "
+                                   "integrator's attention on each one's image and text)",
+                                   elem_id="keep")
+        ui.regen = gr.Button("Regenerate RA-Touch", size="sm", elem_id="regen")
+        ui.regen_out = gr.Markdown(elem_id="regen-out")
     ui.galleries, ui.tables = [], []
     with gr.Row(equal_height=False):
         for mode in view.MODES:
@@ -261,6 +268,9 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
                                         progress, background=bg, largest_k=largest,
                                         judge=judge))
 
+    def regenerate(state, tac, a, b, c, d, kept, result):
+        return handlers.regenerate(pipeline, state, tac, a, b, c, d, kept, result, judge)
+
     def failures_tab(subset, condition, view_label, compute, progress=None):
         return tuple(handlers.failures_tab(pipeline, options, shared, compute, subset,
                                            condition, view_label, FAILURE_ROWS, progress))
@@ -291,6 +301,11 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
     ui.reset.click(handlers.reset_box, ui.state, box_out, **light)
     ui.run.click(show_query, query_in, query_out, **queries, **raw, **private).then(
         None, None, None, js=SHOW_ANSWER_JS, **private)
+    # a new result (or none) resets the neighbour picker and the regenerated answer
+    ui.raw.change(lambda r: (handlers.neighbour_picker(r), ""), ui.raw,
+                  [ui.keep, ui.regen_out], **light)
+    ui.regen.click(regenerate, [ui.state, ui.tactile, *ui.fields, ui.keep, ui.raw],
+                   ui.regen_out, **queries, **raw, **private)
     # failure cases: read from the cache when the tab opens, computed only on request
     gr.on([ui.failures_tab.select, ui.subset.change, ui.condition.change, ui.fail_view.change],
           show_failures, fail_in, fail_out, **private)

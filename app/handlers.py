@@ -279,6 +279,34 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
                      view.timings_md(result["timings_ms"], render_ms), result)
 
 
+def neighbour_picker(result: dict | None):
+    """The "take retrieval apart" checkboxes for a new result: every joint neighbour, ticked."""
+    choices = view.neighbour_choices(result)
+    return gr.CheckboxGroup(choices=choices, value=[i for _, i in choices])
+
+
+def regenerate(pipe, visual: boxes.Visual | None, tactile: Any, x0, y0, x1, y1,
+               kept: list[int] | None, result: dict | None, judge=None) -> str:
+    """RA-Touch's description again, reading only the ticked neighbours (`pipe.regenerate`),
+    beside the description it answered with."""
+    tactile = upload_path(tactile)
+    try:
+        if visual is None or not result or not result.get("neighbours", {}).get("joint"):
+            raise DataError("run a query with a tactile image first")
+        kept = [int(i) for i in (kept or [])]
+        box = boxes.fields_to_box(x0, y0, x1, y1)
+        again = pipe.regenerate(visual.source, tactile, kept, box=box)
+    except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
+        return view.error_md(_fail(e, {"visual image": getattr(visual, "source", None),
+                                       "tactile image": tactile}))
+    scores = {}
+    if judge is not None and visual.label:
+        scores = failures.judge_scores(visual.label, {
+            "new": again["description"]["ra_touch"],
+            "old": result["description"]["ra_touch"]}, judge)
+    return view.regenerated_md(result, again, kept, scores.get("new"), scores.get("old"))
+
+
 def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k) -> dict:
     """The `/query` API: image files, box and K in, `pipe.query`'s JSON out.
 

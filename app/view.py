@@ -298,3 +298,48 @@ def report_md(docs: Path, figures: Sequence[Path] = ()) -> str:
         return text
 
     return _LINK.sub(link, _IMAGE_LINK.sub(image, text))
+
+
+# ------------------------------------------------------------------------- taking retrieval apart
+
+def neighbour_choices(result: dict | None) -> list[tuple[str, int]]:
+    """(label, id) of each joint neighbour RA-Touch read, with the integrator's attention on
+    its image and its text: the choices of the "take retrieval apart" checkboxes."""
+    if not result:
+        return []
+    att = result.get("attention") or {}
+    out = []
+    for j, n in enumerate(result.get("neighbours", {}).get("joint", [])):
+        a_img, a_txt = ((att.get("image") or [None] * (j + 1))[j],
+                        (att.get("text") or [None] * (j + 1))[j])
+        share = (f" · attention image {a_img:.2f} / text {a_txt:.2f}"
+                 if a_img is not None and a_txt is not None else "")
+        out.append((f"#{n['id']} {n['class_name']}: {n['caption']} ({n['score']:.3f}){share}",
+                    int(n["id"])))
+    return out
+
+
+def regenerated_md(original: dict, regenerated: dict, kept: Sequence[int],
+                   score: float | None, original_score: float | None) -> str:
+    """RA-Touch's description read with the kept neighbours, beside the original."""
+    ids = [n["id"] for n in original["neighbours"]["joint"]]
+    dropped = [i for i in ids if i not in set(kept)]
+    added = [i for i in kept if i not in set(ids)]
+    what = (f"{len(kept)} of the {len(ids)} neighbours"
+            + (f" (dropped {', '.join(f'#{i}' for i in dropped)})" if dropped else "")
+            + (f" (added {', '.join(f'#{i}' for i in added)})" if added else ""))
+    if not kept:
+        what = "no neighbours (the integrator adds nothing: the prompt is p)"
+
+    def judged(text: str, s: float | None) -> str:
+        return f"{text or '_(empty)_'}" + (f" · judge **{s:.1f}**/10" if s else "")
+
+    ms = regenerated.get("timings_ms", {}).get("total")
+    return "\n\n".join([
+        f"**RA-Touch read with {what}:** "
+        + judged(regenerated["description"]["ra_touch"], score),
+        f"**RA-Touch as answered (all {len(ids)}):** "
+        + judged(original["description"]["ra_touch"], original_score),
+        "<span class='ra-muted'>the same model and prompt; only the neighbours it reads "
+        "changed — the interactive form of the neighbour-shuffle control"
+        + (f" · {ms:.0f} ms" if ms is not None else "") + "</span>"])

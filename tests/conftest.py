@@ -296,6 +296,15 @@ class FakePipeline:
                 "timings_ms": {"preprocess": 1.0, "encode_image": 2.0, "total": 3.0},
                 "warnings": warnings, "box": [int(v) for v in box]}
 
+    def regenerate(self, visual, tactile, neighbours, box=None) -> dict:
+        if tactile is None:
+            raise DataError("regenerating the RA-Touch description needs a tactile image")
+        self.calls.append({"regenerate": list(neighbours), "box": box})
+        return {"description": {"ra_touch": f"read {len(neighbours)} neighbours"},
+                "neighbours": [self._neighbour(i, 0.5) for i in neighbours],
+                "attention": {"image": [0.1] * len(neighbours), "text": [0.1] * len(neighbours)},
+                "timings_ms": {"total": 2.0}}
+
     def _neighbour(self, i: int, score: float) -> dict:
         e = self.corpus.entries[i]
         return {"id": i, "score": round(score, 4), "class_name": e.class_name,

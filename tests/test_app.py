@@ -763,3 +763,27 @@ def test_query_api_k_error_names_k(served, pair_files):
     with pytest.raises(Exception, match="K must be a whole number from 1 to 20, got K=2.5"):
         client.predict(handle_file(str(pair_files[0])), None, None, None, None, None, 2.5,
                        api_name="/query")
+
+
+def test_taking_retrieval_apart_regenerates_with_the_ticked_neighbours(fake, world):
+    from app import handlers
+    from ratouch.eval.judge import OfflineJudge
+
+    visual, _, tactile, *fields, _ = handlers.load_example(world, 7)
+    v = handlers.run_query(fake, _thumb, visual, tactile, *fields, 5)
+    picker = handlers.neighbour_picker(v.raw)
+    ids = [n["id"] for n in v.raw["neighbours"]["joint"]]
+    assert [i for _, i in picker.choices] == ids and picker.value == ids
+    assert all(label.startswith(f"#{i} ") for label, i in picker.choices)
+    out = handlers.regenerate(fake, visual, tactile, *fields, ids[1:3], v.raw, OfflineJudge())
+    assert fake.calls[-1]["regenerate"] == ids[1:3]
+    assert "read 2 neighbours" in out and "2 of the 5 neighbours" in out
+    assert f"dropped #{ids[0]}" in out and "soft and grainy" in out  # the original beside it
+    assert "judge **" in out  # a labelled example: both are scored
+    none = handlers.regenerate(fake, visual, tactile, *fields, [], v.raw)
+    assert "no neighbours" in none and "read 0 neighbours" in none
+    # nothing to take apart yet, or no tactile image: a message, not an exception
+    assert "run a query" in handlers.regenerate(fake, visual, tactile, *fields, ids, None)
+    assert "tactile image" in handlers.regenerate(fake, visual, None, *fields, ids, v.raw)
+    assert handlers.neighbour_picker(None).choices == []
+
