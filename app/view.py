@@ -191,8 +191,9 @@ CASE_COLUMNS = (("condition", "condition"), ("#", "index"), ("subset", "subset")
 CASE_WIDTHS = ["11%", "4%", "7%", "9%", "14%", "13%", "5%", "13%", "5%", "5%", "5%", "4%",
                "5%"]
 SUMMARY_COLUMNS = (("condition", "condition"), ("subset", "subset"), ("n", "n"),
-                   ("base score", "baseline_score"), ("RA score", "ra_score"),
-                   ("Δ RA−base", "ra_delta"), ("P@K image", "precision_image"),
+                   ("base score [95% CI]", "baseline_score"), ("RA score [95% CI]", "ra_score"),
+                   ("Δ RA−base [95% CI]", "ra_delta"), ("F1 base / RA", "f1"),
+                   ("adjectives base / RA", "length"), ("P@K image", "precision_image"),
                    ("P@K tactile", "precision_tactile"), ("P@K joint", "precision_joint"),
                    ("joint loses", "joint_loses"))
 
@@ -211,7 +212,16 @@ def cases_frame(rows: Sequence[dict]):
 
 def summary_frame(summary: Sequence[dict]):
     """`ratouch.eval.failures.summarise` as a table; 'joint loses' as a percentage."""
-    rows = [{**s, "joint_loses": f"{s['joint_loses']:.0%}"} for s in summary]
+    def ci(value: float, bounds) -> str:
+        return f"{value:.2f} [{bounds[0]:.2f}, {bounds[1]:.2f}]" if bounds else f"{value:.2f}"
+
+    rows = [{**s, "joint_loses": f"{s['joint_loses']:.0%}",
+             "baseline_score": ci(s["baseline_score"], s.get("baseline_ci")),
+             "ra_score": ci(s["ra_score"], s.get("ra_ci")),
+             "ra_delta": ci(s["ra_delta"], s.get("ra_delta_ci")),
+             "f1": f"{s.get('baseline_f1', 0):.2f} / {s.get('ra_f1', 0):.2f}",
+             "length": f"{s.get('baseline_mean_length', 0):.1f} / "
+                       f"{s.get('ra_mean_length', 0):.1f}"} for s in summary]
     return _frame(rows, SUMMARY_COLUMNS)
 
 

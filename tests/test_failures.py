@@ -163,6 +163,7 @@ def test_the_table_is_cached_once_and_keyed_by_its_settings(fake, tmp_path, monk
 def _row(cond, i, subset, ra, base, pi, pt, pj):
     best = max(pi, pt)
     return {"condition": cond, "index": i, "subset": subset, "ra_score": ra,
+            "label": "hard, smooth", "ra_touch": "hard, smooth, flat", "baseline": "soft",
             "baseline_score": base, "ra_delta": ra - base, "precision_image": pi,
             "precision_tactile": pt, "precision_joint": pj, "best_unimodal": best,
             "joint_gap": best - pj, "joint_loses": pj < best}
@@ -189,6 +190,10 @@ def test_views_filter_and_sort():
         ("natural", "all"), ("natural", "structured"), ("natural", "wild"),
         ("noisy touch", "all")]  # one subset only: no repeated row
     assert summary[0]["joint_loses"] == 0.5 and summary[0]["ra_score"] == 2.5
+    lo, hi = summary[0]["ra_delta_ci"]  # the paired difference's bootstrap CI holds its mean
+    assert lo <= summary[0]["ra_delta"] <= hi
+    assert summary[0]["ra_f1"] == pytest.approx(0.8) and summary[0]["baseline_f1"] == 0.0
+    assert summary[0]["ra_mean_length"] == 3 and summary[0]["baseline_mean_length"] == 1
 
 
 def test_judge_scores_of_a_query_result():

@@ -30,7 +30,7 @@ import numpy as np
 from ratouch.checkpoint import sha256_file
 from ratouch.corpus.embed import EMBED_MANIFEST, embeddings_dir
 from ratouch.errors import ConfigError, DataError
-from ratouch.eval.judge import OfflineJudge
+from ratouch.eval.judge import OfflineJudge, mean_ci, score_stats
 from ratouch.eval.retrieval import entry_materials, material_precision
 from ratouch.eval.tvl import retrieve, system_responses
 from ratouch.files import write_json_atomic
@@ -338,8 +338,10 @@ def select_cases(rows: Sequence[dict], subset: str = "all", condition: str = "al
 
 
 def summarise(rows: Sequence[dict]) -> list[dict]:
-    """Per condition (in table order) and subset: n, mean baseline / RA-Touch score, mean
-    material precision per mode, and the share of cases where the joint query loses."""
+    """Per condition (in table order) and subset: n, mean baseline / RA-Touch score with their
+    95 % bootstrap CIs, adjective F1 and mean length, RA-Touch's mean paired difference with
+    its CI, mean material precision per mode, and the share of cases where the joint query
+    loses."""
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in rows:
         for sub in (r["subset"], "all"):
@@ -349,9 +351,18 @@ def summarise(rows: Sequence[dict]) -> list[dict]:
         if sub != "all" and len({r["subset"] for r in rows if r["condition"] == cond}) < 2:
             continue  # one subset only: its row would repeat "all"
         mean = lambda key: round(float(np.mean([r[key] for r in rs])), 3)  # noqa: E731
+        labels = [r["label"] for r in rs]
+        stats = {name: score_stats(labels, [r[name] for r in rs], [r[key] for r in rs])
+                 for name, key in (("baseline", "baseline_score"), ("ra_touch", "ra_score"))}
+        _, lo, hi = mean_ci([r["ra_delta"] for r in rs])
         out.append({"condition": cond, "subset": sub, "n": len(rs),
                     "baseline_score": mean("baseline_score"), "ra_score": mean("ra_score"),
-                    "ra_delta": mean("ra_delta"),
+                    "ra_delta": mean("ra_delta"), "ra_delta_ci": [round(lo, 3), round(hi, 3)],
+                    **{f"{short}_{field}": (round(st["ci_low"], 3), round(st["ci_high"], 3))
+                       if field == "ci" else round(st[field], 3)
+                       for short, st in (("baseline", stats["baseline"]),
+                                         ("ra", stats["ra_touch"]))
+                       for field in ("ci", "f1", "mean_length")},
                     **{f"precision_{m}": mean(f"precision_{m}") for m in MODES},
                     "joint_loses": round(float(np.mean([r["joint_loses"] for r in rs])), 3)})
     order = {c: i for i, c in enumerate(dict.fromkeys(r["condition"] for r in rows))}
