@@ -42,4 +42,9 @@ def test_shipped_ra_touch_changes_its_answer_when_its_neighbours_change(real_pip
                                  "integrator_zeroed", "copy_captions", "material_oracle"}
     # the oracle knows the material: it beats a vote over random-ish captions
     assert r["systems"]["material_oracle"]["f1"] > r["systems"]["copy_captions"]["f1"]
-    assert "neighbours shuffled" in format_controls(r)
+    d = r["reading"]
+    assert 1 <= d["distinct_captions"] <= 5 and -1 <= d["key_cosine"] <= 1
+    for a in d["attention"].values():  # head-averaged weights: at least uniform at the top
+        assert a["max"] >= a["uniform"] - 1e-6 and 0 < a["entropy_over_log_k"] <= 1 + 1e-6
+    text = format_controls(r)
+    assert "neighbours shuffled" in text and "distinct captions" in text

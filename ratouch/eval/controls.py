@@ -121,7 +121,7 @@ def run_controls(pipeline, k: int = 5, shuffles: int = 3, judge=None, seed: int 
         raise ConfigError(f"shuffles={shuffles} must be >= 1")
     judge = judge or OfflineJudge()
     split = split or encode_test_split(pipeline.encoders)
-    answers, _ = _answers(pipeline, split, k, shuffles, seed)
+    answers, ids = _answers(pipeline, split, k, shuffles, seed)
     scores = {}
     for name, responses in answers.items():
         rows, _ = judge_results(records_for(split, responses, name), judge)
@@ -142,7 +142,31 @@ def run_controls(pipeline, k: int = 5, shuffles: int = 3, judge=None, seed: int 
     return {"k": k, "n": len(split.labels), "shuffles": shuffles, "judge": judge.name,
             "systems": systems, "paired_vs_baseline": paired,
             "shuffle": {"changed_share": round(float(changed), 4), **_diff(ra - shuffled, seed)},
-            "zeroed": _diff(ra - scores["integrator_zeroed"], seed)}
+            "zeroed": _diff(ra - scores["integrator_zeroed"], seed),
+            "reading": reading_diagnostics(pipeline, split, ids)}
+
+
+def reading_diagnostics(pipeline, split: TestSplit, ids: np.ndarray) -> dict:
+    """Why a generator might ignore its neighbours: how alike they are (distinct captions of
+    the K, mean pairwise cosine of their text embeddings) and how the integrator attends
+    over them, its weights averaged over heads (mean largest weight against the uniform
+    1/K, mean entropy / log K)."""
+    entries = pipeline.corpus.entries
+    distinct = np.mean([len({entries[i].caption for i in row}) for row in ids])
+    _, rl = pipeline.neighbour_embeddings(ids)                              # (N, K, D)
+    rl = rl / np.maximum(np.linalg.norm(rl, axis=2, keepdims=True), 1e-12)
+    k = ids.shape[1]
+    sims = np.einsum("nkd,njd->nkj", rl, rl)
+    pairwise = (sims.sum((1, 2)) - k) / max(1, k * (k - 1))
+    out = {"k": k, "distinct_captions": round(float(distinct), 3),
+           "key_cosine": round(float(pairwise.mean()), 4), "attention": {}}
+    _, weights = pipeline.ra_prefix(split.V, split.T, ids)
+    for name, w in weights.items():                                          # (N, K)
+        w = np.clip(w, 1e-12, 1.0)
+        out["attention"][name] = {
+            "max": round(float(w.max(1).mean()), 4), "uniform": round(1 / k, 4),
+            "entropy_over_log_k": round(float((-(w * np.log(w)).sum(1) / np.log(k)).mean()), 4)}
+    return out
 
 
 def _diff(d: np.ndarray, seed: int) -> dict[str, float]:
@@ -169,6 +193,14 @@ def format_controls(r: dict, fmt: Callable[[dict], str] = format_stats) -> str:
         diff = f"{d['diff']:+.3f} [{d['ci_low']:+.3f}, {d['ci_high']:+.3f}]" if d else ""
         lines.append(f"{label:<32}{fmt(r['systems'][name]):<44}{diff}")
     s, z = r["shuffle"], r["zeroed"]
+    d = r.get("reading")
+    if d:
+        att = "; ".join(f"{name}: largest weight {a['max']:.3f} (uniform {a['uniform']:.3f}), "
+                        f"entropy {a['entropy_over_log_k']:.3f} of the maximum"
+                        for name, a in d["attention"].items())
+        lines.append(f"what RA-Touch reads: {d['distinct_captions']:.2f} distinct captions among "
+                     f"its {d['k']} neighbours, their text embeddings' mean pairwise cosine "
+                     f"{d['key_cosine']:.3f}; integrator attention {att or 'not reported'}")
     lines += [f"shuffling the neighbours changes {s['changed_share']:.1%} of RA-Touch's answers; "
               f"RA-Touch minus shuffled: {s['diff']:+.3f} [{s['ci_low']:+.3f}, "
               f"{s['ci_high']:+.3f}] (mean of {r['shuffles']} shuffles)",
