@@ -235,7 +235,11 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int) -> N
 
 def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, options: dict,
           docs: Path, judge) -> None:
-    """Connect events to the handlers. Only `/query` is an API; the UI's events are private."""
+    """Connect events to the handlers. Only `/query` is an API; the UI's events are private.
+
+    Long on purpose: the page's whole event table in one place, so which event calls which
+    handler with which inputs reads as one list.
+    """
     box_out = [ui.state, ui.visual, *ui.fields, ui.box_note]
     example_out = [ui.state, ui.visual, ui.tactile, *ui.fields, ui.box_note]
     query_in = [ui.state, ui.tactile, *ui.fields, ui.k, ui.background]

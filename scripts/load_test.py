@@ -215,6 +215,9 @@ def run(clients: int = 16, queries: int = 10, single: int = 8, k: int = 5,
         deadline_s: longest load phase: queries not sent by then are counted as not run.
         app_args: extra `python -m app` arguments.
         env: the app's environment (default: this process's).
+
+    Long on purpose: a script's measurement in the order it happens (launch, warm-up, one user,
+    the load, the report), each phase timed where it runs.
     """
     t_start = time.monotonic()
     port = free_port()

@@ -191,6 +191,9 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
 
     Returns:
         The trained model and a report (timings, final losses, antonym probe).
+
+    Long on purpose: one training run read top to bottom (data, model, optimiser, the step loop,
+    the report), as nanoGPT's train.py is.
     """
     cfg = model_config(tc.model)
     if cfg["backend"] != "default":
