@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from ratouch.errors import ConfigError
-from ratouch.eval.controls import derangement, format_controls, oracle_answer, run_controls, vote
+from ratouch.eval.controls import derangement, format_controls, run_controls, vote
+from ratouch.eval.tvl import oracle_answer
 from ratouch.vocabulary import parse_adjectives
 from ratouch.world.material import material
 from ratouch.world.splits import encode_test_split

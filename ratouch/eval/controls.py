@@ -39,9 +39,8 @@ from ratouch.eval.judge import (
     mean_ci,
     score_stats,
 )
-from ratouch.eval.tvl import describe, records_for
+from ratouch.eval.tvl import describe, oracle_answer, records_for
 from ratouch.vocabulary import parse_adjectives
-from ratouch.world.material import material
 from ratouch.world.splits import TestSplit, encode_test_split
 
 log = logging.getLogger(__name__)
@@ -61,12 +60,6 @@ def vote(captions: Sequence[str], n: int) -> str:
     """The `n` adjectives named most often by `captions` (ties: first named first)."""
     counts = Counter(w for c in captions for w in parse_adjectives(c))
     return ", ".join(w for w, _ in counts.most_common(max(1, n)))
-
-
-def oracle_answer(material_name: str, n: int) -> str:
-    """The material's `n` most typical adjectives (highest profile weight first)."""
-    profile = sorted(material(material_name).profile, key=lambda wv: -wv[1])
-    return ", ".join(w for w, _ in profile[:max(1, n)])
 
 
 class _ZeroIntegrator:

@@ -30,6 +30,7 @@ from ratouch.vocabulary import TVL_QUESTION
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
 from ratouch.world.generator import TEST_SIZE
+from ratouch.world.material import material
 from ratouch.world.splits import TestSplit, encode_test_split
 
 SYSTEMS = ("baseline", "ra-touch")
@@ -175,6 +176,12 @@ def format_ttest(result: dict, name_a: str = "A", name_b: str = "B") -> str:
 
 
 
+def oracle_answer(material_name: str, n: int) -> str:
+    """The material's `n` most typical adjectives (highest profile weight first)."""
+    profile = sorted(material(material_name).profile, key=lambda wv: -wv[1])
+    return ", ".join(w for w, _ in profile[:max(1, n)])
+
+
 def oracle_length_effect(judge=None, world: WorldConfig | None = None,
                          lengths: Sequence[int] = (2, 3, 4, 5)) -> dict:
     """The judge's length effect: a material oracle's mean score with n adjectives.
@@ -193,8 +200,7 @@ def oracle_length_effect(judge=None, world: WorldConfig | None = None,
     judge = judge or OfflineJudge()
     stats = {}
     for n in lengths:
-        answers = [", ".join(w for w, _ in sorted(p[2].profile, key=lambda x: -x[1])[:n])
-                   for p in plans]
+        answers = [oracle_answer(p[2].name, n) for p in plans]
         stats[n] = score_stats(labels, answers, judge.score_many(zip(labels, answers)))
     means = {n: s["mean"] for n, s in stats.items()}
     return {"lengths": list(lengths), "means": means, "stats": stats,

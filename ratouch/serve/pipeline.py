@@ -215,15 +215,6 @@ class RATouchPipeline:
         rl[order] = self.corpus_embeddings(text_kind)[flat[order]]
         return rv.reshape(*ids.shape, -1), rl.reshape(*ids.shape, -1)
 
-    def describe(self, V: np.ndarray, T: np.ndarray, ids: np.ndarray | None) -> list[str]:
-        """RA-Touch descriptions (with the neighbours `ids`) or baseline ones (ids None)."""
-        v, t = torch.from_numpy(V), torch.from_numpy(T)
-        with torch.no_grad():
-            if ids is None:
-                return self.generator_base.describe(v, t)
-            rv, rl = self.neighbour_embeddings(ids)
-            return self.generator_ra.describe(v, t, torch.from_numpy(rv), torch.from_numpy(rl))
-
     def ra_prefix(self, V: np.ndarray, T: np.ndarray, ids: np.ndarray
                   ) -> tuple[torch.Tensor, dict[str, np.ndarray]]:
         """RA-Touch's prompt p' for (B, D) V and T with neighbours `ids` (B, K), and the
