@@ -163,6 +163,13 @@ def _add_train(sub) -> None:
     g = tsub.add_parser("generator", help="train the baseline and RA-Touch generators")
     g.add_argument("--encoder", default="default-s")
     g.add_argument("--seed", type=_nonneg_int, default=0)
+    g.add_argument("--draw", type=_nonneg_int, default=0,
+                   help="which few pairs of the scarce materials the paired split keeps")
+    g.add_argument("--out", default=None,
+                   help="folder for baseline/ and ra/ (default: the shipped assets)")
+    g.add_argument("--stage0-steps", type=_pos_int, default=None,
+                   help="language-prior steps (used only when assets/generator/ENC/prior "
+                        "is missing)")
     g.add_argument("--stage1-steps", type=_pos_int, default=None)
     g.add_argument("--stage2-steps", type=_pos_int, default=None)
     tr = tsub.add_parser("trust", help="calibrate the trust signals (novelty, no contact) on "
@@ -173,7 +180,8 @@ def _add_train(sub) -> None:
                     help="share of in-distribution validation inputs each signal may flag")
     tr.add_argument("--out", default=None,
                     help="calibration JSON (default: assets/trust/ENCODER.json)")
-    a = tsub.add_parser("all", help="encoders, retriever and generators, in order")
+    a = tsub.add_parser("all", help="encoders, corpus embeddings, retriever, language prior, "
+                                    "generators and trust calibration, in order")
     a.add_argument("--seed", type=_nonneg_int, default=0)
 
 
@@ -466,20 +474,55 @@ def _run_train(args: argparse.Namespace) -> int:
         print(json.dumps(report))
         return 0
     if args.train_cmd == "generator":
-        overrides = {k: v for k, v in (("stage1_steps", args.stage1_steps),
+        overrides = {k: v for k, v in (("stage0_steps", args.stage0_steps),
+                                       ("stage1_steps", args.stage1_steps),
                                        ("stage2_steps", args.stage2_steps)) if v}
-        print(json.dumps(recipes.generator_recipe(args.encoder, args.seed, **overrides)))
+        print(json.dumps(recipes.generator_recipe(args.encoder, args.seed, draw=args.draw,
+                                                  out=args.out, **overrides)))
         return 0
     if args.train_cmd == "trust":
         return _train_trust(args)
     if args.train_cmd == "all":
         args.model, args.out, args.steps, args.threads = None, None, None, 2
         args.n_pairs, args.n_corpus = 12_000, 8_000
-        _train_encoders(args)
-        print(json.dumps(recipes.retriever_recipe(seed=args.seed)))
-        print(json.dumps(recipes.generator_recipe(seed=args.seed)))
-        return 0
+        return _train_all(args)
     return _train_encoders(args)
+
+
+def _train_all(args: argparse.Namespace) -> int:
+    """Every shipped weight, in dependency order, with the time each part took."""
+    import shutil
+    import time
+
+    from ratouch.paths import generator_weights
+    from ratouch.serve.pipeline import default_corpus, drop_embeddings
+    from ratouch.train import recipes
+
+    t0, times = time.perf_counter(), {}
+
+    def lap(name: str) -> None:
+        nonlocal t0
+        times[name] = round(time.perf_counter() - t0, 1)
+        t0 = time.perf_counter()
+
+    _train_encoders(args)
+    lap("encoders")
+    for name in ("default-tiny", "default-s", "default-b"):
+        drop_embeddings(name)  # embedded with the old weights
+        default_corpus(name)
+    lap("corpus_embeddings")
+    print(json.dumps(recipes.retriever_recipe(seed=args.seed)))
+    lap("retriever")
+    prior = generator_weights("default-s", "prior")
+    if prior.is_dir():
+        shutil.rmtree(prior)  # trained on the old encoders' text embeddings
+    print(json.dumps(recipes.generator_recipe(seed=args.seed)))
+    lap("generators")
+    args.encoder, args.false_alarm, args.out = "default-s", 0.02, None
+    _train_trust(args)
+    lap("trust")
+    print(json.dumps({"seconds": times, "total_s": round(sum(times.values()), 1)}))
+    return 0
 
 
 def _train_trust(args: argparse.Namespace) -> int:

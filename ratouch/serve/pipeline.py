@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import os
+import shutil
 import threading
 import time
 from pathlib import Path
@@ -80,6 +81,15 @@ def default_corpus(encoder: str = "default-s", size: str = "10k", seed: int = 0,
     if not (embeddings_dir(folder, encoder) / EMBED_MANIFEST).is_file():
         embed_and_index(folder, encoder, progress=progress)  # the index is checked on open
     return folder
+
+
+def drop_embeddings(encoder: str, size: str = "10k", seed: int = 0) -> None:
+    """Delete the default corpus's embeddings and indexes of an encoder (after retraining it),
+    so that `default_corpus` embeds it again; the corpus itself is kept."""
+    folder = cache_dir() / f"imagenet-t-{size}-seed{seed}"
+    for part in (embeddings_dir(folder, encoder), folder / "index" / encoder):
+        if part.is_dir():
+            shutil.rmtree(part)
 
 
 def open_retriever(corpus: str | os.PathLike, encoder: str = "default-s",

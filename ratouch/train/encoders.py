@@ -29,6 +29,7 @@ from ratouch.errors import ConfigError
 from ratouch.paths import cache_dir
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import _fork_context, world_for
+from ratouch.world.scarcity import ScarceRegime
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +51,13 @@ class TrainConfig:
     seed: int = 0
     workers: int = 2
     threads: int = 2
+    regime: str = "scarce"  # which train pairs: see ratouch.world.scarcity
+    draw: int = 0
+
+    @property
+    def scarcity(self) -> ScarceRegime:
+        """The paired split's regime (the world seed fixes its scarce materials)."""
+        return ScarceRegime(regime=self.regime, seed=self.seed, draw=self.draw)
 
     def __post_init__(self) -> None:
         for name in ("n_pairs", "n_corpus", "steps", "batch", "workers", "threads"):
@@ -57,6 +65,7 @@ class TrainConfig:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
         if not self.lr > 0:
             raise ConfigError(f"lr={self.lr} must be > 0")
+        self.scarcity  # noqa: B018 (checks regime and draw)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -93,7 +102,8 @@ def training_data(tc: TrainConfig, vsize, tsize, progress: bool = True) -> dict:
     """The rendered training data, cached on disk (`$RATOUCH_CACHE/train-data-*.npz`) so that
     later stages (retriever, generator) and re-runs reuse it instead of re-rendering."""
 
-    tag = f"s{tc.seed}-p{tc.n_pairs}-c{tc.n_corpus}-v{vsize[0]}x{vsize[1]}-t{tsize[0]}x{tsize[1]}"
+    tag = (f"s{tc.seed}-p{tc.n_pairs}-c{tc.n_corpus}-v{vsize[0]}x{vsize[1]}-t{tsize[0]}x{tsize[1]}"
+           f"-{tc.scarcity.tag}")
     path = cache_dir() / f"train-data-{tag}.npz"
     if path.is_file():
         with np.load(path, allow_pickle=False) as z:
@@ -114,8 +124,8 @@ def render_training_data(tc: TrainConfig, vsize, tsize, progress: bool = True) -
 
     wcfg = WorldConfig(seed=tc.seed)
     world_for(wcfg).warm()
-    pair_jobs = [(wcfg, list(range(k, min(tc.n_pairs, k + 250))), vsize, tsize)
-                 for k in range(0, tc.n_pairs, 250)]
+    pairs = tc.scarcity.train_indices(tc.n_pairs)
+    pair_jobs = [(wcfg, pairs[k:k + 250], vsize, tsize) for k in range(0, len(pairs), 250)]
     ids = stratified_world_ids(tc.n_corpus, tc.seed)
     corpus_jobs = [(wcfg, ids[k:k + 250], vsize) for k in range(0, len(ids), 250)]
     crops, tacs, labels, mats, cimgs, crecs = [], [], [], [], [], []
@@ -202,7 +212,8 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
     torch.set_num_threads(tc.threads)
     t0 = time.perf_counter()
     model = create_model(tc.model, pretrained=None)
-    key = (model.cfg.vision_size, model.cfg.tactile_size, tc.n_pairs, tc.n_corpus, tc.seed)
+    key = (model.cfg.vision_size, model.cfg.tactile_size, tc.n_pairs, tc.n_corpus, tc.seed,
+           tc.scarcity.tag)
     cache = {} if cache is None else cache
     if key not in cache:
         cache[key] = training_data(tc, model.cfg.vision_size, model.cfg.tactile_size, progress)
@@ -251,7 +262,8 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
     model.eval()
     report = {
         "model": tc.model, "steps": tc.steps, "batch": tc.batch, "seed": tc.seed,
-        "n_pairs": n_pairs, "n_corpus": n_corpus, "data_seconds": round(t_data, 1),
+        "n_pairs": n_pairs, "n_corpus": n_corpus, "regime": tc.scarcity.tag,
+        "scarce_materials": list(tc.scarcity.scarce_materials()), "data_seconds": round(t_data, 1),
         "train_seconds": round(time.perf_counter() - t0 - t_data, 1),
         "final": history[-1], "antonyms_before": before, "antonyms_after": antonym_report(model),
     }

@@ -1,5 +1,10 @@
 """Training of the generators: the TVL-LLaMA-style baseline and RA-Touch, compared like with like.
 
+Stage 0, the language prior, plays the part of LLaMA-2 and its adapter pre-training in the
+paper: the prompt projection and the decoder learn to verbalise text embeddings of the corpus
+(class names, appearance descriptions and their tactile captions, each to its tactile caption),
+with no paired touch data. Both systems start from it.
+
 Stage 1 trains the visual prompt p = Linear(V + T) and the small decoder from scratch on the
 paired train split (the real path starts from a pre-trained LLaMA instead). Stage 2 starts both
 systems from stage 1 and trains LoRA on the decoder for the same number of steps: RA-Touch also
@@ -35,8 +40,9 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class GeneratorTrainConfig:
-    stage1_steps: int = 1500
-    stage2_steps: int = 800
+    stage0_steps: int = 600
+    stage1_steps: int = 800
+    stage2_steps: int = 600
     batch: int = 64
     lr: float = 1e-3
     lora_lr: float = 1e-3
@@ -44,10 +50,10 @@ class GeneratorTrainConfig:
     seed: int = 0
     hidden: int = 256
     layers: int = 4
-    threads: int = 1  # a small decoder trains as fast on one thread, and shares the machine
+    threads: int = 2
 
     def __post_init__(self) -> None:
-        for name in ("stage1_steps", "stage2_steps", "batch", "k", "hidden", "layers"):
+        for name in ("stage0_steps", "stage1_steps", "stage2_steps", "batch", "k", "hidden", "layers"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
 
@@ -126,22 +132,50 @@ def train_stage2(stage1, integrator, V, T, labels: list[str], rv, rl,
     return gen, history
 
 
-def train_stage1(V, T, labels: list[str], dim: int, tc: GeneratorTrainConfig):
-    """Stage 1 (TVL-LLaMA): the prompt projection p = Linear(V + T) and the small decoder,
-    from scratch. Returns (generator without LoRA, loss history)."""
+def train_stage0(L, texts: list[str], dim: int, tc: GeneratorTrainConfig):
+    """Stage 0, the language prior: the prompt projection and a fresh small decoder learn to
+    verbalise text embeddings. Each input L_i (a text embedding of a corpus caption, class name
+    or description) stands in for both V and T, so p = Linear(2 L_i); the target is the tactile
+    caption it belongs to. No paired touch data.
 
+    Args:
+        L: (N, D) float tensor of text embeddings.
+        texts: the N target captions.
+
+    Returns:
+        (generator without LoRA, loss history)
+    """
     torch.manual_seed(tc.seed)
     decoder = build_small_decoder(DecoderConfig(hidden=tc.hidden, layers=tc.layers),
                                   list(TVL_ADJECTIVES) + list(EXTRA_TACTILE), seed=tc.seed)
-    stage1 = RATouchGenerator(BaselinePrompt(PromptConfig(dim=dim, out_dim=decoder.hidden)),
-                              decoder)
+    prior = RATouchGenerator(BaselinePrompt(PromptConfig(dim=dim, out_dim=decoder.hidden)),
+                             decoder)
+    history = _steps(prior, trainable_parameters(prior, "baseline"), L, L, texts, None, None,
+                     tc.stage0_steps, tc.batch, tc.lr, tc.seed + 7, "stage0")
+    return prior, history
+
+
+def train_stage1(V, T, labels: list[str], dim: int, tc: GeneratorTrainConfig, prior=None):
+    """Stage 1 (TVL-LLaMA): the prompt projection p = Linear(V + T) and the small decoder,
+    from the stage-0 language prior when given (it is not changed), else from scratch.
+    Returns (generator without LoRA, loss history)."""
+
+    torch.manual_seed(tc.seed)
+    if prior is not None:
+        stage1 = copy.deepcopy(prior)
+    else:
+        decoder = build_small_decoder(DecoderConfig(hidden=tc.hidden, layers=tc.layers),
+                                      list(TVL_ADJECTIVES) + list(EXTRA_TACTILE), seed=tc.seed)
+        stage1 = RATouchGenerator(BaselinePrompt(PromptConfig(dim=dim, out_dim=decoder.hidden)),
+                                  decoder)
     history = _steps(stage1, trainable_parameters(stage1, "baseline"), V, T, labels, None, None,
                      tc.stage1_steps, tc.batch, tc.lr, tc.seed, "stage1")
     return stage1, history
 
 
 def train_generators(emb: dict[str, np.ndarray], labels: list[str], Rv: np.ndarray,
-                     Rl: np.ndarray, dim: int, tc: GeneratorTrainConfig, integrator_cfg=None):
+                     Rl: np.ndarray, dim: int, tc: GeneratorTrainConfig, integrator_cfg=None,
+                     prior=None):
     """Train the baseline and RA-Touch generators.
 
     Args:
@@ -151,6 +185,8 @@ def train_generators(emb: dict[str, np.ndarray], labels: list[str], Rv: np.ndarr
         dim: D.
         tc: training config.
         integrator_cfg: `IntegratorConfig` (default: both modalities, out_dim = hidden).
+        prior: the stage-0 generator both systems start from (`train_stage0`), or None
+            (stage 1 from scratch).
 
     Returns:
         (baseline generator, RA-Touch generator, report)
@@ -162,7 +198,7 @@ def train_generators(emb: dict[str, np.ndarray], labels: list[str], Rv: np.ndarr
     T = torch.from_numpy(np.asarray(emb["T"], np.float32))
     rv = torch.from_numpy(np.asarray(Rv, np.float32))
     rl = torch.from_numpy(np.asarray(Rl, np.float32))
-    stage1, history = train_stage1(V, T, labels, dim, tc)
+    stage1, history = train_stage1(V, T, labels, dim, tc, prior)
     t1 = time.perf_counter()
     base, h = train_stage2(stage1, None, V, T, labels, None, None, tc, "baseline-lora")
     history += h
@@ -171,6 +207,7 @@ def train_generators(emb: dict[str, np.ndarray], labels: list[str], Rv: np.ndarr
                          "ra-touch-lora")
     history += h
     report = {"train": asdict(tc), "n_pairs": len(V), "integrator": asdict(icfg),
+              "language_prior": prior is not None,
               "stage1_seconds": round(t1 - t0, 1),
               "stage2_seconds": round(time.perf_counter() - t1, 1), "history": history}
     return base, ra, report

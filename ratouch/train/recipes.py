@@ -9,8 +9,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import torch
+
 from ratouch.encoders.factory import create_model
-from ratouch.model.generator import save_generator
+from ratouch.model.generator import load_generator, save_generator
 from ratouch.model.loss import RetrieverLossConfig
 from ratouch.model.retriever import RetrieverConfig
 from ratouch.paths import cache_dir, generator_weights, retriever_weights
@@ -20,6 +23,7 @@ from ratouch.train.generator import (
     GeneratorTrainConfig,
     evaluate_generators,
     train_generators,
+    train_stage0,
 )
 from ratouch.train.retriever import (
     RetrieverTrainConfig,
@@ -40,11 +44,39 @@ def training_pairs(encoders, seed: int = 0, progress: bool = False) -> dict:
             "materials": list(data["materials"])}
 
 
-def _pairs(encoder: str, seed: int, progress: bool):
+def _pairs(encoder: str, seed: int, progress: bool, draw: int = 0):
     model = create_model(encoder)
-    tc = TrainConfig(model=encoder, seed=seed)
+    tc = TrainConfig(model=encoder, seed=seed, draw=draw)
     data = training_data(tc, model.cfg.vision_size, model.cfg.tactile_size, progress)
     return model, data, paired_embeddings(model, data)
+
+
+def prior_data(retrieval: RATouchPipeline) -> tuple[np.ndarray, list[str]]:
+    """Stage 0's data, from the retrieval corpus alone: text embeddings of each entry's tactile
+    caption, its class name and its appearance description, each paired with the caption."""
+    captions = [e.caption for e in retrieval.corpus.entries]
+    L = np.concatenate([retrieval.corpus_embeddings(kind) for kind in
+                        ("tactile_caption", "class_name", "visual_description")])
+    return L.astype(np.float32), captions * 3
+
+
+def language_prior(encoder: str = "default-s", seed: int = 0, progress: bool = True,
+                   retrieval: RATouchPipeline | None = None, **train_overrides):
+    """The stage-0 generator shipped beside the two systems (`assets/generator/ENC/prior`),
+    trained and saved there when missing. Returns (generator, report)."""
+    folder = generator_weights(encoder, "prior")
+    if (folder / "manifest.json").is_file():
+        return load_generator(folder), {"prior": str(folder), "trained": False}
+    t0 = time.perf_counter()
+    retrieval = retrieval or RATouchPipeline.load(encoder, progress=progress, generators=False)
+    L, texts = prior_data(retrieval)
+    tc = GeneratorTrainConfig(seed=seed, **train_overrides)
+    torch.set_num_threads(tc.threads)
+    prior, history = train_stage0(torch.from_numpy(L), texts, retrieval.encoders.dim, tc)
+    report = {"n_texts": len(texts), "stage0_steps": tc.stage0_steps,
+              "seconds": round(time.perf_counter() - t0, 1), "history": history}
+    save_generator(folder, prior, {"encoder": encoder, **report}, half=True)
+    return load_generator(folder), {"prior": str(folder), "trained": True, **report}
 
 
 def retriever_recipe(encoder: str = "default-s", seed: int = 0, strategy: str = "full",
@@ -61,23 +93,35 @@ def retriever_recipe(encoder: str = "default-s", seed: int = 0, strategy: str = 
 
 
 def generator_recipe(encoder: str = "default-s", seed: int = 0, progress: bool = True,
+                     draw: int = 0, world_seed: int | None = None, out=None,
                      **train_overrides) -> dict:
-    """Train the baseline and RA-Touch generators, save both, evaluate on the test split."""
+    """Train the baseline and RA-Touch generators from the language prior, save both (default:
+    assets/, else `out`/baseline and `out`/ra), evaluate on the test split.
+
+    Args:
+        seed: the training seed (and the world's, unless `world_seed` is given).
+        draw: which few pairs of the scarce materials the paired split keeps
+            (`ratouch.world.scarcity`); the encoders and the retriever are not retrained.
+    """
 
     t0 = time.perf_counter()
-    model, data, emb = _pairs(encoder, seed, progress)
+    world_seed = seed if world_seed is None else world_seed
+    model, data, emb = _pairs(encoder, world_seed, progress, draw)
     retrieval = RATouchPipeline.load(encoder, progress=progress, generators=False)
+    prior, prior_report = language_prior(encoder, world_seed, progress, retrieval)
     tc = GeneratorTrainConfig(seed=seed, **train_overrides)
     rv, rl = retrieval.neighbour_embeddings(retrieval.joint_neighbours(emb["V"], emb["T"], tc.k))
-    base, ra, report = train_generators(emb, list(data["labels"]), rv, rl, model.dim, tc)
+    base, ra, report = train_generators(emb, list(data["labels"]), rv, rl, model.dim, tc,
+                                        prior=prior)
+    report.update(draw=draw, world_seed=world_seed, prior=prior_report)
     test = encode_test_split(model)
     trv, trl = retrieval.neighbour_embeddings(retrieval.joint_neighbours(test.V, test.T, tc.k))
     report["test"] = evaluate_generators(base, ra, test.V, test.T, trv, trl, test.labels)
     report["seconds"] = round(time.perf_counter() - t0, 1)
     # shipped weights are stored as float16 (identical test F1 measured; assets stay < 40 MB)
-    save_generator(generator_weights(encoder, "baseline"), base, {"encoder": encoder, **report},
-                   half=True)
-    save_generator(generator_weights(encoder, "ra"), ra, {"encoder": encoder, **report}, half=True)
+    for kind, gen in (("baseline", base), ("ra", ra)):
+        folder = Path(out) / kind if out is not None else generator_weights(encoder, kind)
+        save_generator(folder, gen, {"encoder": encoder, **report}, half=True)
     return report
 
 
