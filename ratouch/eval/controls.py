@@ -103,12 +103,14 @@ def _answers(pipeline, split: TestSplit, k: int, shuffles: int, seed: int
 
 
 def run_controls(pipeline, k: int = 5, shuffles: int = 3, judge=None, seed: int = 0,
-                 split: TestSplit | None = None) -> dict:
-    """Judge every control on the test split (see the module docstring).
+                 split: TestSplit | None = None, keep_scores: bool = False) -> dict:
+    """Judge every control on the test split, or on `split` (see the module docstring).
 
     Returns:
-        {"k", "n", "systems": {name: score_stats + "scores"?}, "paired": {name: {"diff",
-        "ci_low", "ci_high"}}, "shuffle": {"changed_share", "drop", "ci_low", "ci_high"}}
+        {"k", "n", "systems": {name: score_stats}, "paired_vs_baseline": {name: {"diff",
+        "ci_low", "ci_high"}}, "shuffle": {"changed_share", "diff", "ci_low", "ci_high"},
+        "zeroed", "reading"}, and with `keep_scores` "scores": {answer set: (N,) judge scores}
+        (the shuffles as "shuffled_0", ...)
     """
     if shuffles < 1:
         raise ConfigError(f"shuffles={shuffles} must be >= 1")
@@ -132,11 +134,14 @@ def run_controls(pipeline, k: int = 5, shuffles: int = 3, judge=None, seed: int 
                ("material_oracle", scores["material_oracle"]))}
     changed = np.mean([[a != b for a, b in zip(answers["ra_touch"], answers[f"shuffled_{s}"])]
                        for s in range(shuffles)])
-    return {"k": k, "n": len(split.labels), "shuffles": shuffles, "judge": judge.name,
-            "systems": systems, "paired_vs_baseline": paired,
-            "shuffle": {"changed_share": round(float(changed), 4), **_diff(ra - shuffled, seed)},
-            "zeroed": _diff(ra - scores["integrator_zeroed"], seed),
-            "reading": reading_diagnostics(pipeline, split, ids)}
+    out = {"k": k, "n": len(split.labels), "shuffles": shuffles, "judge": judge.name,
+           "systems": systems, "paired_vs_baseline": paired,
+           "shuffle": {"changed_share": round(float(changed), 4), **_diff(ra - shuffled, seed)},
+           "zeroed": _diff(ra - scores["integrator_zeroed"], seed),
+           "reading": reading_diagnostics(pipeline, split, ids)}
+    if keep_scores:
+        out["scores"] = scores
+    return out
 
 
 def reading_diagnostics(pipeline, split: TestSplit, ids: np.ndarray) -> dict:

@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ratouch.errors import ConfigError
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import SUBSET_DIRS, world_for
 from ratouch.world.generator import TEST_SIZE
@@ -50,13 +51,16 @@ class TestSplit:
 
 
 def encode_test_split(encoders, world: WorldConfig | None = None,
-                      indices: Sequence[int] | None = None) -> TestSplit:
-    """Render and encode the test split (all 402 pairs unless `indices` are given)."""
+                      indices: Sequence[int] | None = None, split: str = "test") -> TestSplit:
+    """Render and encode the test split (all 402 pairs unless `indices` are given), or the
+    given `indices` of another held-out split (e.g. "probe")."""
 
     world = world or WorldConfig()
     gen = world_for(world)
+    if indices is None and split != "test":
+        raise ConfigError(f"split {split!r} needs explicit indices")
     idx = list(range(TEST_SIZE)) if indices is None else [int(i) for i in indices]
-    samples = [gen.sample("test", i) for i in idx]
+    samples = [gen.sample(split, i) for i in idx]
     crops = [s.crop for s in samples]
     return TestSplit(
         V=encoders.encode_image(crops), T=encoders.encode_tactile([s.tactile for s in samples]),
