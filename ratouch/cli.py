@@ -62,6 +62,11 @@ def _add_world(sub) -> None:
                    help="number of pairs (train default 20000; test is always 402)")
     b.add_argument("--seed", type=_nonneg_int, default=0)
     b.add_argument("--workers", type=_pos_int, default=2)
+    b.add_argument("--regime", choices=("scarce", "full"), default="scarce",
+                   help="train split: the scarce-touch regime's pairs (14 materials keep 8 "
+                        "pairs each; see docs/premise.md) or every pair")
+    b.add_argument("--draw", type=_nonneg_int, default=0,
+                   help="which few pairs of the scarce materials are kept")
     _add_stress(b)
 
     p = wsub.add_parser("preview", help="a contact sheet PNG a person can look at")
@@ -412,7 +417,11 @@ def _run_world(args: argparse.Namespace) -> int:
     cfg = _world_cfg(args) if args.world_cmd != "probe" else None
     if args.world_cmd == "build":
 
-        counts = write_split(cfg, args.out, args.split, args.n, workers=args.workers)
+        from ratouch.world.scarcity import ScarceRegime
+
+        regime = ScarceRegime(regime=args.regime, seed=args.seed, draw=args.draw)
+        counts = write_split(cfg, args.out, args.split, args.n, workers=args.workers,
+                             regime=regime)
         print(json.dumps({"out": str(args.out), "split": args.split, **counts}))
     elif args.world_cmd == "preview":
 

@@ -232,3 +232,35 @@ def test_hf_generator_references_the_base_by_path(tmp_path, tiny_llama):
     assert config["decoder"]["path"] == str(llama)
     loaded = load_generator(tmp_path / "g", lambda c: FakeIntegrator(FakeIntegratorConfig(**c)))
     assert loaded.describe(V, T, Rv, Rl, clean=False) == ref
+
+
+def test_neighbour_token_arm_appends_one_token_per_neighbour_and_round_trips(tmp_path):
+    from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
+    from ratouch.serve.pipeline import integrator_factory
+
+    gen = make_gen(integrator=False, n_prefix=1)
+    gen.integrator = NeighbourTokens(NeighbourTokensConfig(dim=D, out_dim=DP, dropout=0.5))
+    V, T, Rv, Rl = batch()
+    p = gen.prefix(V, T)
+    with torch.no_grad():
+        pt = gen.prefix(V, T, Rv, Rl)
+    assert pt.shape == (3, 1 + K, DP)
+    assert torch.equal(pt[:, :1], p) and not pt[:, 1:].any()  # zero-initialised: adds nothing yet
+    with torch.no_grad():
+        gen.integrator.proj.weight.normal_()
+    gen.train()
+    torch.manual_seed(0)
+    dropped = gen.prefix(V, T, Rv, Rl)[:, 1:]
+    assert (dropped.abs().sum(-1) == 0).any()  # neighbour dropout zeroes whole tokens
+    gen.eval()
+    kept = gen.prefix(V, T, Rv, Rl)[:, 1:]
+    assert (kept.abs().sum(-1) > 0).all()  # and never in eval
+    # the answer depends on which neighbours it reads
+    assert not torch.equal(gen.prefix(V, T, Rv, Rl), gen.prefix(V, T, Rv, Rl.flip(0)))
+    save_generator(tmp_path / "g", gen)
+    back = load_generator(tmp_path / "g", integrator_factory)
+    assert isinstance(back.integrator, NeighbourTokens)
+    assert torch.allclose(back.prefix(V, T, Rv, Rl), gen.prefix(V, T, Rv, Rl))
+    assert back.describe(V, T, Rv, Rl) == gen.describe(V, T, Rv, Rl)
+    with pytest.raises(ConfigError):
+        NeighbourTokensConfig(dropout=1.0)

@@ -38,6 +38,8 @@ def test_scarce_regime_keeps_few_pairs_of_its_scarce_materials():
     kept = lambda ix: {i for i, m in zip(ix, _materials("train", ix)) if m in scarce}  # noqa: E731
     assert kept(idx) != kept(other)  # a draw picks which few pairs survive
     assert ScarceRegime(regime="full").train_indices(7) == list(range(7))
+    for n in (1, 2, 5):
+        assert len(set(ScarceRegime().train_indices(n))) == n
     assert ScarceRegime(regime="full").scarce_materials() == ()
 
 
@@ -109,7 +111,7 @@ def test_verdict_follows_the_preregistered_criteria(scarce, verdict):
 @pytest.mark.slow
 def test_premise_runs_end_to_end_on_the_shipped_weights(real_pipeline):
     lines = []
-    r = run_premise(runs=1, n=12, pipeline=real_pipeline, report=lines.append)
+    r = run_premise(runs=1, n=12, pipeline=real_pipeline, report=lines.append, arm=False)
     assert r["verdict"] in ("supported", "refuted", "inconclusive")
     for g in ("seen", "scarce"):
         s = r["groups"][g]

@@ -23,8 +23,9 @@ import numpy as np
 from scipy import stats
 
 from ratouch.errors import ConfigError
-from ratouch.eval.controls import run_controls
-from ratouch.eval.judge import OfflineJudge
+from ratouch.eval.controls import derangement, run_controls
+from ratouch.eval.judge import OfflineJudge, judge_results
+from ratouch.eval.tvl import describe, records_for
 from ratouch.model.generator import load_generator
 from ratouch.paths import cache_dir
 from ratouch.serve.pipeline import RATouchPipeline, integrator_factory
@@ -82,13 +83,43 @@ def run_generators(encoder: str, run: int, progress: bool = False):
     return ra, base
 
 
+def token_arm(encoder: str, run: int, progress: bool = False):
+    """The run's neighbour-token arm (second arm), trained into the cache on first use from the
+    run's stage-1 model with RA-Touch's stage-2 budget; LoRA merged."""
+    from ratouch.paths import generator_weights
+    from ratouch.train.recipes import token_arm_recipe
+
+    root = run_folder(encoder, run)
+    ra = generator_weights(encoder, "ra") if run == 0 else root / "ra"
+    if not (root / "tokens" / "manifest.json").is_file():
+        log.info("premise run %d: training the neighbour-token arm into %s", run, root)
+        token_arm_recipe(encoder, ra, seed=run, draw=run, world_seed=0, out=root / "tokens",
+                         progress=progress)
+    gen = load_generator(root / "tokens", integrator_factory)
+    gen.decoder.merge_lora()
+    return gen
+
+
+def _arm_scores(p: RATouchPipeline, gen, split: TestSplit, k: int, judge, seed: int
+                ) -> dict[str, np.ndarray]:
+    """Judge scores of the neighbour-token arm with its own and with shuffled neighbours."""
+    ids = p.joint_neighbours(split.V, split.T, k)
+    out = {}
+    for name, nb in (("tokens", ids), ("tokens_shuffled", ids[derangement(len(ids), seed)])):
+        answers = describe(gen, split.V, split.T, *p.neighbour_embeddings(nb))
+        rows, _ = judge_results(records_for(split, answers, name), judge)
+        out[name] = np.array([r[judge.key] for r in rows], float)
+    return out
+
+
 def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int = 5,
                 progress: bool = False, report: Callable[[str], None] = log.info,
-                pipeline: RATouchPipeline | None = None) -> dict:
+                pipeline: RATouchPipeline | None = None, arm: bool = True) -> dict:
     """Baseline against RA-Touch on seen and scarce materials, over `runs` runs, with controls.
 
     `pipeline`: the loaded retrieval side to use (default: `RATouchPipeline.load(encoder)`, on
-    the default 10k corpus).
+    the default 10k corpus). `arm`: also train (on first use) and judge the neighbour-token
+    arm, the second arm that bounds what retrieval can deliver (`neighbour_tokens` per group).
 
     Returns:
         {"config", "scarce_materials", "groups": {group: {"baseline", "ra_touch", "gain",
@@ -107,10 +138,13 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
     per_run: dict[str, list[dict]] = {g: [] for g in GROUPS}
     for run in range(runs):
         ra, base = run_generators(encoder, run, progress)
+        tokens = token_arm(encoder, run, progress) if arm else None
         p = RATouchPipeline(pipe.retriever, pipe.tgr, ra, base, pca=pipe.pca, trust=pipe.trust)
         for g in GROUPS:
             r = run_controls(p, k=k, shuffles=1, judge=judge, seed=run, split=splits[g],
                              keep_scores=True)
+            if tokens is not None:
+                r["scores"].update(_arm_scores(p, tokens, splits[g], k, judge, seed=run))
             per_run[g].append(r)
             report(f"run {run} {g}: baseline {r['systems']['baseline']['mean']:.3f}, RA-Touch "
                    f"{r['systems']['ra_touch']['mean']:.3f}, shuffle drop "
@@ -144,6 +178,16 @@ def _aggregate(results: list[dict], seed: int) -> dict:
     p = float(stats.ttest_1samp(all_drops, 0.0).pvalue) if all_drops.std() > 0 else 1.0
     names = ("baseline", "ra_touch", "neighbours_shuffled", "integrator_zeroed",
              "copy_captions", "copy_perfect_retrieval", "material_oracle")
+    arm = None
+    if "tokens" in results[0]["scores"]:
+        arm_gains = [r["scores"]["tokens"] - r["scores"]["baseline"] for r in results]
+        arm_drops = [r["scores"]["tokens"] - r["scores"]["tokens_shuffled"] for r in results]
+        d = np.concatenate(arm_drops)
+        arm = {"score": round(float(np.mean([r["scores"]["tokens"].mean() for r in results])), 4),
+               "gain": round(float(np.mean([a.mean() for a in arm_gains])), 4),
+               "ci95": [round(x, 4) for x in pooled_ci(arm_gains, seed)],
+               "shuffle_drop": round(float(np.mean([a.mean() for a in arm_drops])), 4),
+               "shuffle_p": float(stats.ttest_1samp(d, 0.0).pvalue) if d.std() > 0 else 1.0}
     return {
         "n": results[0]["n"], "baseline": mean_of("baseline"), "ra_touch": mean_of("ra_touch"),
         "gain": round(float(run_gain.mean()), 4), "ci95": [round(lo, 4), round(hi, 4)],
@@ -159,6 +203,7 @@ def _aggregate(results: list[dict], seed: int) -> dict:
         "material_oracle": mean_of("material_oracle"),
         "f1": {s: mean_of(s, "f1") for s in names},
         "length": {s: mean_of(s, "mean_length") for s in names},
+        "neighbour_tokens": arm,
         "reading": [r["reading"] for r in results],
         "runs": [{"baseline": round(r["systems"]["baseline"]["mean"], 4),
                   "ra_touch": round(r["systems"]["ra_touch"]["mean"], 4),
@@ -224,6 +269,11 @@ def format_premise(r: dict) -> str:
             f"{s['integrator_zeroed']:>8.3f}{s['copy_captions']:>8.3f}{s['copy_ceiling']:>10.3f}"
             f"{s['material_oracle']:>8.3f}  {s['f1']['baseline']:.3f}/{s['f1']['ra_touch']:.3f}"
             f"  {s['length']['baseline']:.1f}/{s['length']['ra_touch']:.1f}")
+        a = s.get("neighbour_tokens")
+        if a:
+            lines.append(f"  second arm (neighbour tokens, not the paper's method): {a['score']:.3f}, "
+                         f"gain {a['gain']:+.3f} [{a['ci95'][0]:+.3f}, {a['ci95'][1]:+.3f}], "
+                         f"shuffle drop {a['shuffle_drop']:+.3f} (p={a['shuffle_p']:.1g})")
         for i, run in enumerate(s["runs"]):
             gd = run["gain"]
             lines.append(f"  run {i}: baseline {run['baseline']:.3f}, RA-Touch "

@@ -120,7 +120,8 @@ class RATouchGenerator(nn.Module):
 
     def prefix(self, V: Tensor, T: Tensor, Rv: Tensor | None = None,
                Rl: Tensor | None = None) -> Tensor:
-        """The decoder's prefix: p, or p' = p + delta when an integrator and neighbours are given.
+        """The decoder's prefix: p, or p' = p + delta when an integrator and neighbours are given
+        (or [p, neighbour tokens] for an integrator with ``as_tokens``, the second arm).
 
         Without an integrator the neighbours are ignored (the baseline), so both systems can be
         fed the same batch.
@@ -142,7 +143,12 @@ class RATouchGenerator(nn.Module):
         if Rv.dim() != 3 or Rv.shape != Rl.shape or Rv.shape[0] != V.shape[0]:
             raise ConfigError(f"Rv and Rl must both have shape (B={V.shape[0]}, K, D), got "
                               f"{tuple(Rv.shape)} and {tuple(Rl.shape)}")
-        delta = self.integrator(T, Rv, Rl)                            # (B, D')
+        delta = self.integrator(T, Rv, Rl)                            # (B, D') or (B, K, D')
+        if getattr(self.integrator, "as_tokens", False):  # the neighbour-token arm
+            if delta.dim() != 3 or delta.shape[0] != p.shape[0] or delta.shape[2] != p.shape[2]:
+                raise ConfigError(f"neighbour tokens must have shape (B, K, D') = "
+                                  f"({p.shape[0]}, K, {p.shape[2]}), got {tuple(delta.shape)}")
+            return torch.cat([p, delta.to(p.dtype)], dim=1)           # (B, n_prefix + K, D')
         if tuple(delta.shape) != (p.shape[0], p.shape[2]):
             raise ConfigError(f"the integrator must return (B, D') = "
                               f"{(p.shape[0], p.shape[2])}, got {tuple(delta.shape)}")

@@ -43,6 +43,8 @@ from ratouch.errors import ConfigError, DataError, RATouchError
 from ratouch.model.fastpath import StackCache
 from ratouch.model.generator import describe_together, load_generator
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
+from ratouch.model.neighbour_tokens import KIND as NEIGHBOUR_TOKENS
+from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
 from ratouch.model.retriever import RetrieverConfig, TactileGuidedRetriever
 from ratouch.paths import (
     cache_dir,
@@ -103,7 +105,9 @@ def open_retriever(corpus: str | os.PathLike, encoder: str = "default-s",
 # the query pipeline
 
 def integrator_factory(cfg: dict):
-    """Rebuild a saved Texture-Aware Integrator from its config."""
+    """Rebuild a saved Texture-Aware Integrator (or the neighbour-token arm) from its config."""
+    if cfg.get("kind") == NEIGHBOUR_TOKENS:
+        return NeighbourTokens(NeighbourTokensConfig(**cfg))
     return TextureAwareIntegrator(IntegratorConfig(**cfg))
 
 

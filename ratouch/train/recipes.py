@@ -15,6 +15,7 @@ import torch
 from ratouch.encoders.factory import create_model
 from ratouch.model.generator import load_generator, save_generator
 from ratouch.model.loss import RetrieverLossConfig
+from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
 from ratouch.model.retriever import RetrieverConfig
 from ratouch.paths import cache_dir, generator_weights, retriever_weights
 from ratouch.serve.pipeline import RATouchPipeline, load_tgr
@@ -24,6 +25,7 @@ from ratouch.train.generator import (
     evaluate_generators,
     train_generators,
     train_stage0,
+    train_stage2,
 )
 from ratouch.train.retriever import (
     RetrieverTrainConfig,
@@ -123,6 +125,29 @@ def generator_recipe(encoder: str = "default-s", seed: int = 0, progress: bool =
         folder = Path(out) / kind if out is not None else generator_weights(encoder, kind)
         save_generator(folder, gen, {"encoder": encoder, **report}, half=True)
     return report
+
+
+def token_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
+                     world_seed: int = 0, out=None, progress: bool = False, **train_overrides):
+    """The neighbour-token arm (`ratouch.model.neighbour_tokens`), trained with RA-Touch's
+    stage-2 budget from the stage-1 model inside `stage1_from` (a RA-Touch checkpoint folder)
+    on the same paired data; saved to `out`. Returns (generator, report)."""
+    t0 = time.perf_counter()
+    model, data, emb = _pairs(encoder, world_seed, progress, draw)
+    retrieval = RATouchPipeline.load(encoder, progress=progress, generators=False)
+    tc = GeneratorTrainConfig(seed=seed, **train_overrides)
+    torch.set_num_threads(tc.threads)
+    rv, rl = retrieval.neighbour_embeddings(retrieval.joint_neighbours(emb["V"], emb["T"], tc.k))
+    stage1 = load_generator(stage1_from, stage1=True)
+    gen, history = train_stage2(
+        stage1, NeighbourTokens(NeighbourTokensConfig(dim=model.dim, out_dim=stage1.decoder.hidden)),
+        torch.from_numpy(emb["V"]), torch.from_numpy(emb["T"]), list(data["labels"]),
+        torch.from_numpy(rv), torch.from_numpy(rl), tc, "neighbour-tokens-lora")
+    report = {"arm": "neighbour_tokens", "seed": seed, "draw": draw, "stage1_from": str(stage1_from),
+              "seconds": round(time.perf_counter() - t0, 1), "history": history}
+    if out is not None:
+        save_generator(out, gen, {"encoder": encoder, **report}, half=True)
+    return gen, report
 
 
 def align_retriever_folder(encoder: str, epochs: int, seed: int = 0) -> Path:

@@ -19,7 +19,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Sequence
 
 import numpy as np
 from PIL import Image
@@ -92,11 +92,6 @@ def _fork_context():
     return mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
 
 
-def _chunks(n: int, size: int) -> Iterator[list[int]]:
-    for start in range(0, n, size):
-        yield list(range(start, min(n, start + size)))
-
-
 def check_writable(out: Path) -> None:
     """Fail early, with the folder named, if `out` cannot be created or written."""
     probe_dir = out
@@ -109,7 +104,7 @@ def check_writable(out: Path) -> None:
 
 
 def write_split(cfg: WorldConfig, out: str | os.PathLike, split: str, n: int | None = None,
-                workers: int = 2, progress: bool = True) -> dict[str, int]:
+                workers: int = 2, progress: bool = True, regime=None) -> dict[str, int]:
     """Generate a split of the world and write it in the TVL layout under `out`.
 
     Everything is first written to a temporary folder inside `out` and moved into place only
@@ -122,6 +117,8 @@ def write_split(cfg: WorldConfig, out: str | os.PathLike, split: str, n: int | N
         n: number of samples; the test split always has 402 (46 structured + 356 wild).
         workers: processes rendering in parallel.
         progress: show a progress bar.
+        regime: for the train split, the `ratouch.world.scarcity.ScarceRegime` whose pairs
+            are written (file names keep the world's sample index); None writes samples 0..n-1.
 
     Returns:
         Number of samples written per subset.
@@ -147,7 +144,9 @@ def write_split(cfg: WorldConfig, out: str | os.PathLike, split: str, n: int | N
     except OSError as e:
         raise ConfigError(f"cannot write to output folder {out}: {e.strerror}") from e
     try:
-        counts = _write_into(cfg, tmp, split, n, workers, progress)
+        indices = regime.train_indices(n) if regime is not None and split == "train" \
+            else list(range(n))
+        counts = _write_into(cfg, tmp, split, indices, workers, progress)
         _move_into(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -158,14 +157,15 @@ def write_split(cfg: WorldConfig, out: str | os.PathLike, split: str, n: int | N
     return counts
 
 
-def _write_into(cfg: WorldConfig, root: Path, split: str, n: int, workers: int,
+def _write_into(cfg: WorldConfig, root: Path, split: str, indices: list[int], workers: int,
                 progress: bool) -> dict[str, int]:
     world = world_for(cfg).warm()  # forked workers inherit the texture tiles
     for sub in SUBSET_DIRS.values():
         for folder in ("vision", "tactile", "backgrounds"):
             (root / sub / folder).mkdir(parents=True, exist_ok=True)
+    n = len(indices)
     chunk = max(16, min(256, n // (4 * workers) + 1))
-    jobs = [(cfg, split, idx, str(root)) for idx in _chunks(n, chunk)]
+    jobs = [(cfg, split, indices[k:k + chunk], str(root)) for k in range(0, n, chunk)]
     results: list[tuple[str, dict]] = []
     bar = tqdm(total=n, desc=f"world {split}", unit="pair", disable=not progress)
     if workers == 1:

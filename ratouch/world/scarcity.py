@@ -104,7 +104,8 @@ def _train_indices(regime: ScarceRegime, n_pairs: int) -> tuple[int, ...]:
             kept.append(i)
         i += 1
     # the scarce pairs come from the same stretch of indices as the head's
-    tail = [idx for c in candidates.values() for _, idx in sorted(c)[:regime.tail_pairs]]
+    tail = sorted(idx for c in candidates.values() for _, idx in sorted(c)[:regime.tail_pairs])
+    tail = tail[:n_pairs]
     out = sorted(kept[:n_pairs - len(tail)] + tail)
     return tuple(out)
 
