@@ -15,7 +15,7 @@ import pickle
 import re
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import torch
 from safetensors import SafetensorError
@@ -67,17 +67,42 @@ def save_checkpoint(folder: str | os.PathLike, state: dict[str, torch.Tensor], c
     return folder
 
 
-def read_checkpoint(folder: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict, dict]:
-    """Verify and read a checkpoint folder: (state, config, manifest)."""
+def read_manifest(folder: str | os.PathLike) -> dict:
+    """A checkpoint folder's manifest (checksums and metadata), without reading the weights."""
     folder = Path(folder)
     if not (folder / MANIFEST).is_file():
         raise DataNotFoundError(f"no checkpoint in {folder} ({MANIFEST} missing)")
     try:
         manifest = json.loads((folder / MANIFEST).read_text())
-        files = manifest["files"]
+        if not isinstance(manifest["files"], dict):
+            raise TypeError(f"'files' is a {type(manifest['files']).__name__}, not a mapping")
     except (json.JSONDecodeError, KeyError, TypeError) as e:
         raise DataError(f"checkpoint {folder}: {MANIFEST} is unreadable: {e}") from e
-    for name, digest in files.items():
+    return manifest
+
+
+def checkpoint_fingerprint(folder: str | os.PathLike) -> str:
+    """What identifies a checkpoint's weights: the sha256 of its weights file as its manifest
+    records it (read, not recomputed, so this is cheap; `read_checkpoint` verifies it)."""
+    digest = read_manifest(folder)["files"].get(WEIGHTS)
+    if not isinstance(digest, str):
+        raise DataError(f"checkpoint {folder}: {MANIFEST} records no sha256 of {WEIGHTS}")
+    return digest
+
+
+def files_fingerprint(paths: Sequence[str | os.PathLike]) -> str:
+    """What identifies weights made elsewhere (TVL, OpenCLIP): a sha256 over each file's
+    name, size and sha256, in order (the folder they sit in does not count)."""
+    files = [Path(p).expanduser() for p in paths]
+    parts = [[f.name, f.stat().st_size, sha256_file(f)] for f in files]
+    return hashlib.sha256(json.dumps(parts).encode()).hexdigest()
+
+
+def read_checkpoint(folder: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict, dict]:
+    """Verify and read a checkpoint folder: (state, config, manifest)."""
+    folder = Path(folder)
+    manifest = read_manifest(folder)
+    for name, digest in manifest["files"].items():
         path = folder / name
         if not path.is_file():
             raise DataNotFoundError(f"checkpoint {folder}: {name} is missing")

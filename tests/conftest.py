@@ -58,6 +58,25 @@ def debug_encoders():
 
 
 @pytest.fixture(scope="session")
+def debug_checkpoints(tmp_path_factory):
+    """Two checkpoint folders of the `debug` encoders with different random weights: the
+    encoder before and after a retraining."""
+    import torch
+
+    from ratouch.checkpoint import save_checkpoint
+    from ratouch.encoders.factory import create_model, model_config
+
+    root = tmp_path_factory.mktemp("debug-weights")
+    folders = []
+    for seed in (1, 2):
+        torch.manual_seed(seed)
+        model = create_model("debug", pretrained=None)
+        folders.append(save_checkpoint(root / f"seed{seed}", model.state_dict(),
+                                       model_config("debug")))
+    return folders
+
+
+@pytest.fixture(scope="session")
 def small_corpus(tmp_path_factory, debug_encoders):
     """A 240-entry world corpus embedded with the debug encoders."""
     from ratouch.corpus.imagenet_t import build_corpus

@@ -108,3 +108,44 @@ def test_training_reduces_the_loss(tmp_path):
     meta = json.loads((tmp_path / "dbg" / "manifest.json").read_text())["meta"]
     first, last = meta["history"][0], meta["history"][-1]
     assert last["tactile_text"] < first["tactile_text"]
+
+
+def test_weights_fingerprints_identify_the_loaded_weights(debug_checkpoints, monkeypatch):
+    """What corpus embeddings record to tell which weights made them."""
+    from ratouch.encoders import factory
+
+    assert create_model("debug", pretrained=None).weights_fingerprint is None  # random init
+    a, b = (create_model("debug", pretrained=f).weights_fingerprint for f in debug_checkpoints)
+    assert a == json.loads((debug_checkpoints[0] / "manifest.json").read_text()
+                           )["files"]["model.safetensors"]
+    assert a != b
+    monkeypatch.setattr(factory, "shipped_weights", lambda name: debug_checkpoints[1])
+    assert factory.shipped_fingerprint("debug") == create_model("debug").weights_fingerprint == b
+    with pytest.raises(ConfigError, match="no shipped weights"):
+        factory.shipped_fingerprint("tvl-vittiny")
+
+
+def test_tvl_weights_fingerprint_follows_the_files_not_their_folder(tmp_path, monkeypatch):
+    """The TVL set's fingerprint comes from its checkpoint files (their loading is
+    test_tvl_encoders.py's business: a registered TVL config is a real ViT-L-14, so the loader
+    is stubbed here)."""
+    import shutil
+
+    from ratouch.encoders import factory
+
+    class Loaded:
+        weights_fingerprint = None
+
+    monkeypatch.setattr(factory, "load_tvl", lambda clip, tactile, cfg: Loaded())
+    one = tmp_path / "one"
+    one.mkdir()
+    (one / "open_clip_model.safetensors").write_bytes(b"clip weights")
+    (one / "tvl_enc_vittiny.pth").write_bytes(b"tactile weights")
+    shutil.copytree(one, tmp_path / "moved")
+    first = create_model("tvl-vittiny", pretrained=one).weights_fingerprint
+    assert len(first) == 64
+    assert create_model("tvl-vittiny", pretrained={
+        "clip": tmp_path / "moved" / "open_clip_model.safetensors",
+        "tactile": tmp_path / "moved" / "tvl_enc_vittiny.pth"}).weights_fingerprint == first
+    (one / "tvl_enc_vittiny.pth").write_bytes(b"tactile weights, retrained")
+    assert create_model("tvl-vittiny", pretrained=one).weights_fingerprint != first

@@ -13,6 +13,8 @@ from ratouch.eval.experiments import (BASELINE, RA_TOUCH, ExperimentConfig, Lab,
                                       make_integrator, results_markdown, run_experiments)
 from ratouch.search.index import exact_topk
 
+from conftest import HAVE_ASSETS
+
 
 def test_exact_topk_matches_a_full_sort():
     rng = np.random.default_rng(0)
@@ -129,3 +131,51 @@ def test_score_charts_show_paired_differences_with_cis():
     overall = fig.data[2]
     assert overall.y[0] == pytest.approx(mean) and overall.error_y.array[0] == pytest.approx(
         hi - mean)
+
+
+def test_source_sha256_follows_the_source_of_modules_and_packages(tmp_path, monkeypatch):
+    import sys
+
+    from ratouch.eval.experiments import source_sha256
+
+    pkg = tmp_path / "fakepkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "loop.py").write_text("STEPS = 1\n")
+    (tmp_path / "fakemod.py").write_text("LR = 0.1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for name in ("fakepkg", "fakemod"):
+        monkeypatch.delitem(sys.modules, name, raising=False)
+    before = source_sha256(("fakepkg", "fakemod"))
+    assert source_sha256(("fakepkg", "fakemod")) == before
+    (pkg / "loop.py").write_text("STEPS = 2\n")  # a module of the package, never imported
+    after_pkg = source_sha256(("fakepkg", "fakemod"))
+    (tmp_path / "fakemod.py").write_text("LR = 0.2\n")
+    assert len({before, after_pkg, source_sha256(("fakepkg", "fakemod"))}) == 3
+    assert len(source_sha256()) == 64  # the real training code is found
+
+
+@pytest.mark.skipif(not HAVE_ASSETS, reason="the shipped generator/retriever are not in assets/")
+def test_a_change_to_the_training_code_retrains_instead_of_reusing(tmp_path, monkeypatch):
+    """Results cached before the code that trains a variant changed are not reused."""
+    from types import SimpleNamespace
+
+    from ratouch.eval import experiments
+
+    monkeypatch.setenv("RATOUCH_CACHE", str(tmp_path))
+    stub = SimpleNamespace(corpus=SimpleNamespace(manifest={"metadata_sha256": "c"}),
+                           encoders=SimpleNamespace(weights_fingerprint="w"))
+
+    def lab_with_code(code: str) -> Lab:
+        monkeypatch.setattr(experiments, "source_sha256", lambda: code)
+        lab = Lab(ExperimentConfig())
+        lab.__dict__["pipeline"] = stub
+        assert lab.code_sha256 == code  # read once per lab
+        return lab
+
+    old = lab_with_code("code before")
+    old._save(RA_TOUCH, {"responses": ["soft"], "train_seconds": 1.0})
+    assert lab_with_code("code before")._load(RA_TOUCH)["responses"] == ["soft"]
+    new = lab_with_code("code after")
+    assert new._key(RA_TOUCH) != old._key(RA_TOUCH)
+    assert new._load(RA_TOUCH) is None  # evaluate() trains it again

@@ -145,3 +145,36 @@ def test_cli_query_drop_and_neighbours_from(tmp_path, shipped_corpus, world, cap
     code, out = query(world.sample("test", 40), "b", "--neighbours-from",
                       str(tmp_path / "junk.json"))
     assert code == 2 and "neighbours-from" in out.err
+
+
+def test_cached_default_corpus_is_embedded_again_after_retraining(tmp_path, monkeypatch,
+                                                                  debug_checkpoints, caplog):
+    """The shipped encoder is retrained: the user's cached corpus is re-embedded (not served
+    with the old weights' embeddings), and so is one embedded before weights were recorded."""
+    from ratouch.encoders import factory
+    from ratouch.serve import pipeline as pl
+
+    monkeypatch.setenv("RATOUCH_CACHE", str(tmp_path))
+    shipped = {"folder": debug_checkpoints[0]}
+    monkeypatch.setattr(factory, "shipped_weights", lambda name: shipped["folder"])
+    folder = pl.default_corpus("debug", size="20", progress=False)
+    manifest = folder / "embeddings" / "debug" / "manifest.json"
+    first = json.loads(manifest.read_text())
+    assert first["encoder_weights"] == factory.shipped_fingerprint("debug")
+
+    shipped["folder"] = debug_checkpoints[1]  # retrained
+    with caplog.at_level("INFO", logger="ratouch.serve.pipeline"):
+        assert pl.default_corpus("debug", size="20", progress=False) == folder
+    assert "re-embedding the default corpus" in caplog.text
+    second = json.loads(manifest.read_text())
+    assert second["encoder_weights"] == factory.shipped_fingerprint("debug")
+    assert second["image_sha256"] != first["image_sha256"]
+    pl.open_retriever(folder, "debug")  # embeddings and index agree with the new weights
+
+    embed_and_index = pl.embed_and_index
+    monkeypatch.setattr(pl, "embed_and_index", lambda *a, **k: pytest.fail("re-embedded"))
+    pl.default_corpus("debug", size="20", progress=False)  # up to date: kept
+    monkeypatch.setattr(pl, "embed_and_index", embed_and_index)
+    manifest.write_text(json.dumps({k: v for k, v in second.items() if k != "encoder_weights"}))
+    pl.default_corpus("debug", size="20", progress=False)  # made before weights were recorded
+    assert json.loads(manifest.read_text())["encoder_weights"] == second["encoder_weights"]

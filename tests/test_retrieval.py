@@ -107,3 +107,95 @@ def test_joint_query_beats_the_image_query_on_look_alike_materials(real_pipeline
           for s in ("image_text", "tactile_text", "joint_text")}
     assert p5["joint_text"] > p5["image_text"] + 0.1
     assert p5["image_text"] > r["chance"]["5"]["material_precision"]
+
+
+# ------------------------------------------------------------------ the encoder's weights
+
+@pytest.fixture
+def tiny_corpus(tmp_path):
+    from ratouch.corpus.imagenet_t import build_corpus
+
+    folder = tmp_path / "tiny"
+    build_corpus(folder, 20, seed=0, progress=False)
+    return folder
+
+
+def test_embeddings_made_with_other_weights_are_refused(tiny_corpus, debug_checkpoints):
+    """A user corpus embedded before the encoder was retrained gives wrong neighbours: every
+    way of opening it with the new weights says so instead."""
+    from ratouch.encoders.factory import create_model
+    from ratouch.serve.pipeline import open_retriever
+
+    old, new = (create_model("debug", pretrained=f) for f in debug_checkpoints)
+    assert old.weights_fingerprint != new.weights_fingerprint
+    manifest = embed_corpus(tiny_corpus, old, batch=10, workers=1, progress=False)
+    assert manifest["encoder_weights"] == old.weights_fingerprint
+    open_retriever(tiny_corpus, "debug", pretrained=debug_checkpoints[0])  # the same weights
+    with pytest.raises(DataError, match="other debug weights") as err:
+        open_retriever(tiny_corpus, "debug", pretrained=debug_checkpoints[1])
+    assert "embed the corpus again" in str(err.value)
+    with pytest.raises(DataError, match="other debug weights"):
+        embed_corpus(tiny_corpus, new, batch=10, workers=1, progress=False)
+    with pytest.raises(DataError, match="other debug weights"):
+        load_embeddings(tiny_corpus, "debug", 384, weights=new.weights_fingerprint)
+    with pytest.raises(DataError, match="other debug weights"):
+        CorpusIndex(tiny_corpus, "debug", 384, weights=new.weights_fingerprint)
+
+
+def test_embeddings_without_recorded_weights_load_with_a_warning(tiny_corpus, debug_checkpoints,
+                                                                  caplog):
+    import json
+
+    from ratouch.encoders.factory import create_model
+
+    enc = create_model("debug", pretrained=debug_checkpoints[0])
+    embed_corpus(tiny_corpus, enc, batch=10, workers=1, progress=False)
+    path = tiny_corpus / "embeddings" / "debug" / "manifest.json"
+    legacy = json.loads(path.read_text())
+    del legacy["encoder_weights"]  # as written before the weights were recorded
+    path.write_text(json.dumps(legacy))
+    with caplog.at_level("WARNING", logger="ratouch.corpus.embed"):
+        search = CorpusSearch(enc, CorpusIndex(tiny_corpus, "debug", 384))
+    assert len(search.corpus) == 20
+    assert "do not record which encoder weights" in caplog.text
+
+
+def test_an_index_of_older_embeddings_is_refused(tiny_corpus, debug_checkpoints):
+    import shutil
+
+    from ratouch.encoders.factory import create_model
+
+    old, new = (create_model("debug", pretrained=f) for f in debug_checkpoints)
+    embed_corpus(tiny_corpus, old, batch=10, workers=1, progress=False)
+    CorpusIndex(tiny_corpus, "debug", 384)
+    shutil.rmtree(tiny_corpus / "embeddings")  # embedded again, the index left behind
+    embed_corpus(tiny_corpus, new, batch=10, workers=1, progress=False)
+    with pytest.raises(DataError, match="embedded again since"):
+        CorpusIndex(tiny_corpus, "debug", 384)
+
+
+def test_a_partial_run_with_other_weights_starts_again(tiny_corpus, debug_checkpoints,
+                                                       monkeypatch):
+    import shutil
+
+    from ratouch.corpus import embed as emb
+    from ratouch.encoders.factory import create_model
+
+    old, new = (create_model("debug", pretrained=f) for f in debug_checkpoints)
+    reference = tiny_corpus.parent / "reference"
+    shutil.copytree(tiny_corpus, reference)
+    embed_corpus(reference, new, batch=10, workers=1, progress=False)
+    real = emb.corpus_images
+
+    def interrupted(entries, start, batch, workers, progress):
+        yield next(real(entries, start, batch, workers, progress))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(emb, "corpus_images", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        embed_corpus(tiny_corpus, old, batch=10, workers=1, progress=False)
+    monkeypatch.setattr(emb, "corpus_images", real)
+    embed_corpus(tiny_corpus, new, batch=10, workers=1, progress=False)  # not resumed
+    got = load_embeddings(tiny_corpus, "debug", weights=new.weights_fingerprint)[0]
+    want = load_embeddings(reference, "debug")[0]
+    assert np.allclose(got, want, atol=1e-5)

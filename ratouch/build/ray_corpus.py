@@ -474,9 +474,11 @@ def _stream_shards(ds, store: ShardStore, todo: list[int], clock: StageClock) ->
         raise DataError(f"the Ray pipeline ended with shards {missing[:5]} incomplete")
 
 
-def assemble(out: Path, store: ShardStore, manifest: dict, encoder: str, dim: int) -> dict:
+def assemble(out: Path, store: ShardStore, manifest: dict, encoder: str, dim: int,
+             weights: str | None) -> dict:
     """Concatenate finished shards into the standard corpus and embeddings layout (each part
-    written atomically, the manifests last; parts already there are kept). Returns the corpus
+    written atomically, the manifests last; parts already there are kept). `weights` is the
+    encoder's `weights_fingerprint`, recorded in the embeddings manifest. Returns the corpus
     manifest."""
     if not (out / MANIFEST).is_file():
         entries = []
@@ -500,7 +502,7 @@ def assemble(out: Path, store: ShardStore, manifest: dict, encoder: str, dim: in
     for m in mm.values():
         m.flush()
     del mm
-    emb_manifest = {"encoder": encoder, "dim": dim, "count": store.n,
+    emb_manifest = {"encoder": encoder, "encoder_weights": weights, "dim": dim, "count": store.n,
                     "corpus_sha256": corpus_manifest["metadata_sha256"],
                     "image_sha256": sha256_file(tmp["image"]),
                     "text_sha256": sha256_file(tmp["text"])}
@@ -514,6 +516,7 @@ def build_ondisk_indexes(out: Path, store: ShardStore, encoder: str, kind: str,
                          corpus_sha256: str, workers: int) -> None:
     """IVF indexes of the image and text embeddings built from the shards (memory-mapped,
     one at a time) into one on-disk index each, where `CorpusIndex` finds them."""
+    emb_manifest = json.loads((embeddings_dir(out, encoder) / EMBED_MANIFEST).read_text())
     for key in ("image", "text"):
         folder = index_folder(out, encoder, key, kind)
         if (folder / "manifest.json").is_file():
@@ -523,7 +526,9 @@ def build_ondisk_indexes(out: Path, store: ShardStore, encoder: str, kind: str,
                   for s in range(store.n_shards)]
         VectorIndex.build_ondisk(shards, folder, IndexConfig(kind=kind),
                                  meta={"encoder": encoder, "key": key,
-                                       "corpus_sha256": corpus_sha256}, workers=workers)
+                                       "corpus_sha256": corpus_sha256,
+                                       "embeddings_sha256": emb_manifest[f"{key}_sha256"]},
+                                 workers=workers)
 
 
 def build_corpus_ray(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
@@ -558,7 +563,11 @@ def build_corpus_ray(out: str | os.PathLike, size: int | str = "10k", seed: int 
         raise ConfigError(f"{out} already holds a corpus; choose another folder")
     t0 = time.perf_counter()
     table = plan_table(n, seed, image_list)
-    build = {"size": len(table), "seed": seed, "encoder": encoder,
+    model = create_model(encoder)
+    dim, weights = model.dim, model.weights_fingerprint
+    del model
+    # the weights too: shards embedded before the encoder was retrained must not be mixed in
+    build = {"size": len(table), "seed": seed, "encoder": encoder, "encoder_weights": weights,
              "source": "world" if image_list is None else str(image_list),
              "captioner": recaption.backend, "endpoint": recaption.endpoint,
              "model": recaption.model if recaption.backend == "llm" else None}
@@ -567,7 +576,6 @@ def build_corpus_ray(out: str | os.PathLike, size: int | str = "10k", seed: int 
     if store.done():
         log.info("resuming: %d of %d shards already finished", len(store.done()), store.n_shards)
     clock = StageClock()
-    dim = create_model(encoder).dim
     if todo:
         started = connect(opts)
         try:
@@ -588,13 +596,13 @@ def build_corpus_ray(out: str | os.PathLike, size: int | str = "10k", seed: int 
                     "source": build["source"], "captioner": recaption.backend,
                     "captioner_stats": store.manifest.get("captioner_stats", {}),
                     "engine": "ray", "build_seconds": round(time.perf_counter() - t0, 2)}
-    manifest = assemble(out, store, entries_meta, encoder, dim)
+    manifest = assemble(out, store, entries_meta, encoder, dim, weights)
     clock.add("assemble", time.perf_counter() - ta, store.n)
     ti = time.perf_counter()
     if index in ONDISK_KINDS:
         build_ondisk_indexes(out, store, encoder, index, manifest["metadata_sha256"],
                              opts.workers)
-    CorpusIndex(out, encoder, dim, IndexConfig(kind=index))
+    CorpusIndex(out, encoder, dim, IndexConfig(kind=index), weights=weights)
     clock.add("index", time.perf_counter() - ti, store.n)
     shutil.rmtree(store.partial, ignore_errors=True)
     wall = time.perf_counter() - t0

@@ -2,7 +2,9 @@
 
 Outputs live in `<corpus>/embeddings/<encoder>/`: `image.npy` and `text.npy` (float32, (N, D),
 memory-mapped while written), `progress.json` (entries done; an interrupted run resumes there)
-and, when complete, `manifest.json` (encoder id, dimension, count, checksums).
+and, when complete, `manifest.json` (encoder id, the encoder's `weights_fingerprint` as
+`encoder_weights`, dimension, count, checksums). Embeddings made with other weights of an
+encoder (it was retrained) are refused, not used: their neighbours would be silently wrong.
 """
 
 from __future__ import annotations
@@ -82,8 +84,9 @@ def embed_corpus(corpus: str | os.PathLike, encoders, batch: int = 500, workers:
     manifest, entries = load_corpus(corpus)
     out = embeddings_dir(corpus, encoders.name)
     done_manifest = out / EMBED_MANIFEST
+    weights = encoders.weights_fingerprint
     if done_manifest.is_file():
-        return load_embeddings(corpus, encoders.name, encoders.dim)[2]
+        return load_embeddings(corpus, encoders.name, encoders.dim, weights=weights)[2]
     out.mkdir(parents=True, exist_ok=True)
     n, d = len(entries), encoders.dim
     state_path = out / "progress.json"
@@ -91,6 +94,11 @@ def embed_corpus(corpus: str | os.PathLike, encoders, batch: int = 500, workers:
     if state and (state.get("count") != n or state.get("dim") != d
                   or state.get("corpus_sha256") != manifest["metadata_sha256"]):
         raise DataError(f"{out} holds a partial run for another corpus or encoder; delete it")
+    if state and state.get("encoder_weights") != weights:
+        # the same corpus and encoder, other weights: what was done is of no use
+        log.info("%s holds a partial run made with other %s weights: starting again", out,
+                 encoders.name)
+        state = {}
     start = int(state.get("done", 0))
     mode = "r+" if start > 0 else "w+"
     img = np.lib.format.open_memmap(out / "image.npy", mode=mode, dtype=np.float32, shape=(n, d))
@@ -105,12 +113,13 @@ def embed_corpus(corpus: str | os.PathLike, encoders, batch: int = 500, workers:
         pos += m
         img.flush()
         txt.flush()
-        state = {"done": pos, "count": n, "dim": d, "corpus_sha256": manifest["metadata_sha256"]}
+        state = {"done": pos, "count": n, "dim": d, "corpus_sha256": manifest["metadata_sha256"],
+                 "encoder_weights": weights}
         tmp = state_path.with_suffix(".tmp")
         tmp.write_text(json.dumps(state))
         os.replace(tmp, state_path)
     del img, txt
-    emb_manifest = {"encoder": encoders.name, "dim": d, "count": n,
+    emb_manifest = {"encoder": encoders.name, "encoder_weights": weights, "dim": d, "count": n,
                     "corpus_sha256": manifest["metadata_sha256"],
                     "image_sha256": sha256_file(out / "image.npy"),
                     "text_sha256": sha256_file(out / "text.npy")}
@@ -122,8 +131,21 @@ def embed_corpus(corpus: str | os.PathLike, encoders, batch: int = 500, workers:
 
 
 def load_embeddings(corpus: str | os.PathLike, encoder_name: str, dim: int | None = None,
-                    verify: bool = True) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Memory-map a corpus's finished embeddings, refusing mismatched or corrupt ones."""
+                    verify: bool = True, weights: str | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Memory-map a corpus's finished embeddings, refusing mismatched or corrupt ones.
+
+    Args:
+        corpus: corpus folder.
+        encoder_name: the encoder set's name.
+        dim: the encoder's dimension, checked when given.
+        verify: check the arrays' checksums (reads them whole).
+        weights: the encoder's `weights_fingerprint`, checked when given (see
+            `check_encoder_weights`).
+
+    Returns:
+        (image, text, manifest): the (N, D) arrays, memory-mapped, and the manifest.
+    """
     out = embeddings_dir(corpus, encoder_name)
     mpath = out / EMBED_MANIFEST
     if not mpath.is_file():
@@ -136,6 +158,7 @@ def load_embeddings(corpus: str | os.PathLike, encoder_name: str, dim: int | Non
     if dim is not None and manifest["dim"] != dim:
         raise DataError(f"embeddings in {out} have dimension {manifest['dim']}, the encoder "
                         f"gives {dim}")
+    check_encoder_weights(manifest, weights, corpus)
     if verify:
         for key in ("image", "text"):
             if sha256_file(out / f"{key}.npy") != manifest[f"{key}_sha256"]:
@@ -146,3 +169,31 @@ def load_embeddings(corpus: str | os.PathLike, encoder_name: str, dim: int | Non
         raise DataError(f"embeddings in {out} have shapes {img.shape} / {txt.shape}, the "
                         f"manifest says ({manifest['count']}, {manifest['dim']})")
     return img, txt, manifest
+
+
+def check_encoder_weights(manifest: dict, weights: str | None,
+                          corpus: str | os.PathLike) -> None:
+    """Refuse embeddings made with other weights of their encoder than `weights`.
+
+    Embeddings that do not say which weights made them (written before ratouch recorded it,
+    or by randomly initialised encoders) are used with a logged warning; `weights=None`
+    (the caller's encoder has unidentified weights) checks nothing.
+
+    Raises:
+        DataError: the embeddings record other weights (the encoder was retrained or
+            replaced since the corpus was embedded).
+    """
+    recorded = manifest.get("encoder_weights")
+    if weights is None or recorded == weights:
+        return
+    name = manifest["encoder"]
+    redo = (f"delete {embeddings_dir(corpus, name)} and {Path(corpus) / 'index' / name} and "
+            f"embed the corpus again (ratouch.serve.pipeline.embed_and_index)")
+    if recorded is None:
+        log.warning("the %s embeddings of %s do not record which encoder weights made them; "
+                    "if %s was retrained since, they are stale: %s", name, corpus, name, redo)
+        return
+    raise DataError(f"the {name} embeddings of {corpus} were made with other {name} weights "
+                    f"(sha256 {recorded[:12]}...; the encoder's are {weights[:12]}...): the "
+                    f"encoder was retrained or replaced since, and its neighbours would be "
+                    f"wrong; {redo}")

@@ -118,6 +118,9 @@ class DefaultEncoders(nn.Module):
     """
 
     backend = "default"
+    #: What identifies the loaded weights (`create_model` sets it; None: random init). Corpus
+    #: embeddings record it, so that embeddings made with other weights are not used.
+    weights_fingerprint: str | None = None
 
     def __init__(self, cfg: DefaultConfig, text_encoder: MiniLM | None = None):
         super().__init__()

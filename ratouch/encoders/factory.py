@@ -14,7 +14,12 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Mapping
 
-from ratouch.checkpoint import load_into, read_checkpoint
+from ratouch.checkpoint import (
+    checkpoint_fingerprint,
+    files_fingerprint,
+    load_into,
+    read_checkpoint,
+)
 from ratouch.encoders.default import DefaultConfig, DefaultEncoders
 from ratouch.encoders.tvl import TVLConfig, load_tvl
 from ratouch.errors import ConfigError, DataNotFoundError
@@ -67,7 +72,8 @@ def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | di
             `open_clip_model.safetensors`/`.bin`/`.pt` and `tvl_enc_vit*.pth`.
 
     Returns:
-        An object with encode_image / encode_tactile / encode_text, `name` and `dim`.
+        An object with encode_image / encode_tactile / encode_text, `name`, `dim` and
+        `weights_fingerprint` (what identifies the loaded weights; None for random init).
     """
     cfg = model_config(name)
     if cfg["backend"] == "default":
@@ -83,12 +89,30 @@ def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | di
             raise ConfigError(f"checkpoint {folder} is for encoder {saved_cfg.get('name')!r}, "
                               f"not {name!r}")
         load_into(model, state, str(folder))
+        model.weights_fingerprint = checkpoint_fingerprint(folder)
         return model.eval()
-    return _create_tvl(cfg, pretrained)
+    clip, tactile = _tvl_files(cfg, pretrained)
+    model = load_tvl(str(clip), str(tactile),
+                     TVLConfig(clip_arch=cfg["clip_arch"], tactile_arch=cfg["tactile_arch"],
+                               dim=cfg["dim"]))
+    model.weights_fingerprint = files_fingerprint([clip, tactile])
+    return model
 
 
-def _create_tvl(cfg: dict, pretrained):
+def shipped_fingerprint(name: str) -> str:
+    """What identifies the shipped weights of a default-backend encoder (as
+    `create_model(name).weights_fingerprint`, without loading them)."""
+    if model_config(name)["backend"] != "default":
+        raise ConfigError(f"encoder {name!r} has no shipped weights (it needs local TVL weights)")
+    folder = shipped_weights(name)
+    if not folder.exists():
+        raise DataNotFoundError(f"no weights for encoder {name!r} at {folder}; train them "
+                                f"with `ratouch train encoders --model {name}`")
+    return checkpoint_fingerprint(folder)
 
+
+def _tvl_files(cfg: dict, pretrained) -> tuple:
+    """The (clip, tactile) checkpoint paths a TVL `pretrained` argument names."""
     if pretrained in (None, "shipped"):
         raise ConfigError(f"encoder {cfg['name']!r} needs local TVL weights: pass "
                           f"pretrained={{'clip': PATH, 'tactile': PATH}} or a folder")
@@ -106,6 +130,4 @@ def _create_tvl(cfg: dict, pretrained):
         clip, tactile = clips[0], tactiles[0]
     if not clip or not tactile:
         raise ConfigError("TVL weights need both 'clip' and 'tactile' paths")
-    return load_tvl(str(clip), str(tactile),
-                    TVLConfig(clip_arch=cfg["clip_arch"], tactile_arch=cfg["tactile_arch"],
-                              dim=cfg["dim"]))
+    return clip, tactile

@@ -177,9 +177,12 @@ class TVLEncoders(nn.Module):
         tactile: The timm tactile ViT.
         image_size: Side length of the CLIP input images.
         tactile_size: Side length of the tactile input images.
+        weights_fingerprint: What identifies the loaded checkpoint files (set by
+            ``create_model``; None where unknown).
     """
 
     backend = "tvl"
+    weights_fingerprint: str | None = None
 
     def __init__(self, clip_model: nn.Module, tactile_model: nn.Module,
                  tokenizer: Callable[[list[str]], torch.Tensor], cfg: TVLConfig) -> None:

@@ -8,13 +8,15 @@ checkpoint's prompt projection and decoder base, i.e. the TVL-LLaMA stage) and g
 stage-2 budget (`ExperimentConfig.steps` LoRA steps, the same batches): the baseline trains LoRA
 alone, the RA-Touch variants train LoRA plus an integrator over the neighbours their retrieval
 setting finds. So rows differ only by what the experiment varies. Variant results are cached on
-disk (`cache_dir()/experiments/`), keyed by everything they depend on, so that `run_all` reuses
-what a single experiment command computed.
+disk (`cache_dir()/experiments/`), keyed by everything they depend on (settings, weights, corpus
+and the source of the code that trains them), so that `run_all` reuses what a single experiment
+command computed.
 """
 
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
 import logging
 import multiprocessing as mp
@@ -57,6 +59,23 @@ CAPTION_TYPES = ("class_name", "visual_description", "tactile_caption")
 QUERY_KEY = (("image", "image"), ("image", "text"), ("tactile", "image"), ("tactile", "text"),
              ("joint", "text"))
 INTEGRATIONS = ("image", "text", "both")
+
+#: The code that trains a variant (a package stands for all its modules): its source is part of
+#: the cache keys, so that a change to it trains again instead of reusing stale results.
+TRAINING_CODE = ("ratouch.train", "ratouch.model", "ratouch.world.scarcity")
+
+
+def source_sha256(modules: Sequence[str] = TRAINING_CODE) -> str:
+    """sha256 over the source files of modules, found through their `__file__` (a package:
+    every `.py` file beside its `__init__.py`), each with its module-relative name."""
+    h = hashlib.sha256()
+    for name in modules:
+        path = Path(importlib.import_module(name).__file__)
+        files = sorted(path.parent.glob("*.py")) if path.name == "__init__.py" else [path]
+        for f in files:
+            h.update(f"{name}:{f.name}\n".encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()
 
 
 @dataclass(frozen=True)
@@ -175,6 +194,11 @@ class Lab:
 
         return OfflineJudge()
 
+    @cached_property
+    def code_sha256(self) -> str:
+        """The training code's `source_sha256`, read once per lab."""
+        return source_sha256()
+
     def subset_ids(self, size: int) -> np.ndarray:
         """A class-stratified subset of the corpus: each class's first entries, round robin."""
         entries = self.pipeline.corpus.entries
@@ -216,7 +240,9 @@ class Lab:
         tc = GeneratorTrainConfig(seed=self.cfg.seed, threads=2,
                                   stage1_steps=self.cfg.stage1_steps)
         key = hashlib.sha256(json.dumps([self.cfg.encoder, n, asdict(tc),
-                                         self.withheld_materials(n)]).encode()).hexdigest()[:16]
+                                         self.withheld_materials(n), self.code_sha256,
+                                         self.pipeline.encoders.weights_fingerprint]
+                                        ).encode()).hexdigest()[:16]
         folder = cache_dir() / "experiments" / f"stage1-withheld{n}-{key}"
         if not (folder / "manifest.json").is_file():
             import torch
@@ -301,6 +327,8 @@ class Lab:
                  "assets": [sha256_file(generator_weights(self.cfg.encoder, "ra")
                                         / "manifest.json"),
                             sha256_file(retriever_weights(self.cfg.encoder) / "manifest.json")],
+                 "encoder_weights": self.pipeline.encoders.weights_fingerprint,
+                 "code": self.code_sha256,
                  "corpus": self.pipeline.corpus.manifest.get("metadata_sha256"), "version": 1}
         return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()[:20]
 

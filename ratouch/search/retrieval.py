@@ -16,7 +16,7 @@ from typing import Sequence
 import numpy as np
 from PIL import Image
 
-from ratouch.corpus.embed import load_embeddings
+from ratouch.corpus.embed import check_encoder_weights, load_embeddings
 from ratouch.corpus.imagenet_t import CorpusEntry, load_corpus, parse_world_source
 from ratouch.errors import ConfigError, DataError
 from ratouch.search.index import IndexConfig, VectorIndex
@@ -57,16 +57,19 @@ class CorpusIndex:
     """A corpus with its embeddings and one index per key modality (image, text).
 
     Indexes are built on first use and saved under `<corpus>/index/<encoder>/`; later loads
-    check them against the embeddings' encoder and dimension and refuse a mismatch.
+    check them against the embeddings' encoder, dimension and checksum and refuse a mismatch.
+    `weights` (the encoder's `weights_fingerprint`) refuses embeddings made with other weights
+    of the encoder (see `check_encoder_weights`); `CorpusSearch` checks its encoders' too.
     """
 
     def __init__(self, corpus: str | os.PathLike, encoder_name: str, dim: int,
-                 index_cfg: IndexConfig | None = None):
+                 index_cfg: IndexConfig | None = None, weights: str | None = None):
         self.folder = Path(corpus)
         self.manifest, self.entries = load_corpus(self.folder)
-        img, txt, emb_manifest = load_embeddings(self.folder, encoder_name, dim)
+        img, txt, emb_manifest = load_embeddings(self.folder, encoder_name, dim, weights=weights)
         if emb_manifest["corpus_sha256"] != self.manifest["metadata_sha256"]:
             raise DataError(f"embeddings of {corpus} were made for another version of it")
+        self.embeddings_manifest = emb_manifest
         self.encoder_name, self.dim = encoder_name, dim
         self.cfg = index_cfg or IndexConfig()
         self.indexes = {key: self._index(key, emb) for key, emb in (("image", img), ("text", txt))}
@@ -78,10 +81,16 @@ class CorpusIndex:
                                            expected_encoder=self.encoder_name)
             if meta.get("corpus_sha256") != self.manifest["metadata_sha256"]:
                 raise DataError(f"index {folder} was built for another version of the corpus")
+            built_from = meta.get("embeddings_sha256")  # absent in indexes of older versions
+            if built_from is not None and built_from != self.embeddings_manifest[f"{key}_sha256"]:
+                raise DataError(f"index {folder} was built from other {self.encoder_name} "
+                                f"embeddings of the corpus (it was embedded again since); "
+                                f"delete {folder} and it is built again")
             return index
         index = VectorIndex.build(np.asarray(emb), self.cfg)
         index.save(folder, {"encoder": self.encoder_name, "key": key,
-                            "corpus_sha256": self.manifest["metadata_sha256"]})
+                            "corpus_sha256": self.manifest["metadata_sha256"],
+                            "embeddings_sha256": self.embeddings_manifest[f"{key}_sha256"]})
         return index
 
     def __len__(self) -> int:
@@ -117,6 +126,8 @@ class CorpusSearch:
             raise DataError(f"corpus was embedded with {corpus_index.encoder_name!r} "
                             f"(dimension {corpus_index.dim}); the encoder is {encoders.name!r} "
                             f"(dimension {encoders.dim})")
+        check_encoder_weights(corpus_index.embeddings_manifest,
+                              getattr(encoders, "weights_fingerprint", None), corpus_index.folder)
         self.encoders = encoders
         self.corpus = corpus_index
 

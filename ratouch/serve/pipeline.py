@@ -11,6 +11,7 @@ text embeddings (Table 4's x->text settings).
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import shutil
@@ -31,7 +32,7 @@ from ratouch.corpus.embed import (
     load_embeddings,
 )
 from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
-from ratouch.encoders.factory import create_model
+from ratouch.encoders.factory import create_model, shipped_fingerprint
 from ratouch.encoders.preprocess import (
     QUERY_MAX_SIDE,
     crop_box,
@@ -67,7 +68,7 @@ def embed_and_index(corpus: str | os.PathLike, encoder: str = "default-s",
                     index: str = "flat", workers: int = 2, progress: bool = True) -> dict:
     """Embed a built corpus with an encoder and build (or check) its indexes."""
     model = create_model(encoder)
-    emb = embed_corpus(corpus, model, workers=workers, progress=progress)
+    emb = embed_corpus(corpus, model, workers=workers, progress=progress)  # checks the weights
     CorpusIndex(corpus, model.name, model.dim, IndexConfig(kind=index))
     return {"encoder": model.name, "dim": model.dim, "index": index, "embedded": emb["count"]}
 
@@ -75,14 +76,32 @@ def embed_and_index(corpus: str | os.PathLike, encoder: str = "default-s",
 def default_corpus(encoder: str = "default-s", size: str = "10k", seed: int = 0,
                    progress: bool = True) -> Path:
     """The world's ImageNet-T corpus of `size`, built, embedded and indexed on first use and
-    cached (a later call finds it ready)."""
+    cached (a later call finds it ready). Embeddings made with other weights of the encoder
+    than the shipped ones (it was retrained since), or that do not say which, are made again."""
     folder = cache_dir() / f"imagenet-t-{size}-seed{seed}"
     if not (folder / MANIFEST).is_file():
         log.info("building the default corpus in %s (first use)", folder)
         build_corpus(folder, size, seed=seed, progress=progress)
-    if not (embeddings_dir(folder, encoder) / EMBED_MANIFEST).is_file():
+    done = embeddings_dir(folder, encoder) / EMBED_MANIFEST
+    if done.is_file():
+        made_with = _embedded_with(done)
+        if made_with != shipped_fingerprint(encoder):
+            log.info("re-embedding the default corpus %s with %s: its embeddings were made "
+                     "with other weights (%s), not the shipped ones", folder, encoder,
+                     "not recorded" if made_with is None else f"sha256 {made_with[:12]}...")
+            drop_embeddings(encoder, size, seed)
+    if not done.is_file():
         embed_and_index(folder, encoder, progress=progress)  # the index is checked on open
     return folder
+
+
+def _embedded_with(manifest: Path) -> str | None:
+    """The encoder weights an embeddings manifest records (None: not recorded, or unreadable;
+    the default corpus is a cache, made again either way)."""
+    try:
+        return json.loads(manifest.read_text()).get("encoder_weights")
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 def drop_embeddings(encoder: str, size: str = "10k", seed: int = 0) -> None:
@@ -96,7 +115,8 @@ def drop_embeddings(encoder: str, size: str = "10k", seed: int = 0) -> None:
 
 def open_retriever(corpus: str | os.PathLike, encoder: str = "default-s",
                    index: str = "flat", pretrained="shipped") -> CorpusSearch:
-    """Encoders + the corpus's index, checked against each other."""
+    """Encoders + the corpus's index, checked against each other (name, dimension, and the
+    weights that embedded the corpus: see `ratouch.corpus.embed.check_encoder_weights`)."""
     model = create_model(encoder, pretrained=pretrained)
     return CorpusSearch(model, CorpusIndex(corpus, model.name, model.dim, IndexConfig(kind=index)))
 
