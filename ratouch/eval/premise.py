@@ -12,8 +12,6 @@ The verdict applies the criteria pre-registered in docs/premise.md.
 
 from __future__ import annotations
 
-import hashlib
-import importlib
 import logging
 import time
 from pathlib import Path
@@ -24,6 +22,7 @@ from scipy import stats
 
 from ratouch.errors import ConfigError
 from ratouch.eval.controls import derangement, run_controls
+from ratouch.eval.experiments import source_sha256
 from ratouch.eval.judge import OfflineJudge, judge_results
 from ratouch.eval.tvl import describe, records_for
 from ratouch.model.generator import load_generator
@@ -39,16 +38,6 @@ GROUPS = ("seen", "scarce")
 PAPER_EFFECT = 0.3  # the paper's gains on TVL: +0.24 .. +0.37 (Table 1)
 COPY_MARGIN = 0.5   # the corpus "knows what the baseline lacks" above baseline + this
 MIN_GAIN = 0.1      # a gain below this is no gain
-TRAINING_MODULES = ("ratouch.train.generator", "ratouch.train.recipes", "ratouch.model.generator",
-                    "ratouch.model.integrator", "ratouch.model.decoder",
-                    "ratouch.world.scarcity")
-
-
-def _code_digest(modules: tuple[str, ...]) -> str:
-    h = hashlib.sha256()
-    for name in modules:
-        h.update(Path(importlib.import_module(name).__file__).read_bytes())
-    return h.hexdigest()
 
 
 def group_split(encoders, group: str, n: int, regime: ScarceRegime) -> TestSplit:
@@ -59,7 +48,7 @@ def group_split(encoders, group: str, n: int, regime: ScarceRegime) -> TestSplit
 
 def run_folder(encoder: str, run: int) -> Path:
     """Where run `run`'s generators are trained (keyed by the code that trains them)."""
-    return cache_dir() / f"premise-{encoder}-run{run}-{_code_digest(TRAINING_MODULES)[:12]}"
+    return cache_dir() / f"premise-{encoder}-run{run}-{source_sha256()[:12]}"
 
 
 def run_generators(encoder: str, run: int, progress: bool = False):
