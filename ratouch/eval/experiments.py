@@ -233,7 +233,7 @@ class Lab:
 
     def stage1_for(self, n: int):
         """The stage-1 generator trained without the `n` withheld materials (trained once with
-        the shipped stage-1 recipe, then cached on disk)."""
+        the shipped stage-1 recipe, from the shipped language prior, then cached on disk)."""
         if n == 0:
             return self.stage1
 
@@ -250,9 +250,12 @@ class Lab:
             data = self.train_for(n)
             log.info("training a stage-1 generator without %d materials (%d pairs, %d steps)",
                      n, len(data["labels"]), tc.stage1_steps)
+            from ratouch.train.recipes import language_prior
+
+            prior, _ = language_prior(self.cfg.encoder, progress=False)  # as the shipped pair
             gen, _ = train_stage1(torch.from_numpy(np.asarray(data["V"], np.float32)),
                                   torch.from_numpy(np.asarray(data["T"], np.float32)),
-                                  data["labels"], data["V"].shape[1], tc)
+                                  data["labels"], data["V"].shape[1], tc, prior)
             save_generator(folder, gen, {"withheld": self.withheld_materials(n)})
         return load_generator(folder, stage1=True)
 
