@@ -262,6 +262,10 @@ def _add_eval(sub) -> None:
                          "the others train into the cache on first use, ~8 min each)")
     pr.add_argument("--n", type=_pos_int, default=500, help="held-out pairs per group")
     pr.add_argument("--k", type=_pos_int, default=5, help="neighbours RA-Touch reads")
+    pr.add_argument("--why", action="store_true",
+                    help="instead: evidence for why the shipped generator does (not) read its "
+                         "neighbours, on its training pairs (F1 of copying them, the "
+                         "integrator's gradient with own vs shuffled neighbours, losses)")
     pr.add_argument("--json", action="store_true")
 
 
@@ -656,8 +660,11 @@ def _run_eval(args: argparse.Namespace) -> int:
 
 
 def _eval_premise(args: argparse.Namespace) -> int:
-    from ratouch.eval.premise import format_premise, run_premise
+    from ratouch.eval.premise import format_premise, run_premise, why_ignored
 
+    if args.why:
+        print(json.dumps(why_ignored(args.encoder), indent=1))
+        return 0
     say = (lambda m: print(m, file=sys.stderr)) if args.json else print
     r = run_premise(args.encoder, runs=args.runs, n=args.n, k=args.k, report=say)
     print(json.dumps(r, indent=1) if args.json else format_premise(r))

@@ -121,3 +121,16 @@ def test_premise_runs_end_to_end_on_the_shipped_weights(real_pipeline):
         assert s["gain"] == pytest.approx(s["ra_touch"] - s["baseline"], abs=1e-3)
     assert len(lines) == 3 and "run 0 scarce" in lines[-1]
     json.dumps(r)
+
+
+@pytest.mark.slow
+def test_why_ignored_reports_training_signal(real_pipeline):
+    from ratouch.eval.premise import why_ignored
+
+    w = why_ignored(n=40, pipeline=real_pipeline)
+    assert 0 < w["scarce_share"] < 0.05
+    for g in ("head", "scarce"):
+        assert set(w["f1"][g]) == {"baseline", "ra_touch", "copy_captions"}
+        assert set(w["training_loss"][g]) == {"own", "shuffled", "none"}
+    for stage in ("start", "end"):
+        assert -1 <= w["integrator_gradient"][stage]["cosine_own_vs_shuffled"] <= 1

@@ -270,3 +270,94 @@ def format_premise(r: dict) -> str:
                          f"{gd['ci_high']:+.3f}], shuffle drop {run['shuffle_drop']['diff']:+.3f}")
     lines.append(f"verdict: {r['verdict']}: {r['verdict_reason']} ({r['seconds']:.0f} s)")
     return "\n".join(lines)
+
+
+def why_ignored(encoder: str = "default-s", n: int = 3000, seed: int = 0,
+                pipeline: RATouchPipeline | None = None) -> dict:
+    """Evidence for why a RA-Touch generator does (not) read its neighbours, on its own paired
+    training data (draw 0, the first `n` pairs): what the neighbours could teach it there, and
+    how much its training signal depends on them.
+
+    * **What reading would earn in training**: label-adjective F1 of the baseline's answers and
+      of a vote over each pair's retrieved captions (length-matched), on head and on scarce
+      materials, and the share of training pairs that are scarce. Where the vote is far worse
+      than the baseline, the best policy on those pairs is to ignore the neighbours.
+    * **Gradient signal**: at the start of stage 2 (zero-initialised integrator, fresh LoRA on
+      the shipped stage-1 model) and at its end (the shipped RA-Touch), the cosine between the
+      integrator's loss gradient with the pairs' own and with shuffled neighbours, and the
+      relative size of their difference: near 1 and near 0 mean the gradient does not care
+      which neighbours it reads.
+    * **Training loss**: the shipped RA-Touch's loss with own, shuffled and no neighbours.
+    """
+    import copy
+
+    import torch
+
+    from ratouch.eval.controls import vote
+    from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
+    from ratouch.paths import generator_weights
+    from ratouch.train.recipes import training_pairs
+    from ratouch.vocabulary import adjective_f1, parse_adjectives
+
+    pipe = pipeline or RATouchPipeline.load(encoder)
+    data = training_pairs(pipe.encoders, seed=0)
+    scarce = set(ScarceRegime().scarce_materials())
+    pick = np.random.default_rng(seed).permutation(len(data["labels"]))[:n]
+    is_scarce = np.array([data["materials"][i] in scarce for i in range(len(data["labels"]))])
+    # every scarce pair, and head pairs up to n
+    pick = np.concatenate([np.flatnonzero(is_scarce), pick[~is_scarce[pick]]])
+    V, T = data["V"][pick], data["T"][pick]
+    labels = [data["labels"][i] for i in pick]
+    sc = is_scarce[pick]
+    ids = pipe.joint_neighbours(V, T, 5)
+    rv, rl = pipe.neighbour_embeddings(ids)
+    base = describe(pipe.generator_base, V, T)
+    ra = describe(pipe.generator_ra, V, T, rv, rl)
+    entries = pipe.corpus.entries
+    copy_ = [vote([entries[i].caption for i in row], len(parse_adjectives(b)))
+             for row, b in zip(ids, base)]
+
+    def f1(answers, mask):
+        return round(float(np.mean([adjective_f1(lab, a) for lab, a, m in
+                                    zip(labels, answers, mask) if m])), 4)
+
+    out = {"n_pairs": len(data["labels"]), "scarce_share": round(float(is_scarce.mean()), 4),
+           "f1": {g: {"baseline": f1(base, m), "ra_touch": f1(ra, m), "copy_captions": f1(copy_, m)}
+                  for g, m in (("head", ~sc), ("scarce", sc))}}
+    # gradients and losses
+    Vt, Tt = torch.from_numpy(V), torch.from_numpy(T)
+    rvt, rlt = torch.from_numpy(rv), torch.from_numpy(rl)
+    shuf = torch.from_numpy(derangement(len(V), seed))
+    stage1 = load_generator(generator_weights(encoder, "ra"), stage1=True)
+    start = copy.deepcopy(stage1)
+    start.integrator = TextureAwareIntegrator(IntegratorConfig(dim=pipe.encoders.dim,
+                                                               out_dim=start.decoder.hidden))
+    start.decoder.add_lora(start.decoder.cfg, seed=0)
+    end = load_generator(generator_weights(encoder, "ra"), integrator_factory)
+    grads = {}
+    for name, gen in (("start", start), ("end", end)):
+        gen.train()
+        params = [p for p in gen.integrator.parameters()]
+        for p in params:
+            p.requires_grad_(True)
+        g = []
+        for nb in (torch.arange(len(V)), shuf):
+            b = torch.arange(min(len(V), 512))
+            loss = gen.loss(Vt[b], Tt[b], [labels[i] for i in b.tolist()], rvt[nb[b]], rlt[nb[b]])
+            g.append(torch.cat([x.flatten() for x in torch.autograd.grad(loss, params)]))
+        cos = torch.nn.functional.cosine_similarity(g[0], g[1], dim=0).item()
+        grads[name] = {"cosine_own_vs_shuffled": round(cos, 4),
+                       "relative_difference": round(((g[0] - g[1]).norm() / g[0].norm()).item(), 4)}
+        gen.eval()
+    out["integrator_gradient"] = grads
+    losses = {}
+    with torch.no_grad():
+        for g, m in (("head", ~sc), ("scarce", sc)):
+            b = torch.from_numpy(np.flatnonzero(m)[:512])
+            lab = [labels[i] for i in b.tolist()]
+            losses[g] = {"own": round(end.loss(Vt[b], Tt[b], lab, rvt[b], rlt[b]).item(), 4),
+                         "shuffled": round(end.loss(Vt[b], Tt[b], lab, rvt[shuf[b]],
+                                                    rlt[shuf[b]]).item(), 4),
+                         "none": round(end.loss(Vt[b], Tt[b], lab).item(), 4)}
+    out["training_loss"] = losses
+    return out
