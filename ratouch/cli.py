@@ -518,7 +518,7 @@ def _train_all(args: argparse.Namespace) -> int:
     import time
 
     from ratouch.paths import generator_weights
-    from ratouch.serve.pipeline import default_corpus, drop_embeddings
+    from ratouch.serve.pipeline import default_corpus
     from ratouch.train import recipes
 
     t0, times = time.perf_counter(), {}
@@ -531,8 +531,7 @@ def _train_all(args: argparse.Namespace) -> int:
     _train_encoders(args)
     lap("encoders")
     for name in ("default-tiny", "default-s", "default-b"):
-        drop_embeddings(name)  # embedded with the old weights
-        default_corpus(name)
+        default_corpus(name)  # re-embeds: the recorded encoder weights changed
     lap("corpus_embeddings")
     print(json.dumps(recipes.retriever_recipe(seed=args.seed)))
     lap("retriever")

@@ -27,7 +27,7 @@ from ratouch.eval.judge import OfflineJudge, judge_results
 from ratouch.eval.tvl import describe, records_for
 from ratouch.model.generator import load_generator
 from ratouch.paths import cache_dir
-from ratouch.serve.pipeline import RATouchPipeline, integrator_factory
+from ratouch.serve.pipeline import RATouchPipeline, integrator_factory, load_for_serving
 from ratouch.world.config import WorldConfig
 from ratouch.world.scarcity import ScarceRegime, premise_indices
 from ratouch.world.splits import TestSplit, encode_test_split
@@ -65,11 +65,7 @@ def run_generators(encoder: str, run: int, progress: bool = False):
             generator_recipe(encoder, seed=run, draw=run, world_seed=0, out=root,
                              progress=progress)
         folders = {k: root / k for k in ("ra", "baseline")}
-    ra = load_generator(folders["ra"], integrator_factory)
-    base = load_generator(folders["baseline"])
-    for gen in (ra, base):
-        gen.decoder.merge_lora()
-    return ra, base
+    return load_for_serving(folders["ra"]), load_for_serving(folders["baseline"], integrator=False)
 
 
 def token_arm(encoder: str, run: int, progress: bool = False):
@@ -84,9 +80,7 @@ def token_arm(encoder: str, run: int, progress: bool = False):
         log.info("premise run %d: training the neighbour-token arm into %s", run, root)
         token_arm_recipe(encoder, ra, seed=run, draw=run, world_seed=0, out=root / "tokens",
                          progress=progress)
-    gen = load_generator(root / "tokens", integrator_factory)
-    gen.decoder.merge_lora()
-    return gen
+    return load_for_serving(root / "tokens")
 
 
 def _arm_scores(p: RATouchPipeline, gen, split: TestSplit, k: int, judge, seed: int
@@ -163,20 +157,18 @@ def _aggregate(results: list[dict], seed: int) -> dict:
         runs_ci = [round(float(run_gain.mean() - half), 4), round(float(run_gain.mean() + half), 4)]
     else:
         runs_ci = None
-    all_drops = np.concatenate(drops)
-    p = float(stats.ttest_1samp(all_drops, 0.0).pvalue) if all_drops.std() > 0 else 1.0
+    p = _p_value(drops)
     names = ("baseline", "ra_touch", "neighbours_shuffled", "integrator_zeroed",
              "copy_captions", "copy_perfect_retrieval", "material_oracle")
     arm = None
     if "tokens" in results[0]["scores"]:
         arm_gains = [r["scores"]["tokens"] - r["scores"]["baseline"] for r in results]
         arm_drops = [r["scores"]["tokens"] - r["scores"]["tokens_shuffled"] for r in results]
-        d = np.concatenate(arm_drops)
         arm = {"score": round(float(np.mean([r["scores"]["tokens"].mean() for r in results])), 4),
                "gain": round(float(np.mean([a.mean() for a in arm_gains])), 4),
                "ci95": [round(x, 4) for x in pooled_ci(arm_gains, seed)],
                "shuffle_drop": round(float(np.mean([a.mean() for a in arm_drops])), 4),
-               "shuffle_p": float(stats.ttest_1samp(d, 0.0).pvalue) if d.std() > 0 else 1.0}
+               "shuffle_p": _p_value(arm_drops)}
     return {
         "n": results[0]["n"], "baseline": mean_of("baseline"), "ra_touch": mean_of("ra_touch"),
         "gain": round(float(run_gain.mean()), 4), "ci95": [round(lo, 4), round(hi, 4)],
@@ -201,6 +193,13 @@ def _aggregate(results: list[dict], seed: int) -> dict:
                   "copy_ceiling": round(r["systems"]["copy_perfect_retrieval"]["mean"], 4)}
                  for r in results],
     }
+
+
+def _p_value(diffs: list[np.ndarray]) -> float:
+    """Two-sided p of a one-sample t-test that the paired differences of all runs average 0
+    (1.0 when they are all equal)."""
+    d = np.concatenate(diffs)
+    return float(stats.ttest_1samp(d, 0.0).pvalue) if d.std() > 0 else 1.0
 
 
 def pooled_ci(diffs: list[np.ndarray], seed: int = 0, n_boot: int = 4000

@@ -131,6 +131,14 @@ def integrator_factory(cfg: dict):
     return TextureAwareIntegrator(IntegratorConfig(**cfg))
 
 
+def load_for_serving(folder: str | os.PathLike, integrator: bool = True):
+    """A saved generator for inference only: its LoRA folded into the weights (the fast path).
+    `integrator`: whether the checkpoint holds one (RA-Touch or the neighbour-token arm)."""
+    gen = load_generator(folder, integrator_factory if integrator else None)
+    gen.decoder.merge_lora()
+    return gen
+
+
 def load_tgr(encoder: str, folder: str | os.PathLike | None = None):
     """The frozen Tactile-Guided Retriever trained for an encoder (the shipped one in assets/,
     or the one saved in `folder`, e.g. an ablation trained into the cache)."""
@@ -192,10 +200,8 @@ class RATouchPipeline:
         tgr = load_tgr(encoder)
         gen_ra = gen_base = None
         if generators:
-            gen_ra = load_generator(generator_weights(encoder, "ra"), integrator_factory)
-            gen_base = load_generator(generator_weights(encoder, "baseline"))
-            for gen in (gen_ra, gen_base):  # inference only: fold LoRA into the weights
-                gen.decoder.merge_lora()
+            gen_ra = load_for_serving(generator_weights(encoder, "ra"))
+            gen_base = load_for_serving(generator_weights(encoder, "baseline"), integrator=False)
         return cls(retriever, tgr, gen_ra, gen_base, trust=load_trust(encoder))
 
     # ----------------------------------------------------------------- building blocks

@@ -53,6 +53,15 @@ def _pairs(encoder: str, seed: int, progress: bool, draw: int = 0):
     return model, data, paired_embeddings(model, data)
 
 
+def _pairs_with_neighbours(encoder: str, world_seed: int, draw: int, k: int, progress: bool):
+    """The paired training data of a draw, its frozen embeddings, the retrieval side and each
+    pair's top-k joint-query neighbours: (model, data, emb, retrieval, Rv, Rl)."""
+    model, data, emb = _pairs(encoder, world_seed, progress, draw)
+    retrieval = RATouchPipeline.load(encoder, progress=progress, generators=False)
+    rv, rl = retrieval.neighbour_embeddings(retrieval.joint_neighbours(emb["V"], emb["T"], k))
+    return model, data, emb, retrieval, rv, rl
+
+
 def prior_data(retrieval: RATouchPipeline) -> tuple[np.ndarray, list[str]]:
     """Stage 0's data, from the retrieval corpus alone: text embeddings of each entry's tactile
     caption, its class name and its appearance description, each paired with the caption."""
@@ -108,11 +117,10 @@ def generator_recipe(encoder: str = "default-s", seed: int = 0, progress: bool =
 
     t0 = time.perf_counter()
     world_seed = seed if world_seed is None else world_seed
-    model, data, emb = _pairs(encoder, world_seed, progress, draw)
-    retrieval = RATouchPipeline.load(encoder, progress=progress, generators=False)
-    prior, prior_report = language_prior(encoder, world_seed, progress, retrieval)
     tc = GeneratorTrainConfig(seed=seed, **train_overrides)
-    rv, rl = retrieval.neighbour_embeddings(retrieval.joint_neighbours(emb["V"], emb["T"], tc.k))
+    model, data, emb, retrieval, rv, rl = _pairs_with_neighbours(encoder, world_seed, draw, tc.k,
+                                                                 progress)
+    prior, prior_report = language_prior(encoder, world_seed, progress, retrieval)
     base, ra, report = train_generators(emb, list(data["labels"]), rv, rl, model.dim, tc,
                                         prior=prior)
     report.update(draw=draw, world_seed=world_seed, prior=prior_report)
@@ -133,11 +141,9 @@ def token_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
     stage-2 budget from the stage-1 model inside `stage1_from` (a RA-Touch checkpoint folder)
     on the same paired data; saved to `out`. Returns (generator, report)."""
     t0 = time.perf_counter()
-    model, data, emb = _pairs(encoder, world_seed, progress, draw)
-    retrieval = RATouchPipeline.load(encoder, progress=progress, generators=False)
     tc = GeneratorTrainConfig(seed=seed, **train_overrides)
     torch.set_num_threads(tc.threads)
-    rv, rl = retrieval.neighbour_embeddings(retrieval.joint_neighbours(emb["V"], emb["T"], tc.k))
+    model, data, emb, _, rv, rl = _pairs_with_neighbours(encoder, world_seed, draw, tc.k, progress)
     stage1 = load_generator(stage1_from, stage1=True)
     gen, history = train_stage2(
         stage1, NeighbourTokens(NeighbourTokensConfig(dim=model.dim, out_dim=stage1.decoder.hidden)),
