@@ -62,7 +62,7 @@ start-up. Conditions:
 
 
 def build_demo(pipeline, world=None, failure_options: dict | None = None,
-               docs: str | Path | None = None) -> gr.Blocks:
+               docs: str | Path | None = None, models: list[str] | None = None) -> gr.Blocks:
     """The app around a pipeline (read-only, shared by all sessions).
 
     Args:
@@ -72,6 +72,9 @@ def build_demo(pipeline, world=None, failure_options: dict | None = None,
         failure_options: `ratouch.eval.failures.load_or_compute`'s k / conditions / indices
             (default: K=5, every condition, the whole test split, on `world`'s config).
         docs: the folder holding `results.md` and `figures/*.json` (default: the repo's docs/).
+        models: the models a query may choose (encoder sets, "cascade"), the first being the
+            default, for a pipeline that offers the choice (`ratouch.serve.models.ModelChoice`);
+            None: the pipeline's one model, no choice.
     """
     from ratouch.eval import failures  # heavy (torch): imported when the page is built
     from ratouch.eval.judge import OfflineJudge
@@ -92,8 +95,8 @@ def build_demo(pipeline, world=None, failure_options: dict | None = None,
         return pipeline.corpus.thumbnail(i, THUMBNAIL_SIDE)
 
     with gr.Blocks(title="RA-Touch Explorer", delete_cache=(1800, SESSION_TTL_S)) as demo:
-        ui = _layout(pipeline, world, options["conditions"])
-        _wire(demo, ui, pipeline, world, thumbnail, options, docs, judge)
+        ui = _layout(pipeline, world, options["conditions"], models)
+        _wire(demo, ui, pipeline, world, thumbnail, options, docs, judge, bool(models))
     demo.ratouch_docs = docs  # `launch` serves its images (and nothing else from disk)
     return demo
 
@@ -115,7 +118,7 @@ def _header(pipeline) -> str:
     return f"{title}`{pipeline.encoders.name}` · {view.corpus_provenance(pipeline.corpus)}"
 
 
-def _layout(pipeline, world, conditions) -> SimpleNamespace:
+def _layout(pipeline, world, conditions, models: list[str] | None) -> SimpleNamespace:
     """Place the components; returns them by name."""
     from ratouch.eval import failures  # heavy (torch): imported when the page is built
     from ratouch.world.generator import TEST_SIZE
@@ -127,7 +130,7 @@ def _layout(pipeline, world, conditions) -> SimpleNamespace:
     ui.timer = gr.Timer(2.0, active=_pending(pipeline))
     with gr.Tabs(elem_id="tabs") as ui.tabs:
         with gr.Tab("Explore", id="explore", elem_id="tab-explore"):
-            _explore_tab(ui, world, n_corpus, TEST_SIZE)
+            _explore_tab(ui, world, n_corpus, TEST_SIZE, models)
         with gr.Tab("Failure cases", id="failures", elem_id="tab-failures") as ui.failures_tab:
             gr.Markdown(FAILURES_ABOUT + view.conditions_md(
                 {c: failures.CONDITIONS[c] for c in conditions}))
@@ -164,7 +167,8 @@ def _layout(pipeline, world, conditions) -> SimpleNamespace:
     return ui
 
 
-def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int) -> None:
+def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int,
+                 models: list[str] | None) -> None:
     # inputs, then the answer right below them (description and trust first); the examples
     # sit beside the inputs, never between the inputs and the answer
     with gr.Row():
@@ -191,9 +195,15 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int) -> N
                                          type="filepath", image_mode=None, format="png",
                                          sources=["upload"], height=230, scale=2,
                                          elem_id="background")
-            ui.k = gr.Slider(1, min(MAX_K, n_corpus), value=min(5, n_corpus), step=1,
-                             label=f"K (neighbours per query, 1–{min(MAX_K, n_corpus)})",
-                             elem_id="k")
+            with gr.Row():
+                ui.k = gr.Slider(1, min(MAX_K, n_corpus), value=min(5, n_corpus), step=1,
+                                 label=f"K (neighbours per query, 1–{min(MAX_K, n_corpus)})",
+                                 elem_id="k", scale=3)
+                # the encoder size; "cascade": the smallest confident encoder answers
+                ui.model = gr.Dropdown(models or [""], value=(models or [""])[0],
+                                       label="model (encoder size)", elem_id="model",
+                                       interactive=bool(models and len(models) > 1),
+                                       visible=bool(models), scale=2)
             ui.run = gr.Button("Run query", variant="primary", elem_id="run")
             ui.status = gr.Markdown(elem_id="status")
             # closed: open, it would push the answer below the fold
@@ -234,7 +244,7 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int) -> N
 
 
 def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, options: dict,
-          docs: Path, judge) -> None:
+          docs: Path, judge, choice: bool) -> None:
     """Connect events to the handlers. Only `/query` is an API; the UI's events are private.
 
     Long on purpose: the page's whole event table in one place, so which event calls which
@@ -242,7 +252,7 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
     """
     box_out = [ui.state, ui.visual, *ui.fields, ui.box_note]
     example_out = [ui.state, ui.visual, ui.tactile, *ui.fields, ui.box_note]
-    query_in = [ui.state, ui.tactile, *ui.fields, ui.k, ui.background]
+    query_in = [ui.state, ui.tactile, *ui.fields, ui.k, ui.background, ui.model]
     query_out = [ui.status, *ui.galleries, *ui.tables, ui.plot, ui.description, ui.timings,
                  ui.raw]
     # uploads reach the handlers undecoded (preprocess=False): the library decodes them with
@@ -266,14 +276,19 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
         x, y = evt.index
         return handlers.click_box(state, x, y, (a, b, c, d))
 
-    def show_query(state, tac, a, b, c, d, k, bg, progress=gr.Progress()):
+    def show_query(state, tac, a, b, c, d, k, bg, model, progress=gr.Progress()):
         largest = MAX_K if _pending(pipeline) else min(MAX_K, len(pipeline.corpus.entries))
         return tuple(handlers.run_query(pipeline, thumbnail, state, tac, a, b, c, d, k,
                                         progress, background=bg, largest_k=largest,
-                                        judge=judge))
+                                        judge=judge, encoder=model if choice else None))
 
-    def regenerate(state, tac, a, b, c, d, kept, result):
-        return handlers.regenerate(pipeline, state, tac, a, b, c, d, kept, result, judge)
+    def regenerate(state, tac, a, b, c, d, kept, result, model):
+        return handlers.regenerate(pipeline, state, tac, a, b, c, d, kept, result, judge,
+                                   encoder=model if choice else None)
+
+    def api_query(visual, tactile, a, b, c, d, k, model=None):
+        return handlers.api_query(pipeline, visual, tactile, a, b, c, d, k,
+                                  encoder=(model or None) if choice else None)
 
     def failures_tab(subset, condition, view_label, compute, progress=None):
         return tuple(handlers.failures_tab(pipeline, options, shared, compute, subset,
@@ -308,7 +323,7 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
     # a new result (or none) resets the neighbour picker and the regenerated answer
     ui.raw.change(lambda r: (handlers.neighbour_picker(r), ""), ui.raw,
                   [ui.keep, ui.regen_out], **light)
-    ui.regen.click(regenerate, [ui.state, ui.tactile, *ui.fields, ui.keep, ui.raw],
+    ui.regen.click(regenerate, [ui.state, ui.tactile, *ui.fields, ui.keep, ui.raw, ui.model],
                    ui.regen_out, **queries, **raw, **private)
     # failure cases: read from the cache when the tab opens, computed only on request
     gr.on([ui.failures_tab.select, ui.subset.change, ui.condition.change, ui.fail_view.change],
@@ -318,8 +333,8 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
         show_query, query_in, query_out, **queries, **raw, **private)
     gr.on([ui.bench_tab.select, ui.reload.click],
           lambda: handlers.benchmarks(docs, MAX_FIGURES), None, bench_out, **private)
-    ui.api_button.click(functools.partial(handlers.api_query, pipeline),
-                        [ui.api_visual, ui.api_tactile, *ui.fields, ui.k], ui.api_out,
+    ui.api_button.click(api_query, [ui.api_visual, ui.api_tactile, *ui.fields, ui.k, ui.model],
+                        ui.api_out,
                         api_name="query", **queries)
 
 
@@ -328,7 +343,9 @@ def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="python -m app", description=__doc__.splitlines()[0])
     p.add_argument("--host", default="127.0.0.1", help="address to serve on")
     p.add_argument("--port", type=int, default=7860)
-    p.add_argument("--encoder", default="default-s", help="encoder set (default: default-s)")
+    p.add_argument("--encoder", default="default-s",
+                   help="the default model: an encoder set (default: default-s) or 'cascade'; "
+                        "the page offers every shipped one")
     p.add_argument("--corpus", default=None,
                    help="built corpus folder (default: the world's 10k corpus, built on first use)")
     p.add_argument("--max-batch", type=int, default=16,
@@ -338,15 +355,16 @@ def main(argv: list[str] | None = None) -> None:
     # heavy (torch, faiss, transformers): imported here, after the arguments are parsed, and
     # the models loaded in the background, so that the server answers at once
     from app.loading import BackgroundPipeline
-    from ratouch.serve.pipeline import RATouchPipeline
+    from ratouch.serve.models import ModelChoice, available_models
 
     # serve at once; the models load meanwhile and a query waits for them. Concurrent
     # queries are answered in batches (one model pass for all of them).
     log.info("loading the RA-Touch pipeline (encoder %s) in the background ...", args.encoder)
+    models = list(dict.fromkeys([args.encoder, *available_models()]))
     loading = BackgroundPipeline(
-        lambda: RATouchPipeline.load(args.encoder, corpus=args.corpus, progress=True),
-        args.encoder, start=False)
-    demo = build_demo(QueryBatcher(loading, max_batch=args.max_batch))
+        lambda: ModelChoice(args.encoder, models, corpus=args.corpus), args.encoder,
+        start=False)
+    demo = build_demo(QueryBatcher(loading, max_batch=args.max_batch), models=models)
     launch(demo, args.host, args.port, block=False)
     loading.start()  # after the server is up: both compete for the same cores and the GIL
     log.info("serving on http://%s:%d/ (%.1f s after main()); the models are loading",

@@ -247,10 +247,11 @@ def error_view(message: str) -> QueryView:
 
 def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual | None,
               tactile: Any, x0, y0, x1, y1, k, progress=None, background: Any = None,
-              largest_k: int = MAX_K, judge=None) -> QueryView:
+              largest_k: int = MAX_K, judge=None, encoder: str | None = None) -> QueryView:
     """Run `pipe.query` on the session's image, the tactile image (and the sensor's
     background frame, if given) and the box, and format it. `tactile` and `background` may
-    be the components' raw values; `judge` scores the descriptions of labelled examples."""
+    be the components' raw values; `judge` scores the descriptions of labelled examples;
+    `encoder` chooses the model where the pipeline offers a choice (`ModelChoice`)."""
     tactile, background = upload_path(tactile), upload_path(background)
     try:
         if visual is None:
@@ -260,6 +261,8 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
         if progress is not None:
             progress(0.05, desc="encoding, retrieving, generating…")
         extra = {} if background is None else {"background": background}
+        if encoder:
+            extra["encoder"] = encoder
         result = pipe.query(visual.source, tactile, box=box, k=k, label=visual.label, **extra)
         t0 = time.perf_counter()
         if progress is not None:
@@ -273,7 +276,7 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
     # a ground-truth label (test-split examples): score both descriptions against it
     scores = failures.judge_scores(visual.label, result["description"], judge) if judge else {}
     render_ms = (time.perf_counter() - t0) * 1000
-    return QueryView(view.status_md(visual.title, result["warnings"], result.get("box")),
+    return QueryView(view.status_md(visual.title, result["warnings"], result.get("box"), result),
                      *galleries, *tables, pca_figure(result, visual.label),
                      view.description_md(result, visual.label, scores),
                      view.timings_md(result["timings_ms"], render_ms), result)
@@ -286,7 +289,8 @@ def neighbour_picker(result: dict | None):
 
 
 def regenerate(pipe, visual: boxes.Visual | None, tactile: Any, x0, y0, x1, y1,
-               kept: list[int] | None, result: dict | None, judge=None) -> str:
+               kept: list[int] | None, result: dict | None, judge=None,
+               encoder: str | None = None) -> str:
     """RA-Touch's description again, reading only the ticked neighbours (`pipe.regenerate`),
     beside the description it answered with."""
     tactile = upload_path(tactile)
@@ -295,7 +299,8 @@ def regenerate(pipe, visual: boxes.Visual | None, tactile: Any, x0, y0, x1, y1,
             raise DataError("run a query with a tactile image first")
         kept = [int(i) for i in (kept or [])]
         box = boxes.fields_to_box(x0, y0, x1, y1)
-        again = pipe.regenerate(visual.source, tactile, kept, box=box)
+        extra = {"encoder": encoder} if encoder else {}
+        again = pipe.regenerate(visual.source, tactile, kept, box=box, **extra)
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         return view.error_md(_fail(e, {"visual image": getattr(visual, "source", None),
                                        "tactile image": tactile}))
@@ -307,8 +312,9 @@ def regenerate(pipe, visual: boxes.Visual | None, tactile: Any, x0, y0, x1, y1,
     return view.regenerated_md(result, again, kept, scores.get("new"), scores.get("old"))
 
 
-def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k) -> dict:
-    """The `/query` API: image files, box and K in, `pipe.query`'s JSON out.
+def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k,
+              encoder: str | None = None) -> dict:
+    """The `/query` API: image files, box, K and the model in, `pipe.query`'s JSON out.
 
     Raises:
         gr.Error: with the reason, for anything the caller can fix.
@@ -317,7 +323,8 @@ def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k) 
         if visual is None:
             raise DataError("a visual image is required")
         box = boxes.fields_to_box(x0, y0, x1, y1)
-        return pipe.query(visual, tactile, box=box, k=parse_k(5 if k is None else k))
+        extra = {"encoder": encoder} if encoder else {}
+        return pipe.query(visual, tactile, box=box, k=parse_k(5 if k is None else k), **extra)
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         files = {"visual image": visual, "tactile image": tactile}
         raise gr.Error(user_message(e, files), print_exception=False) from e

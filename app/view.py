@@ -156,11 +156,29 @@ def trust_lines(result: dict) -> list[str]:
     return lines + [f"> ⚠️ **{w}**" for w in warned]
 
 
-def status_md(title: str, warnings: list[str], box: list[int] | None = None) -> str:
-    """The status line after a query: what was queried, with which box, and any warnings."""
-    lines = [f"**Queried:** {title}" + (f" · contact box {box}" if box else "")]
+def status_md(title: str, warnings: list[str], box: list[int] | None = None,
+              result: dict | None = None) -> str:
+    """The status line after a query: what was queried, with which box and which model (and
+    for the cascade, why that one), and any warnings."""
+    lines = [f"**Queried:** {title}" + (f" · contact box {box}" if box else "")
+             + model_note(result or {})]
     lines += [f"- ⚠️ {w}" for w in warnings]
     return "\n".join(lines)
+
+
+def model_note(result: dict) -> str:
+    """The status line's model: "· model `default-s`", or for the cascade "· answered by
+    `default-tiny` (cascade: agreement 0.80 ≥ 0.60)"; "" when the result names none."""
+    c = result.get("cascade")
+    if not c:
+        return f" · model `{result['encoder']}`" if result.get("encoder") else ""
+    conf, th = c["confidence"], c["thresholds"]
+    steps = [f"{conf[s]:.2f} {'≥' if th[s] is not None and conf[s] >= th[s] else '<'} "
+             f"{'∞' if th[s] is None else format(th[s], '.2f')}"
+             for s in range(min(len(conf), len(th)))]
+    why = f"{c['measure']} " + ", then ".join(steps) if steps else "no joint query"
+    return (f" · answered by `{c['answered_by']}` (cascade"
+            + (", escalated" if c["escalated"] else "") + f": {why})")
 
 
 def error_md(message: str) -> str:

@@ -185,6 +185,14 @@ def _add_train(sub) -> None:
                     help="share of in-distribution validation inputs each signal may flag")
     tr.add_argument("--out", default=None,
                     help="calibration JSON (default: assets/trust/ENCODER.json)")
+    cc = tsub.add_parser("cascade", help="calibrate the encoder cascade (smallest confident "
+                                         "encoder answers) on the world's validation renders")
+    cc.add_argument("--encoders", default="default-tiny,default-s",
+                    help="encoder sets, smallest first (each needs its retriever and generators)")
+    cc.add_argument("--seed", type=_nonneg_int, default=0)
+    cc.add_argument("--n", type=_pos_int, default=1000, help="validation pairs")
+    cc.add_argument("--out", default=None,
+                    help="calibration JSON (default: assets/cascade/ENC1+ENC2.json)")
     a = tsub.add_parser("all", help="encoders, corpus embeddings, retriever, language prior, "
                                     "generators and trust calibration, in order")
     a.add_argument("--seed", type=_nonneg_int, default=0)
@@ -337,7 +345,9 @@ def _add_query(sub) -> None:
     q.add_argument("--box", type=_box, default=None, help="contact box x0,y0,x1,y1 in pixels")
     q.add_argument("--k", type=_pos_int, default=5)
     q.add_argument("--label", default=None, help="ground-truth caption, if known (for the PCA)")
-    q.add_argument("--encoder", default="default-s")
+    q.add_argument("--encoder", default="default-s",
+                   help="encoder set (default-tiny, default-s, default-b where trained), or "
+                        "'cascade': the smallest confident one answers")
     q.add_argument("--corpus", default=None, help="corpus folder (default: the cached 10k)")
     q.add_argument("--json", action="store_true", help="print JSON (the default output)")
     q.add_argument("--drop", type=_id_list, default=None, metavar="IDS",
@@ -505,6 +515,8 @@ def _run_train(args: argparse.Namespace) -> int:
         return 0
     if args.train_cmd == "trust":
         return _train_trust(args)
+    if args.train_cmd == "cascade":
+        return _train_cascade(args)
     if args.train_cmd == "all":
         args.model, args.out, args.steps, args.threads = None, None, None, 2
         args.n_pairs, args.n_corpus = 12_000, 8_000
@@ -544,6 +556,24 @@ def _train_all(args: argparse.Namespace) -> int:
     _train_trust(args)
     lap("trust")
     print(json.dumps({"seconds": times, "total_s": round(sum(times.values()), 1)}))
+    return 0
+
+
+def _train_cascade(args: argparse.Namespace) -> int:
+    from ratouch.paths import cascade_calibration
+    from ratouch.serve.pipeline import RATouchPipeline
+    from ratouch.threads import intra_op_threads
+    from ratouch.train.cascade import CascadeConfig, calibrate_cascade
+
+    names = [n.strip() for n in args.encoders.split(",") if n.strip()]
+    if len(names) < 2:
+        raise _usage(f"--encoders: a cascade needs two or more encoder sets, got {names}")
+    with intra_op_threads(2):
+        cal = calibrate_cascade([RATouchPipeline.load(n) for n in names],
+                                CascadeConfig(seed=args.seed, n_validation=args.n))
+    out = cal.save(args.out or cascade_calibration("+".join(names)))
+    print(json.dumps({"written": str(out), "measure": cal.measure,
+                      "thresholds": list(cal.thresholds), **cal.meta}, indent=1))
     return 0
 
 
@@ -592,9 +622,9 @@ def _run_query(args: argparse.Namespace) -> int:
 
 
 def _query(args: argparse.Namespace, swap: list[int] | None) -> int:
-    from ratouch.serve.pipeline import RATouchPipeline
+    from ratouch.serve.models import load_model
 
-    pipe = RATouchPipeline.load(args.encoder, corpus=args.corpus)
+    pipe = load_model(args.encoder, corpus=args.corpus)
     result = pipe.query(args.vision, args.tactile, box=args.box, k=args.k, label=args.label,
                         background=args.background)
     if args.drop is not None or swap is not None:

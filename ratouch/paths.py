@@ -48,6 +48,11 @@ def trust_calibration(encoder: str) -> Path:
     return ASSETS / "trust" / f"{encoder}.json"
 
 
+def cascade_calibration(encoders: str = "default-tiny+default-s") -> Path:
+    """The shipped cascade calibration (stages, confidence measure, thresholds)."""
+    return ASSETS / "cascade" / f"{encoders}.json"
+
+
 def tvl_judge_dir() -> Path:
     """The published TVL result files with GPT-4 scores (read, never copied into the repo)."""
     env = os.environ.get(TVL_JUDGE_ENV)

@@ -32,6 +32,32 @@ def test_differences_to_the_served_point_are_marked_inside_or_outside_the_noise(
     assert "+0.000~" in table and "*" in table.splitlines()[3]
     assert [q["index"] for q in pareto(points, "judge")] == ["flat"]  # 20 ms, best judge
     fig = tradeoff_figure(result)
-    bars = [t.error_y for t in fig.data if t.name == "flat"]  # judge panel, then P@5 panel
+    # judge, F1 (no CI given here: no bars) and P@5 panels
+    bars = [t.error_y for t in fig.data if t.name == "default-s flat"]
     np.testing.assert_allclose(bars[0].array, [0.1, 0.1])
-    np.testing.assert_allclose(bars[1].arrayminus, [0.05, 0.05])
+    np.testing.assert_allclose(bars[2].arrayminus, [0.05, 0.05])
+
+
+def test_cascade_and_other_encoders_are_marked_against_the_reference():
+    rng = np.random.default_rng(1)
+    ref = {"judge": rng.uniform(6, 9, 400), "f1": rng.uniform(0, 1, 400),
+           "precision_at_5": rng.uniform(0, 1, 400)}
+    points = [_point("flat", 10000, 5, 8.0, 40.0)]
+    tiny = {**_point("flat", 10000, 5, 7.9, 30.0), "encoder": "default-tiny"}
+    worse = {k: v - 0.2 for k, v in ref.items()}
+    assert _mark_noise(points + [tiny], [ref, worse], 10000) is not None
+    assert not tiny["f1_vs_reference"]["within_noise"]
+    assert tiny["precision_at_5_vs_reference"]["diff"] == -0.2
+    cascade = {**_point("flat", 10000, 5, 8.0, 45.0), "encoder": "cascade: default-tiny > default-s",
+               "system": "RA-Touch, cascade", "escalated": 0.25, "measure": "agreement",
+               "thresholds": [0.6], "judge_vs_reference": {"diff": 0.0, "ci": [-0.1, 0.1],
+                                                           "within_noise": True}}
+    result = {"points": points + [tiny, cascade], "upstream": {**points[0], "index": "upstream"},
+              "baseline_judge": 7.9, "settings": {"encoder": "default-s"}}
+    table = format_tradeoff(result)
+    assert "25.0% escalated, agreement >= 0.600: default-tiny > default-s" in table
+    assert "-0.200*" in table and "+0.000~" in table
+    fig = tradeoff_figure(result)
+    others = [t for t in fig.data if t.name == "other encoder sets and the cascade"]
+    assert len(others) == 3 and list(others[0].text) == ["default-tiny", "cascade (25% escalated)"]
+    assert list(others[0].marker.symbol) == ["triangle-up", "star"]

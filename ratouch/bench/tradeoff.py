@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
@@ -29,12 +29,16 @@ from ratouch.eval.experiments import Lab
 from ratouch.eval.judge import judge_results, mean_ci, score_stats
 from ratouch.eval.retrieval import entry_materials, material_precision
 from ratouch.eval.tvl import describe, records_for
+from ratouch.vocabulary import adjective_f1
 from ratouch.search.index import IndexConfig, VectorIndex
 from ratouch.serve.pipeline import default_corpus, open_retriever
 from ratouch.world.dataset import world_for
 from ratouch.world.splits import encode_test_split
 
 log = logging.getLogger(__name__)
+
+#: How the cascade's point names its encoder sets ("cascade: default-tiny > default-s").
+CASCADE_LABEL = "cascade: "
 
 
 def _p(times: list[float], q: float) -> float:
@@ -74,6 +78,7 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
                 judged, per_sample = _judge_stats(lab, p.neighbour_embeddings(ids))
                 prec = material_precision(ids_map[index.search(joint, 5)[1]], test.materials,
                                           entry_mats)
+                per_sample["precision_at_5"] = prec
                 pt = {"encoder": lab.cfg.encoder, "index": kind, "corpus": len(ids_map), "k": k,
                       **_latency(p, pairs, lambda q: ids_map[index.search(q, k)[1]]),
                       **judged, **_ci("precision_at_5", prec), "system": "RA-Touch"}
@@ -85,29 +90,44 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
     reference = _mark_noise(points, scores, len(p.corpus))
     upstream = _upstream_point(lab, pairs, points)
     floor, _ = _judge_stats(lab, None)  # the baseline (no retrieval) as the floor
-    points += _encoder_points(other_encoders, test, n_latency, say)
+    ref = next((sc for q, sc in zip(points, scores) if q.get("judge_vs_reference")
+                and q["index"] == "flat" and q["corpus"] == len(p.corpus) and q["k"] == 5), None)
+    alone = {lab.cfg.encoder: _Alone(p, test, p.corpus.search("text", joint, 5), ref)}
+    points += _encoder_points(other_encoders, lab, alone, pairs, say)
+    cascade = _cascade_point(lab, alone, pairs, say)
+    if cascade is not None:
+        points.append(cascade)
     return {"points": points, "upstream": upstream, "baseline_judge": floor["judge"],
             "baseline": floor, "reference": reference,
-            "settings": {"n_latency": n_latency, "threads": 1, "test_pairs": len(test.labels),
+            "settings": {"encoder": lab.cfg.encoder, "n_latency": n_latency, "threads": 1, "test_pairs": len(test.labels),
                          "note": "RA-Touch generator trained with K=5 on the whole corpus; "
                                  "other points change retrieval at inference only"}}
 
 
 def _judge_stats(lab, neighbours: tuple[np.ndarray, np.ndarray] | None
-                 ) -> tuple[dict, np.ndarray]:
+                 ) -> tuple[dict, dict[str, np.ndarray]]:
     """The judge on the test split, RA-Touch reading `neighbours` (Rv, Rl) or the baseline
-    when None: ({"judge", "judge_ci", "f1", "mean_length"}, per-sample scores)."""
+    when None: ({"judge", "judge_ci", "f1", "mean_length"}, per-sample {"judge", "f1"})."""
     test, p = lab.test, lab.pipeline
     if neighbours is None:
         responses, system = describe(p.generator_base, test.V, test.T), "baseline"
     else:
         responses, system = describe(p.generator_ra, test.V, test.T, *neighbours), "ra-touch"
-    rows, _ = judge_results(records_for(test, responses, system), lab.judge)
-    per_sample = np.array([r[lab.judge.key] for r in rows], float)
-    st = score_stats(test.labels, responses, per_sample)
+    return _answer_stats(lab.judge, test, responses, system)
+
+
+def _answer_stats(judge, split, responses: Sequence[str], system: str
+                  ) -> tuple[dict, dict[str, np.ndarray]]:
+    """Judge (with its 95 % CI), adjective F1 and length of answers to a split's pairs, and
+    the per-sample judge scores and F1."""
+    rows, _ = judge_results(records_for(split, responses, system), judge)
+    per_sample = np.array([r[judge.key] for r in rows], float)
+    st = score_stats(split.labels, responses, per_sample)
+    f1 = np.array([adjective_f1(lab, r) for lab, r in zip(split.labels, responses)])
     return ({"judge": round(st["mean"], 4),
              "judge_ci": [round(st["ci_low"], 4), round(st["ci_high"], 4)],
-             "f1": round(st["f1"], 4), "mean_length": round(st["mean_length"], 2)}, per_sample)
+             "f1": round(st["f1"], 4), "f1_ci": [round(x, 4) for x in mean_ci(f1)[1:]],
+             "mean_length": round(st["mean_length"], 2)}, {"judge": per_sample, "f1": f1})
 
 
 def _ci(key: str, values: np.ndarray) -> dict:
@@ -116,19 +136,34 @@ def _ci(key: str, values: np.ndarray) -> dict:
     return {key: round(mean, 4), f"{key}_ci": [round(lo, 4), round(hi, 4)]}
 
 
-def _mark_noise(points: list[dict], scores: list[np.ndarray], full: int) -> dict | None:
-    """Each point's judge difference to the reference point (flat index over the whole corpus,
-    K=5: what the app serves), paired per test sample with its 95 % CI; `within_noise` when
-    the CI holds 0. Returns the reference's description (None when it was not measured)."""
+def _mark_noise(points: list[dict], scores: list[dict[str, np.ndarray] | np.ndarray],
+                full: int) -> dict | None:
+    """Each point's differences to the reference point (flat index over the whole corpus,
+    K=5: what the app serves) in the judge score (and in F1 and material P@5 where per-sample
+    values are given), paired per test sample with 95 % CIs: `<key>_vs_reference`, with
+    `within_noise` when the CI holds 0. `scores` per point: {"judge", "f1"?,
+    "precision_at_5"?: (n,)}, or the judge scores alone. Returns the reference's
+    description (None when it was not measured)."""
     ref = next((j for j, q in enumerate(points) if q["index"] == "flat"
                 and q["corpus"] == full and q["k"] == 5), None)
     if ref is None:
         return None
-    for q, s in zip(points, scores):
-        mean, lo, hi = mean_ci(s - scores[ref])
-        q["judge_vs_reference"] = {"diff": round(mean, 4), "ci": [round(lo, 4), round(hi, 4)],
-                                   "within_noise": bool(lo <= 0 <= hi)}
+    scores = [sc if isinstance(sc, dict) else {"judge": sc} for sc in scores]
+    for q, sc in zip(points, scores):
+        q.update(_vs_reference(sc, scores[ref]))
     return {"index": "flat", "corpus": full, "k": 5}
+
+
+def _vs_reference(per_sample: dict[str, np.ndarray], ref: dict[str, np.ndarray]) -> dict:
+    """{"<key>_vs_reference": {"diff", "ci", "within_noise"}} for the keys both have."""
+    out = {}
+    for key in ("judge", "f1", "precision_at_5"):
+        if key in per_sample and key in ref:
+            mean, lo, hi = mean_ci(per_sample[key] - ref[key])
+            out[f"{key}_vs_reference"] = {"diff": round(mean, 4),
+                                          "ci": [round(lo, 4), round(hi, 4)],
+                                          "within_noise": bool(lo <= 0 <= hi)}
+    return out
 
 
 def _latency(p, pairs: tuple[list, list], search) -> dict[str, float]:
@@ -174,34 +209,143 @@ def _raw_pairs(test, picks) -> tuple[list, list]:
     return [s.crop for s in samples], [s.tactile for s in samples]
 
 
-def _encoder_points(encoders: Sequence[str], test, n_latency: int,
+class _Alone:
+    """One encoder set answering the test split alone (the reference's scale: flat index over
+    the whole corpus, K=5): its pipeline, encoded split, joint search and per-sample scores."""
+
+    def __init__(self, pipeline, split, search=None, per_sample=None):
+        self.pipeline, self.split = pipeline, split
+        self.scores, self.ids = search if search is not None else pipeline.corpus.search(
+            "text", pipeline.joint_query(split.V, split.T), 5)
+        self.per_sample = per_sample
+
+
+def _encoder_points(encoders: Sequence[str], lab, alone: dict, pairs: tuple[list, list],
                     say: Callable[[str], None]) -> list:
-    """Retrieval-only points for encoders without a trained retriever / generators."""
-    out = []
+    """A point per other encoder set: the whole RA-Touch answer where its retriever and
+    generators are shipped (judge, F1 and P@5 with CIs and their differences to the
+    reference), retrieval only (tactile->text P@5) otherwise."""
+    from ratouch.serve.models import available_models
+    from ratouch.serve.pipeline import RATouchPipeline
+
+    out, test = [], lab.test
+    full = set(available_models())
+    ref = alone[lab.cfg.encoder].per_sample
     for name in encoders:
         t0 = time.perf_counter()
-        retriever = open_retriever(default_corpus(name, progress=False), name)
-        split = encode_test_split(retriever.encoders, test.world)
-        ids = retriever.corpus.search("text", split.T, 5)[1]
-        crops, frames = _raw_pairs(test, range(min(n_latency, len(test.labels))))
-        times = []
-        for j, frame in enumerate(frames):
-            s = time.perf_counter()
-            retriever.encoders.encode_image([crops[j]])
-            T = retriever.encoders.encode_tactile([frame])
-            retriever.corpus.search("text", T, 5)
-            if j:
-                times.append(time.perf_counter() - s)
-        pt = {"encoder": name, "index": "flat", "corpus": len(retriever.corpus), "k": 5,
-              "p50_ms": _p(times, 50), "p95_ms": _p(times, 95), "search_p50_ms": None,
-              "judge": None,
-              **_ci("precision_at_5", material_precision(
-                  ids, split.materials, entry_materials(retriever.corpus))),
-              "system": "retrieval only (tactile->text)"}
+        if name not in full:
+            out.append(_retrieval_point(name, test, pairs))
+            say(f"{name}: p50 {out[-1]['p50_ms']:.2f} ms (encode + search), tactile->text "
+                f"P@5 {out[-1]['precision_at_5']:.3f} ({time.perf_counter() - t0:.0f} s)")
+            continue
+        p = RATouchPipeline.load(name)
+        a = alone[name] = _Alone(p, encode_test_split(p.encoders, test.world))
+        answers = describe(p.generator_ra, a.split.V, a.split.T, *p.neighbour_embeddings(a.ids))
+        judged, a.per_sample = _answer_stats(lab.judge, a.split, answers, "ra-touch")
+        a.per_sample["precision_at_5"] = material_precision(
+            a.ids, a.split.materials, entry_materials(p.corpus))
+        pt = {"encoder": name, "index": "flat", "corpus": len(p.corpus), "k": 5,
+              **_latency(p, pairs, lambda q, p=p: p.corpus.search("text", q, 5)[1]),
+              **judged, **_ci("precision_at_5", a.per_sample["precision_at_5"]),
+              "system": "RA-Touch", **(_vs_reference(a.per_sample, ref) if ref else {})}
         out.append(pt)
-        say(f"{name}: p50 {pt['p50_ms']:.2f} ms (encode + search), tactile->text P@5 "
-            f"{pt['precision_at_5']:.3f} ({time.perf_counter() - t0:.0f} s)")
+        say(f"{name}: p50 {pt['p50_ms']:.2f} ms  judge {pt['judge']:.3f}  F1 {pt['f1']:.3f}  "
+            f"P@5 {pt['precision_at_5']:.3f} ({time.perf_counter() - t0:.0f} s)")
     return out
+
+
+def _retrieval_point(name: str, test, pairs: tuple[list, list]) -> dict:
+    """Retrieval only for an encoder without a trained retriever / generators: tactile->text
+    P@5 and the encode + search latency."""
+    retriever = open_retriever(default_corpus(name, progress=False), name)
+    split = encode_test_split(retriever.encoders, test.world)
+    ids = retriever.corpus.search("text", split.T, 5)[1]
+    times = []
+    for j, (crop, frame) in enumerate(zip(*pairs)):
+        s = time.perf_counter()
+        retriever.encoders.encode_image([crop])
+        T = retriever.encoders.encode_tactile([frame])
+        retriever.corpus.search("text", T, 5)
+        if j:
+            times.append(time.perf_counter() - s)
+    return {"encoder": name, "index": "flat", "corpus": len(retriever.corpus), "k": 5,
+            "p50_ms": _p(times, 50), "p95_ms": _p(times, 95), "search_p50_ms": None,
+            "judge": None,
+            **_ci("precision_at_5", material_precision(
+                ids, split.materials, entry_materials(retriever.corpus))),
+            "system": "retrieval only (tactile->text)"}
+
+
+def _cascade_point(lab, alone: dict, pairs: tuple[list, list],
+                   say: Callable[[str], None]) -> dict | None:
+    """The shipped cascade on the test split, when its calibration is shipped and every stage
+    was measured alone: each pair answered by the stage the cascade picks (the stages' own
+    answers, judged per sample), its latency on the answer path, and its escalation share."""
+    from ratouch.paths import cascade_calibration
+    from ratouch.serve.cascade import CascadeCalibration, joint_confidence
+
+    path = cascade_calibration()
+    if not path.is_file():
+        return None
+    cal = CascadeCalibration.load(path)
+    missing = [n for n in cal.encoders if n not in alone or alone[n].per_sample is None]
+    if missing:
+        say(f"cascade: not measured ({', '.join(missing)} not measured alone; add them to "
+            "--encoders)")
+        return None
+    t0 = time.perf_counter()
+    stages = [alone[n] for n in cal.encoders]
+    classes = np.array([e.class_name for e in stages[0].pipeline.corpus.entries])
+    n = len(lab.test.labels)
+    answer = np.full(n, len(stages) - 1)
+    for s in range(len(stages) - 2, -1, -1):  # the first confident stage answers
+        conf = joint_confidence(stages[s].scores, stages[s].ids, classes, cal.measure)
+        answer = np.where(conf >= cal.thresholds[s], s, answer)
+    per_sample = {key: np.choose(answer, [a.per_sample[key] for a in stages])
+                  for key in ("judge", "f1", "precision_at_5")}
+    ref = alone[lab.cfg.encoder].per_sample
+    pt = {"encoder": CASCADE_LABEL + " > ".join(cal.encoders), "index": "flat",
+          "corpus": len(stages[0].pipeline.corpus), "k": 5,
+          **_cascade_latency([a.pipeline for a in stages], cal, classes, pairs),
+          "judge": round(float(per_sample["judge"].mean()), 4),
+          "judge_ci": [round(x, 4) for x in mean_ci(per_sample["judge"])[1:]],
+          "f1": round(float(per_sample["f1"].mean()), 4),
+          "f1_ci": [round(x, 4) for x in mean_ci(per_sample["f1"])[1:]],
+          "mean_length": None, **_ci("precision_at_5", per_sample["precision_at_5"]),
+          "escalated": round(float(np.mean(answer > 0)), 4),
+          "answered_by": {name: round(float(np.mean(answer == s)), 4)
+                          for s, name in enumerate(cal.encoders)},
+          "measure": cal.measure, "thresholds": [float(t) for t in cal.thresholds],
+          "system": "RA-Touch, cascade", **(_vs_reference(per_sample, ref) if ref else {})}
+    say(f"cascade: p50 {pt['p50_ms']:.2f} ms  judge {pt['judge']:.3f}  F1 {pt['f1']:.3f}  "
+        f"P@5 {pt['precision_at_5']:.3f}  escalated {pt['escalated']:.1%} "
+        f"({time.perf_counter() - t0:.0f} s)")
+    return pt
+
+
+
+def _cascade_latency(stages: Sequence, cal, classes: np.ndarray, pairs: tuple[list, list]
+                     ) -> dict[str, float]:
+    """p50 / p95 of the cascade's answer path per pair: each stage in turn encodes, runs its
+    retriever and searches until one is confident; that stage generates."""
+    from ratouch.serve.cascade import joint_confidence
+
+    times = []
+    for j, (crop, frame) in enumerate(zip(*pairs)):
+        t0 = time.perf_counter()
+        for s, p in enumerate(stages):
+            V = p.encoders.encode_image([crop])
+            T = p.encoders.encode_tactile([frame])
+            scores, ids = p.corpus.search("text", p.joint_query(V, T), cal.k)
+            if s < len(stages) - 1 and joint_confidence(
+                    scores, ids, classes, cal.measure)[0] < cal.thresholds[s]:
+                continue
+            rv, rl = p.neighbour_embeddings(ids[:, :5])
+            p.generator_ra.describe(*(torch.from_numpy(x) for x in (V, T, rv, rl)))
+            break
+        if j:
+            times.append(time.perf_counter() - t0)
+    return {"p50_ms": _p(times, 50), "p95_ms": _p(times, 95), "search_p50_ms": None}
 
 
 def pareto(points: Sequence[dict], key: str) -> list[dict]:
@@ -216,58 +360,74 @@ def pareto(points: Sequence[dict], key: str) -> list[dict]:
 
 
 def tradeoff_figure(result: dict):
-    """One chart: latency (log x) against the judge score, and against precision@5."""
+    """One chart: latency (log x) against the judge score, adjective F1 and material P@5 of
+    the neighbours, each with 95 % CIs; the served encoder's sweep, the other encoder sets
+    and the cascade."""
     from plotly.subplots import make_subplots
 
-    fig = make_subplots(rows=1, cols=2, subplot_titles=(
-        "offline judge score (RA-Touch, test split)", "material precision@5 of the neighbours"))
+    panels = (("judge", "offline judge (RA-Touch, test split)"),
+              ("f1", "adjective F1 of the answer"),
+              ("precision_at_5", "material precision@5 of the neighbours"))
+    fig = make_subplots(rows=1, cols=3, subplot_titles=[t for _, t in panels])
     symbols = {"flat": "circle", "hnsw": "diamond", "ivfpq": "square", "upstream": "x"}
     pts = result["points"]
-    for col, key in ((1, "judge"), (2, "precision_at_5")):
+    served = result.get("settings", {}).get("encoder", "default-s")
+    sweep = [q for q in pts if q["system"] == "RA-Touch" and q["encoder"] == served]
+    others = [q for q in pts if q not in sweep]
+    for col, (key, _) in enumerate(panels, 1):
         for kind in ("flat", "hnsw", "ivfpq"):
-            sel = [q for q in pts if q["index"] == kind and q["system"] == "RA-Touch"
-                   and q[key] is not None]
+            sel = [q for q in sweep if q["index"] == kind and q.get(key) is not None]
             if sel:
                 fig.add_scatter(
                     x=[q["p50_ms"] for q in sel], y=[q[key] for q in sel], mode="markers",
-                    name=f"{kind}", legendgroup=kind, showlegend=col == 1,
+                    name=f"{served} {kind}", legendgroup=kind, showlegend=col == 1,
                     marker={"symbol": symbols[kind], "size": [6 + 2 * q["k"] for q in sel],
                             "color": [np.log10(q["corpus"]) for q in sel],
                             "colorscale": "Viridis", "cmin": 3, "cmax": 4,
-                            "showscale": col == 2,
+                            "showscale": col == 3,
                             "colorbar": {"title": "log10 corpus"}},
                     error_y=_error_bars(sel, key),
-                    text=[f"{q['index']} corpus {q['corpus']} K={q['k']}" + _noise_note(q)
+                    text=[f"{q['index']} corpus {q['corpus']} K={q['k']}" + _noise_note(q, key)
                           for q in sel],
                     row=1, col=col)
-        front = pareto([q for q in pts if q["system"] == "RA-Touch"], key)
-        fig.add_scatter(x=[q["p50_ms"] for q in front], y=[q[key] for q in front],
-                        mode="lines", name="frontier", line={"color": "grey", "dash": "dot"},
-                        showlegend=col == 1, legendgroup="frontier", row=1, col=col)
+        front = pareto(sweep, key)
+        if front:
+            fig.add_scatter(x=[q["p50_ms"] for q in front], y=[q[key] for q in front],
+                            mode="lines", name="frontier", line={"color": "grey", "dash": "dot"},
+                            showlegend=col == 1, legendgroup="frontier", row=1, col=col)
         up = result["upstream"]
         if up.get(key) is not None:
             fig.add_scatter(x=[up["p50_ms"]], y=[up[key]], mode="markers+text",
                             text=["upstream"], textposition="top center",
                             marker={"symbol": "x", "size": 12, "color": "red"},
                             name="upstream retrieval", showlegend=col == 1, row=1, col=col)
-        if key == "precision_at_5":
-            enc = [q for q in pts if q["system"].startswith("retrieval only")]
-            if enc:
-                fig.add_scatter(x=[q["p50_ms"] for q in enc], y=[q[key] for q in enc],
-                                mode="markers+text", text=[q["encoder"] for q in enc],
-                                textposition="bottom center", name="other encoders "
-                                "(tactile->text, no generator)",
-                                marker={"symbol": "triangle-up", "size": 10, "color": "black"},
-                                row=1, col=col)
-        else:
+        sel = [q for q in others if q.get(key) is not None]
+        if sel:
+            fig.add_scatter(
+                x=[q["p50_ms"] for q in sel], y=[q[key] for q in sel], mode="markers+text",
+                text=[_short(q) for q in sel], textposition="bottom center",
+                name="other encoder sets and the cascade", legendgroup="others",
+                showlegend=col == 1, error_y=_error_bars(sel, key),
+                hovertext=[q["system"] + _noise_note(q, key) for q in sel],
+                marker={"symbol": ["star" if q["system"].endswith("cascade") else
+                                   "triangle-up" for q in sel], "size": 12, "color": "black"},
+                row=1, col=col)
+        if key == "judge":
             fig.add_hline(y=result["baseline_judge"], line_dash="dash", line_color="black",
                           annotation_text="baseline (no retrieval)", row=1, col=col)
     fig.update_xaxes(type="log", title="p50 latency per query, ms (warm, 1 thread)")
     fig.update_layout(title="Speed against accuracy (marker size = K, colour = corpus size; "
                             "bars: 95 % CIs)",
-                      template="plotly_white", height=500, width=1100,
+                      template="plotly_white", height=500, width=1500,
                       legend={"orientation": "h", "y": -0.22})
     return fig
+
+
+def _short(q: dict) -> str:
+    """A point's label on the chart: the encoder set, or the cascade with its escalations."""
+    if q["system"].endswith("cascade"):
+        return f"cascade ({q['escalated']:.0%} escalated)"
+    return q["encoder"] + ("" if q["system"] == "RA-Touch" else " (retrieval only)")
 
 
 def _error_bars(points: Sequence[dict], key: str) -> dict | None:
@@ -280,20 +440,21 @@ def _error_bars(points: Sequence[dict], key: str) -> dict | None:
             "arrayminus": [q[key] - ci[0] for q, ci in zip(points, cis)]}
 
 
-def _noise_note(q: dict) -> str:
-    d = q.get("judge_vs_reference")
+def _noise_note(q: dict, key: str = "judge") -> str:
+    d = q.get(f"{key}_vs_reference")
     if not d:
         return ""
-    return (f"<br>judge vs reference {d['diff']:+.3f} [{d['ci'][0]:+.3f}, {d['ci'][1]:+.3f}]"
+    return (f"<br>{key} vs reference {d['diff']:+.3f} [{d['ci'][0]:+.3f}, {d['ci'][1]:+.3f}]"
             + (" (inside the noise)" if d["within_noise"] else ""))
 
 
 def format_tradeoff(result: dict) -> str:
     """The points as a table: latency, the judge with its 95 % CI, F1, length, P@5 with its
-    CI, and the judge difference to the reference point (`~` where it is inside the noise)."""
+    CI, and the judge, F1 and P@5 differences to the reference point (`~` where the
+    difference's 95 % CI holds 0, inside the noise; `*` where it does not)."""
     lines = [f"{'encoder':<13}{'index':<9}{'corpus':>7}{'K':>4}{'p50 ms':>9}{'p95 ms':>9}"
              f"{'search':>9}  {'judge [95% CI]':<24}{'F1':>6}{'len':>5}  {'P@5 [95% CI]':<22}"
-             f"{'vs ref':>8}  system"]
+             f"{'vs ref: judge':>14}{'F1':>9}{'P@5':>9}  system"]
     for q in result["points"] + [result["upstream"]]:
         judge = (f"{q['judge']:.3f} [{q['judge_ci'][0]:.3f}, {q['judge_ci'][1]:.3f}]"
                  if q.get("judge") is not None else "-")
@@ -303,18 +464,27 @@ def format_tradeoff(result: dict) -> str:
                 f"{q['precision_at_5_ci'][1]:.3f}]" if q.get("precision_at_5") is not None
                 else "-")
         srch = f"{q['search_p50_ms']:.3f}" if q.get("search_p50_ms") is not None else "-"
-        d = q.get("judge_vs_reference")
-        vs = f"{d['diff']:+.3f}{'~' if d['within_noise'] else '*'}" if d else "-"
-        lines.append(f"{q['encoder']:<13}{q['index']:<9}{q['corpus']:>7}{q['k']:>4}"
+        vs = [_vs_cell(q.get(f"{key}_vs_reference"))
+              for key in ("judge", "f1", "precision_at_5")]
+        name = q["encoder"] if not q["system"].endswith("cascade") else "cascade"
+        system = q["system"] + (f" ({q['escalated']:.1%} escalated, {q['measure']} >= "
+                                f"{', '.join(f'{t:.3f}' for t in q['thresholds'])}: "
+                                f"{q['encoder'][len(CASCADE_LABEL):]})"
+                                if "escalated" in q else "")
+        lines.append(f"{name:<13}{q['index']:<9}{q['corpus']:>7}{q['k']:>4}"
                      f"{q['p50_ms']:>9.2f}{q['p95_ms']:>9.2f}{srch:>9}  {judge:<24}{f1:>6}"
-                     f"{length:>5}  {prec:<22}{vs:>8}  {q['system']}")
+                     f"{length:>5}  {prec:<22}{vs[0]:>14}{vs[1]:>9}{vs[2]:>9}  {system}")
     b = result.get("baseline") or {"judge": result["baseline_judge"]}
     lines.append(f"baseline (no retrieval) judge: {b['judge']:.3f}"
                  + (f" [{b['judge_ci'][0]:.3f}, {b['judge_ci'][1]:.3f}], F1 {b['f1']:.3f}, "
                     f"{b['mean_length']:.1f} adj" if "judge_ci" in b else ""))
     if result.get("reference"):
         r = result["reference"]
-        lines.append(f"vs ref: judge difference to the {r['index']} index over the whole corpus "
-                     f"({r['corpus']}) at K={r['k']}, paired per test sample; ~ = its 95 % CI "
-                     f"holds 0 (inside the noise), * = it does not")
+        lines.append(f"vs ref: differences to the {r['index']} index over the whole corpus "
+                     f"({r['corpus']}) at K={r['k']} with the served encoder, paired per test "
+                     "sample; ~ = its 95 % CI holds 0 (inside the noise), * = it does not")
     return "\n".join(lines)
+
+
+def _vs_cell(d: dict | None) -> str:
+    return f"{d['diff']:+.3f}{'~' if d['within_noise'] else '*'}" if d else "-"

@@ -65,14 +65,18 @@ class QueryBatcher:
         self._worker: threading.Thread | None = None
 
     def query(self, visual: Any, tactile: Any = None, box=None, k: int = 5,
-              label: str | None = None, background: Any = None) -> dict:
-        """`RATouchPipeline.query`, answered in a batch with concurrent calls.
+              label: str | None = None, background: Any = None,
+              encoder: str | None = None) -> dict:
+        """`RATouchPipeline.query`, answered in a batch with concurrent calls (`encoder`:
+        the model, for a pipeline that offers a choice, `ratouch.serve.models.ModelChoice`).
 
         The images are decoded and checked here, in the caller's thread, so that a slow
         upload (or a bad one) delays only its own caller, never the shared batch."""
-        item = _Pending(self.pipeline.prepare_request(
-            {"visual": visual, "tactile": tactile, "box": box, "k": k, "label": label,
-             "background": background}))
+        req = {"visual": visual, "tactile": tactile, "box": box, "k": k, "label": label,
+               "background": background}
+        if encoder is not None:
+            req["encoder"] = encoder
+        item = _Pending(self.pipeline.prepare_request(req))
         with self._cv:
             self._queue.append(item)
             if self._worker is None or not self._worker.is_alive():

@@ -286,7 +286,7 @@ class RATouchPipeline:
             {"description": {"ra_touch"}, "neighbours": [entries as in `query`, scored by the
             joint query], "attention": {"image"|"text": [per neighbour]}, "timings_ms"}.
         """
-        clock = _Laps()
+        clock = Laps()
         ids = self._neighbour_ids(neighbours)
         req = self.prepare_request({"visual": visual, "tactile": tactile, "box": box})
         if req["frame"] is None:
@@ -439,18 +439,31 @@ class RATouchPipeline:
             same). `timings_ms` are the batch's stages, shared by its requests, plus
             "batch_size".
         """
-        clock = _Laps()
+        clock = Laps()
+        out, items = self.prepare_many(requests)
+        if items:
+            clock.lap("preprocess")
+            queries, touch = self.encode_queries(items, clock)
+            self.answer(out, items, queries, touch, clock)
+        return out
+
+    def prepare_many(self, requests: Sequence[Mapping[str, Any]]
+                     ) -> tuple[list[Any], list[dict]]:
+        """`prepare_request` for each request: (per request, the exception it raised or
+        None; the prepared requests, each with its position "pos")."""
         out: list[Any] = [None] * len(requests)
         items: list[dict] = []
         for pos, req in enumerate(requests):
             try:
-                items.append({"pos": pos, **self.prepare_request(req)})
+                items.append({**self.prepare_request(req), "pos": pos})
             except (RATouchError, OSError) as e:
                 out[pos] = e
-        if not items:
-            return out
-        clock.lap("preprocess")
-        queries, touch = self._encode(items, clock)
+        return out, items
+
+    def answer(self, out: list[Any], items: list[dict], queries: list[dict],
+               touch: list[int], clock: "Laps") -> None:
+        """The rest of `query_many` once `encode_queries` has run: trust, search, the two
+        generations and the PCA points; each item's result goes to `out[item["pos"]]`."""
         trust = [self._assess(it, q) for it, q in zip(items, queries)]
         clock.lap("trust")
         results = self._search(items, queries)
@@ -473,9 +486,9 @@ class RATouchPipeline:
                 "timings_ms": {**timings, "decode": it["decode_ms"]},
                 "warnings": it["warnings"] + (trust[j] or {}).get("warnings", []),
                 "box": [int(v) for v in it["box"]],
+                "encoder": self.encoders.name,
                 "trust": None if trust[j] is None else
                 {m: trust[j][m] for m in ("visual", "tactile")}}
-        return out
 
     def _assess(self, item: dict, queries: dict) -> dict | None:
         """The trust block of one prepared request (None, with a warning, uncalibrated)."""
@@ -486,8 +499,9 @@ class RATouchPipeline:
         return self.trust.assess(queries["image"], queries.get("tactile"), item["frame"],
                                  item.get("background"))
 
-    def _encode(self, items: list[dict], clock: "_Laps") -> tuple[list[dict], list[int]]:
-        """Per item {mode: (1, D) query}; and which items have a tactile frame."""
+    def encode_queries(self, items: list[dict], clock: "Laps"
+                       ) -> tuple[list[dict], list[int]]:
+        """Per prepared item {mode: (1, D) query}; and which items have a tactile frame."""
         V = self.encoders.encode_image([it["crop"] for it in items])
         clock.lap("encode_image")
         queries: list[dict[str, np.ndarray]] = [{"image": V[j:j + 1]} for j in range(len(items))]
@@ -571,7 +585,7 @@ def _source_size(image: Any) -> tuple[int, int] | None:
         return None
 
 
-class _Laps:
+class Laps:
     """Stage timings of one `query_many` call, in ms."""
 
     def __init__(self):

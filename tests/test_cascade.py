@@ -1,0 +1,131 @@
+"""The encoder cascade (`ratouch.serve.cascade`), its calibration rule
+(`ratouch.train.cascade`) and the per-query model choice (`ratouch.serve.models`)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.serve.cascade import Cascade, CascadeCalibration, joint_confidence
+from ratouch.serve.models import ModelChoice
+from ratouch.train.cascade import choose_thresholds
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+def test_confidence_measures():
+    scores = np.array([[0.9, 0.5, 0.4], [0.6, 0.59, 0.58]])
+    ids = np.array([[0, 1, 2], [3, 4, 5]])
+    classes = np.array(["a", "a", "b", "c", "c", "c"])
+    assert joint_confidence(scores, ids, classes, "top1").tolist() == [0.9, 0.6]
+    np.testing.assert_allclose(joint_confidence(scores, ids, classes, "margin"),
+                               [0.9 - 0.6, 0.6 - 0.59])
+    np.testing.assert_allclose(joint_confidence(scores, ids, classes, "agreement"), [2 / 3, 1])
+    with pytest.raises(ConfigError, match="unknown confidence measure"):
+        joint_confidence(scores, ids, classes, "vibes")
+
+
+def test_threshold_rule_keeps_the_large_stage_accuracy():
+    rng = np.random.default_rng(0)
+    n = 400
+    conf = rng.random(n)
+    large = {"precision": np.full(n, 0.6), "f1": np.full(n, 0.5)}
+    # the small stage is better than the large one when confident, worse otherwise
+    small = {"precision": np.where(conf > 0.5, 0.9, 0.1), "f1": np.where(conf > 0.5, 0.8, 0.1)}
+    (t,), summary = choose_thresholds([conf], [small, large])
+    here = conf >= t
+    for m in ("precision", "f1"):
+        assert np.where(here, small[m], large[m]).mean() >= large[m].mean()
+    # the lowest such threshold: one step lower breaks the rule
+    lower = np.sort(conf)[np.searchsorted(np.sort(conf), t) - 1]
+    assert np.where(conf >= lower, small["f1"], large["f1"]).mean() < large["f1"].mean() or \
+        np.where(conf >= lower, small["precision"], large["precision"]).mean() < 0.6
+    assert summary["answered_by"][0] == pytest.approx(here.mean(), abs=1e-4)
+    assert 1 < summary["stages_run"] < 2
+    # a small stage worse everywhere never answers
+    (t,), summary = choose_thresholds([conf], [{m: v * 0 for m, v in small.items()}, large])
+    assert t == np.inf and summary["answered_by"] == [0.0, 1.0]
+
+
+def test_calibration_file_round_trip(tmp_path):
+    cal = CascadeCalibration(("default-tiny", "default-s"), "agreement", 5, (0.6,),
+                             {"n_validation": 10})
+    back = CascadeCalibration.load(cal.save(tmp_path / "c.json"))
+    assert back == cal
+    never = CascadeCalibration(("a", "b"), "top1", 5, (np.inf,))
+    assert CascadeCalibration.load(never.save(tmp_path / "n.json")).thresholds == (np.inf,)
+    with pytest.raises(DataNotFoundError, match="ratouch train cascade"):
+        CascadeCalibration.load(tmp_path / "missing.json")
+    (tmp_path / "bad.json").write_text(json.dumps({"format": "other"}))
+    with pytest.raises(DataError, match="not a cascade calibration"):
+        CascadeCalibration.load(tmp_path / "bad.json")
+    with pytest.raises(ConfigError, match="thresholds"):
+        CascadeCalibration(("a", "b", "c"), "top1", 5, (0.5,))
+
+
+def _cascade(pipeline, threshold: float) -> Cascade:
+    name = pipeline.encoders.name
+    return Cascade([pipeline, pipeline],
+                   CascadeCalibration((name, name), "agreement", 5, (threshold,)))
+
+
+def test_cascade_answers_with_the_first_confident_stage(pipeline, world):
+    s = world.sample("test", 150)
+    alone = pipeline.query(s.visual, s.tactile, box=s.box)
+    first = _cascade(pipeline, -np.inf).query(s.visual, s.tactile, box=s.box)
+    last = _cascade(pipeline, np.inf).query(s.visual, s.tactile, box=s.box)
+    assert first["cascade"]["stage"] == 0 and not first["cascade"]["escalated"]
+    assert last["cascade"]["stage"] == 1 and last["cascade"]["escalated"]
+    # the confidence is measured at the first stage only; the last stage always answers
+    assert len(first["cascade"]["confidence"]) == len(last["cascade"]["confidence"]) == 1
+    assert "earlier_stages" in last["timings_ms"] and "earlier_stages" not in first["timings_ms"]
+    for r in (first, last):  # the same model at both stages: the same answer
+        assert r["description"] == alone["description"]
+        assert [n["id"] for n in r["neighbours"]["joint"]] == \
+            [n["id"] for n in alone["neighbours"]["joint"]]
+    # the threshold really decides: at the measured confidence the first stage answers
+    c = first["cascade"]["confidence"][0]
+    assert _cascade(pipeline, c).query(s.visual, s.tactile, box=s.box)["cascade"]["stage"] == 0
+    assert _cascade(pipeline, c + 1e-6).query(s.visual, s.tactile,
+                                              box=s.box)["cascade"]["stage"] == 1
+
+
+def test_cascade_batches_mixed_requests(pipeline, world):
+    casc = _cascade(pipeline, np.inf)
+    a, b = world.sample("test", 160), world.sample("test", 170)
+    out = casc.query_many([{"visual": a.visual, "tactile": a.tactile, "box": a.box},
+                           {"visual": b.visual, "box": b.box},  # no tactile: no joint query
+                           {"visual": "no-such-file.png"}])
+    assert out[0]["cascade"]["escalated"]
+    assert out[1]["cascade"] == {**out[1]["cascade"], "stage": 0, "confidence": []}
+    assert isinstance(out[2], Exception)
+    again = casc.regenerate(a.visual, a.tactile, [n["id"] for n in out[0]["neighbours"]["joint"]],
+                            box=a.box)
+    assert again["description"]["ra_touch"] == out[0]["description"]["ra_touch"]
+    with pytest.raises(ConfigError, match="not a stage"):
+        casc.regenerate(a.visual, a.tactile, [1], box=a.box, encoder="default-xl")
+
+
+def test_model_choice_routes_each_request(pipeline, world):
+    loads = []
+
+    def load(name):
+        loads.append(name)
+        return pipeline
+
+    choice = ModelChoice("default-s", ["default-s", "other"], load=load)
+    assert loads == ["default-s"]  # the others load on first use
+    s = world.sample("test", 180)
+    out = choice.query_many([{"visual": s.visual, "tactile": s.tactile, "box": s.box},
+                             {"visual": s.visual, "tactile": s.tactile, "box": s.box,
+                              "encoder": "other"},
+                             {"visual": s.visual, "encoder": "nope"}])
+    assert loads == ["default-s", "other"]
+    assert out[0]["description"] == out[1]["description"]
+    assert isinstance(out[2], ConfigError) and "unknown model 'nope'" in str(out[2])
+    with pytest.raises(ConfigError, match="unknown model"):
+        choice.query(s.visual, encoder="nope")
+    assert choice.corpus is pipeline.corpus  # the default model's parts
