@@ -497,6 +497,32 @@ def test_query_api_through_gradio_client(served, pair_files):
         == ["/query"]
 
 
+def test_the_model_is_a_choice_in_the_page_and_the_api(pair_files):
+    from gradio_client import Client, handle_file
+
+    from app.app import build_demo, launch
+    from ratouch.serve.models import ModelChoice
+
+    pipes = {"small": FakePipeline(), "large": FakePipeline()}
+    choice = ModelChoice("small", ["small", "large"], load=pipes.__getitem__)
+    demo = build_demo(choice, models=["small", "large"])
+    dropdown = [c for c in demo.config["components"] if c.get("props", {}).get("elem_id") == "model"]
+    assert dropdown[0]["props"]["interactive"] and dropdown[0]["props"]["value"] == "small"
+    port = free_port()
+    launch(demo, "127.0.0.1", port, block=False)
+    try:
+        client = Client(f"http://127.0.0.1:{port}/", verbose=False)
+        files = handle_file(str(pair_files[0])), handle_file(str(pair_files[1]))
+        client.predict(*files, None, None, None, None, 5, api_name="/query")  # the default
+        client.predict(*files, None, None, None, None, 5, "large", api_name="/query")
+        assert len(pipes["small"].calls) == 1 and len(pipes["large"].calls) == 1
+        with pytest.raises(Exception, match="large|small|model"):  # not a choice: refused
+            client.predict(*files, None, None, None, None, 5, "huge", api_name="/query")
+        assert len(pipes["small"].calls) + len(pipes["large"].calls) == 2
+    finally:
+        demo.close()
+
+
 def test_query_api_bad_input_is_a_clear_error_and_the_server_keeps_serving(served, pair_files,
                                                                             tmp_path):
     from gradio_client import Client, handle_file

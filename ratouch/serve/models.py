@@ -58,9 +58,10 @@ class ModelChoice:
         self.names = list(dict.fromkeys([*(names if names is not None
                                            else available_models()), default]))
         self.default = default
-        self._load = load or (lambda name: load_model(name, corpus=corpus, progress=True))
+        self._corpus = corpus
+        self._load = load or self._load_shared
+        self._lock = threading.RLock()  # re-entered when the cascade loads its stages
         self._models: dict[str, Any] = {default: self._load(default)}
-        self._lock = threading.Lock()
 
     def model(self, name: str | None = None) -> Any:
         """The model called `name` (default: the default one), loaded on first use."""
@@ -73,9 +74,21 @@ class ModelChoice:
                 self._models[name] = self._load(name)
             return self._models[name]
 
+    def _load_shared(self, name: str) -> Any:
+        """`load_model`, but the cascade's stages are the models of the same names."""
+        if name != CASCADE:
+            return load_model(name, corpus=self._corpus, progress=True)
+        from ratouch.paths import cascade_calibration
+        from ratouch.serve.cascade import CascadeCalibration
+
+        cal = CascadeCalibration.load(cascade_calibration())
+        return Cascade([self.model(n) if n in self.names else
+                        load_model(n, corpus=self._corpus) for n in cal.encoders], cal)
+
     def __getattr__(self, name: str) -> Any:
         # the default model stands for the choice where one pipeline's parts are asked for
-        if name.startswith("__") or name in ("_models", "_load", "_lock", "names", "default"):
+        if name.startswith("__") or name in ("_models", "_load", "_lock", "_corpus", "names",
+                                                "default"):
             raise AttributeError(name)
         return getattr(self._models[self.default], name)
 
@@ -88,8 +101,8 @@ class ModelChoice:
               label: str | None = None, background: Any = None,
               encoder: str | None = None) -> dict:
         """`RATouchPipeline.query` by the model named `encoder` (default: the default)."""
-        return self.model(encoder).query(visual, tactile, box=box, k=k, label=label,
-                                         background=background)
+        extra = {} if background is None else {"background": background}
+        return self.model(encoder).query(visual, tactile, box=box, k=k, label=label, **extra)
 
     def query_many(self, requests: Sequence[Mapping[str, Any]]) -> list[Any]:
         """`RATouchPipeline.query_many`, each request by its own model (one batch each)."""
