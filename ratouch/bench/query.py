@@ -73,17 +73,23 @@ def bench_query(encoder: str = "default-s", corpus: str | None = None, n: int = 
                 k: int = 5, seed: int = 0) -> dict:
     """Cold start and warm latency of the whole RA-Touch query (both encoders, three
     retrievals, retriever, integrator, both generations, PCA) on world test pairs."""
-    corpus = corpus or str(default_corpus(encoder, progress=False))  # built outside the timing
+    from ratouch.serve.cascade import CASCADE
+    from ratouch.serve.models import load_model
+
+    if encoder != CASCADE:  # the cascade's stages each use their default corpus
+        corpus = corpus or str(default_corpus(encoder, progress=False))  # built before timing
     t0 = time.perf_counter()
-    pipe = RATouchPipeline.load(encoder, corpus=corpus)
+    pipe = load_model(encoder, corpus=corpus)
     cold = time.perf_counter() - t0
     world = World(WorldConfig(seed=seed))
     samples = [world.sample("test", 46 + (7 * i) % 356) for i in range(n)]
     pipe.query(samples[0].visual, samples[0].tactile, box=samples[0].box, k=k)  # warm-up
-    totals, stages = [], {}
+    totals, stages, escalated = [], {}, []
     for s in samples:
         r = pipe.query(s.visual, s.tactile, box=s.box, k=k)
         totals.append(r["timings_ms"]["total"])
+        if "cascade" in r:
+            escalated.append(r["cascade"]["escalated"])
         for name, ms in r["timings_ms"].items():
             stages.setdefault(name, []).append(ms)
     return {"encoder": encoder, "corpus_size": len(pipe.corpus), "n_queries": n, "k": k,
@@ -91,6 +97,7 @@ def bench_query(encoder: str = "default-s", corpus: str | None = None, n: int = 
             "p50_ms": round(float(np.percentile(totals, 50)), 1),
             "p95_ms": round(float(np.percentile(totals, 95)), 1),
             "stages_p50_ms": {k_: round(float(np.median(v)), 2) for k_, v in stages.items()},
+            **({"escalated": round(float(np.mean(escalated)), 4)} if escalated else {}),
             "generation": bench_generation(pipe, samples[:20], k),
             "regenerate_after_drop_ms": bench_regenerate(pipe, samples[:20], k),
             "loadavg": [round(x, 2) for x in os.getloadavg()],

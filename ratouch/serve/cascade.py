@@ -33,7 +33,7 @@ import numpy as np
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
-from ratouch.serve.pipeline import Laps, RATouchPipeline
+from ratouch.serve.pipeline import Laps, RATouchPipeline, answer_one
 
 log = logging.getLogger(__name__)
 
@@ -190,11 +190,8 @@ class Cascade:
         """`RATouchPipeline.query`, answered by the smallest confident stage; the result
         adds "cascade": {"answered_by", "stage", "escalated", "confidence": [per stage
         tried], "thresholds", "measure"}."""
-        out = self.query_many([{"visual": visual, "tactile": tactile, "box": box, "k": k,
-                                "label": label, "background": background}])[0]
-        if isinstance(out, Exception):
-            raise out
-        return out
+        return answer_one(self.query_many, {"visual": visual, "tactile": tactile, "box": box,
+                                            "k": k, "label": label, "background": background})
 
     def query_many(self, requests: Sequence[Mapping[str, Any]]) -> list[dict | Exception]:
         """`RATouchPipeline.query_many` through the cascade."""

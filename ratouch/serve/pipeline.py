@@ -18,7 +18,8 @@ import shutil
 import threading
 import time
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -420,11 +421,8 @@ class RATouchPipeline:
             or None} or None (no calibration)}. A frame without contact gets empty
             descriptions and a "no contact detected" warning instead of a material guess.
         """
-        out = self.query_many([{"visual": visual, "tactile": tactile, "box": box, "k": k,
-                                "label": label, "background": background}])[0]
-        if isinstance(out, Exception):
-            raise out
-        return out
+        return answer_one(self.query_many, {"visual": visual, "tactile": tactile, "box": box,
+                                            "k": k, "label": label, "background": background})
 
     def query_many(self, requests: Sequence[Mapping[str, Any]]) -> list[dict | Exception]:
         """Several `query` calls at once (`query` is this with one request).
@@ -569,6 +567,14 @@ class RATouchPipeline:
             for j, (x, y) in zip(labelled, xy):
                 points[j].append({"role": "ground_truth", "x": float(x), "y": float(y)})
         return points
+
+
+def answer_one(query_many: Callable[[list], list], request: dict) -> dict:
+    """`query_many` on one request: its result, or the exception it holds raised."""
+    out = query_many([request])[0]
+    if isinstance(out, Exception):
+        raise out
+    return out
 
 
 def _source_size(image: Any) -> tuple[int, int] | None:
