@@ -168,13 +168,13 @@ def status_md(title: str, warnings: list[str], box: list[int] | None = None,
 
 def model_note(result: dict) -> str:
     """The status line's model: "· model `default-s`", or for the cascade "· answered by
-    `default-tiny` (cascade: agreement 0.80 ≥ 0.60)"; "" when the result names none."""
+    `default-tiny` (cascade: margin 0.080 ≥ 0.046)"; "" when the result names none."""
     c = result.get("cascade")
     if not c:
         return f" · model `{result['encoder']}`" if result.get("encoder") else ""
     conf, th = c["confidence"], c["thresholds"]
-    steps = [f"{conf[s]:.2f} {'≥' if th[s] is not None and conf[s] >= th[s] else '<'} "
-             f"{'∞' if th[s] is None else format(th[s], '.2f')}"
+    steps = [f"{conf[s]:.3f} {'≥' if th[s] is not None and conf[s] >= th[s] else '<'} "
+             f"{'∞' if th[s] is None else format(th[s], '.3f')}"
              for s in range(min(len(conf), len(th)))]
     why = f"{c['measure']} " + ", then ".join(steps) if steps else "no joint query"
     return (f" · answered by `{c['answered_by']}` (cascade"

@@ -129,3 +129,18 @@ def test_model_choice_routes_each_request(pipeline, world):
     with pytest.raises(ConfigError, match="unknown model"):
         choice.query(s.visual, encoder="nope")
     assert choice.corpus is pipeline.corpus  # the default model's parts
+
+
+def test_the_page_says_which_model_answered_and_why():
+    from app.view import model_note
+
+    assert model_note({"encoder": "default-s"}) == " · model `default-s`"
+    assert model_note({}) == ""
+    note = model_note({"encoder": "default-s", "cascade": {
+        "answered_by": "default-s", "stage": 1, "escalated": True, "confidence": [0.0008],
+        "thresholds": [0.0456], "measure": "margin"}})
+    assert note == " · answered by `default-s` (cascade, escalated: margin 0.001 < 0.046)"
+    never = model_note({"cascade": {"answered_by": "b", "stage": 1, "escalated": True,
+                                    "confidence": [0.5], "thresholds": [None],
+                                    "measure": "top1"}})
+    assert "top1 0.500 < ∞" in never
