@@ -144,3 +144,18 @@ def test_the_page_says_which_model_answered_and_why():
                                     "confidence": [0.5], "thresholds": [None],
                                     "measure": "top1"}})
     assert "top1 0.500 < ∞" in never
+
+
+def test_model_choice_builds_the_cascade_from_its_own_models(pipeline, tmp_path, monkeypatch):
+    import ratouch.paths
+    import ratouch.serve.models as models
+
+    name = pipeline.encoders.name
+    path = CascadeCalibration((name, name), "margin", 5, (0.05,)).save(tmp_path / "c.json")
+    monkeypatch.setattr(ratouch.paths, "cascade_calibration", lambda *a: path)
+    loads = []
+    monkeypatch.setattr(models, "load_model", lambda n, **kw: loads.append(n) or pipeline)
+    choice = ModelChoice("cascade", [name, "cascade"])  # the cascade is the default model
+    assert loads == [name]  # its stages are the choice's own model, loaded once
+    assert choice.model("cascade").stages == [pipeline, pipeline]
+    assert choice.model(name) is pipeline and loads == [name]

@@ -61,7 +61,8 @@ class ModelChoice:
         self._corpus = corpus
         self._load = load or self._load_shared
         self._lock = threading.RLock()  # re-entered when the cascade loads its stages
-        self._models: dict[str, Any] = {default: self._load(default)}
+        self._models: dict[str, Any] = {}
+        self.model(default)  # loaded now (the cascade loads its stages as models too)
 
     def model(self, name: str | None = None) -> Any:
         """The model called `name` (default: the default one), loaded on first use."""
