@@ -368,6 +368,13 @@ def _add_bench(sub) -> None:
     r.add_argument("--queries", type=_pos_int, default=200)
     r.add_argument("--scale", type=_nonneg_int, default=0,
                    help="also build/load/query an index of this many vectors (e.g. 1000000)")
+    r.add_argument("--corpus", default=None,
+                   help="instead of synthetic vectors: a built corpus's real embeddings, with "
+                        "--queries of its entries held out as queries")
+    r.add_argument("--encoder", default="default-s", help="with --corpus: whose embeddings")
+    r.add_argument("--key", choices=("image", "text", "both"), default="both",
+                   help="with --corpus: which key's embeddings are indexed")
+    r.add_argument("--kinds", default="hnsw,ivfflat,ivfpq", help="with --corpus: index kinds")
     r.add_argument("--json", action="store_true")
     to = bsub.add_parser("tradeoff", help="latency against quality over index, corpus size, "
                                           "K and encoder; one chart with the frontier")
@@ -829,7 +836,8 @@ def _eval_ttest(args: argparse.Namespace) -> int:
 
 def _run_bench(args: argparse.Namespace) -> int:
 
-    from ratouch.bench.index import bench_retrieval, bench_scale, format_bench
+    from ratouch.bench.index import (bench_corpus_index, bench_retrieval, bench_scale,
+                                     format_bench, format_real)
     from ratouch.bench.query import bench_query, bench_world
     from ratouch.corpus.imagenet_t import parse_size
 
@@ -855,8 +863,14 @@ def _run_bench(args: argparse.Namespace) -> int:
         print(json.dumps(bench_upload(args.encoder, args.corpus, args.side, args.repeats),
                          indent=1))
         return 0
+    if args.bench_cmd == "retrieval" and args.corpus:
+        keys = ("image", "text") if args.key == "both" else (args.key,)
+        kinds = tuple(k for k in args.kinds.split(",") if k)
+        r = {key: bench_corpus_index(args.corpus, args.encoder, key, kinds, args.queries,
+                                     progress=not args.json) for key in keys}
+        print(json.dumps(r) if args.json else "\n\n".join(format_real(v) for v in r.values()))
+        return 0
     if args.bench_cmd == "retrieval":
-
         r = bench_retrieval(n=args.n, dim=args.dim, n_queries=args.queries)
         if args.scale:
             r["scale"] = bench_scale(n=args.scale, dim=args.dim)

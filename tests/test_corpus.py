@@ -13,6 +13,8 @@ from ratouch.corpus.imagenet_t import (build_corpus, load_corpus, parse_size, st
                                        stratified_world_ids, world_lexicon)
 from ratouch.corpus.recaption import OfflineRecaptioner, validate_caption
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.world.config import WorldConfig
+from ratouch.world.generator import CORPUS_MAX_PER_CLASS, CORPUS_POOL_PER_CLASS, World
 from ratouch.world.material import material
 from ratouch.world.objects import OBJECT_CLASSES
 
@@ -35,7 +37,25 @@ def test_subsets_are_stratified_and_nested():
     assert max(per_class.values()) - min(per_class.values()) <= 1
     assert len(stratified_world_ids(150_000, seed=0)) == 150_000
     with pytest.raises(ConfigError, match="pool"):
-        stratified_world_ids(10_000_000, seed=0)
+        stratified_world_ids(20_000_000, seed=0)
+
+
+def test_corpora_past_the_pool_extend_it_and_hold_all_of_it():
+    pool = len(OBJECT_CLASSES) * CORPUS_POOL_PER_CLASS
+    full, past = stratified_world_ids(pool, seed=0), stratified_world_ids(pool + 500, seed=0)
+    assert set(full) == {(c, i) for c in range(len(OBJECT_CLASSES))
+                         for i in range(CORPUS_POOL_PER_CLASS)}
+    extra = set(past) - set(full)
+    assert len(past) == len(set(past)) == pool + 500 and len(extra) == 500
+    per_class = collections.defaultdict(set)
+    for c, i in past:
+        per_class[c].add(i)
+    assert all(got == set(range(len(got))) for got in per_class.values())  # the next ones
+    world = World(WorldConfig(seed=0))
+    a, b = world.corpus_image(3, CORPUS_POOL_PER_CLASS), world.corpus_image(3, 5_000)
+    assert a.shape == b.shape and not np.array_equal(a, b)
+    with pytest.raises(ConfigError, match="instance"):
+        world.corpus_image(3, CORPUS_MAX_PER_CLASS)
 
 
 def test_build_world_corpus(tmp_path, world):
@@ -101,3 +121,24 @@ def test_stratified_rows_balances_classes():
     rows = [(f"p{i}", "a" if i < 90 else "b", "x") for i in range(100)]
     picked = stratified_rows(rows, 20, seed=0)
     assert collections.Counter(r[1] for r in picked) == {"a": 10, "b": 10}
+
+
+def test_caption_embeddings_encode_each_caption_once_and_match_the_encoder(debug_encoders):
+    from ratouch.corpus.embed import CaptionEmbeddings
+
+    seen = []
+
+    class Counting:
+        dim = debug_encoders.dim
+
+        def encode_text(self, texts):
+            seen.extend(texts)
+            return debug_encoders.encode_text(texts)
+
+    caps = ["soft, smooth", "hard, rough", "soft, smooth", "cold, hard", "hard, rough"]
+    cache = CaptionEmbeddings(Counting(), limit=3)
+    got = np.concatenate([cache(caps[:3]), cache(caps[3:])])
+    np.testing.assert_allclose(got, debug_encoders.encode_text(caps), atol=1e-6)
+    assert seen == ["soft, smooth", "hard, rough", "cold, hard"]  # none encoded twice
+    cache(["wet, slick"])  # a fourth distinct caption: past the limit, the memory starts again
+    assert list(cache.rows) == ["wet, slick"] and cache([]).shape == (0, debug_encoders.dim)

@@ -9,8 +9,10 @@ import pytest
 import torch
 
 from ratouch.errors import ConfigError
-from ratouch.bench.index import bench_retrieval, bench_scale, clustered_vectors, format_bench, \
-    upstream_retrieve
+from ratouch.bench.index import (SCALE_EF_SWEEP, bench_corpus_index, bench_retrieval,
+                                 bench_scale, clustered_vectors, format_bench, format_real,
+                                 recall_by_score, upstream_retrieve)
+from ratouch.corpus.embed import load_embeddings
 from ratouch.search.index import IndexConfig, VectorIndex, exact_topk
 
 
@@ -92,3 +94,25 @@ def test_bench_scale_default_kind_uses_a_temporary_folder():
     assert out["kind"] == "ivfpq" and out["config"]["refine_factor"] == 20
     assert out["index_file_mb"] > 0 and "ef_search_sweep" not in out
     assert 0.0 <= out["recall_at_5"] <= 1.0
+
+
+def test_recall_by_score_counts_an_equal_row_as_found_and_a_worse_one_not():
+    keys = np.eye(4, dtype=np.float32)[[0, 0, 1, 2, 3]]  # rows 0 and 1 are the same vector
+    q = np.array([[1.0, 0.2, 0.1, 0.0]], np.float32)
+    truth = -np.sort(-(keys @ q[0]))[None, :]
+    # the exact top-2 is {0, 1}; returning {1, 0} or {0, 1} is perfect, {0, 3} half wrong
+    assert recall_by_score(np.array([[1, 0]]), q, keys, truth, k=2) == 1.0
+    assert recall_by_score(np.array([[0, 3]]), q, keys, truth, k=2) == 0.5
+    assert recall_by_score(np.array([[2, -1]]), q, keys, truth, k=2) == 0.0
+
+
+def test_the_benchmark_on_a_built_corpus_holds_its_queries_out(small_corpus):
+    r = bench_corpus_index(small_corpus, "debug", key="image", kinds=("flat", "hnsw"),
+                           n_queries=20)
+    _, _, manifest = load_embeddings(small_corpus, "debug", verify=False)
+    assert r["n"] == manifest["count"] - 20 and r["key"] == "image"
+    assert r["kinds"]["flat"]["recall_at_5"] == 1.0  # exact search finds the exact top 5
+    assert set(r["kinds"]["hnsw"]["sweep"]) == {f"ef_search={e}" for e in SCALE_EF_SWEEP}
+    assert "recall@5" in format_real(r)
+    with pytest.raises(ConfigError, match="n_queries"):
+        bench_corpus_index(small_corpus, "debug", n_queries=10**7)

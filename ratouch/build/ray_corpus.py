@@ -36,7 +36,12 @@ import ray
 import torch
 
 from ratouch.checkpoint import sha256_file
-from ratouch.corpus.embed import EMBED_MANIFEST, embeddings_dir, read_corpus_image
+from ratouch.corpus.embed import (
+    EMBED_MANIFEST,
+    CaptionEmbeddings,
+    embeddings_dir,
+    read_corpus_image,
+)
 from ratouch.corpus.imagenet_t import (
     MANIFEST,
     CorpusEntry,
@@ -257,13 +262,14 @@ class EmbedStage:
     def __init__(self, encoder: str, threads: int) -> None:
         torch.set_num_threads(threads)
         self.model = create_model(encoder)
+        self.captions = CaptionEmbeddings(self.model)
 
     def __call__(self, batch: dict) -> dict:
         t0 = time.perf_counter()
         images = [entry_image(str(s)) for s in batch["source"]]
         t1 = time.perf_counter()
         img = self.model.encode_image(images)
-        txt = self.model.encode_text([str(c) for c in batch["caption"]])
+        txt = self.captions(batch["caption"])
         n = len(images)
         return {**batch, "image_emb": img, "text_emb": txt,
                 "t_render": _per_row(t1 - t0, n), "t_embed": _per_row(time.perf_counter() - t1, n)}

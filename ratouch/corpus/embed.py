@@ -67,6 +67,34 @@ def read_corpus_image(path: str) -> np.ndarray:
         raise DataError(f"corpus image {path} is unreadable: {err}") from err
 
 
+class CaptionEmbeddings:
+    """Text embeddings of corpus captions, each distinct caption encoded once.
+
+    Corpus captions repeat (the default 10k world corpus holds 2,043 distinct ones, and the
+    number grows far slower than the corpus), and the text encoder is the slowest stage of a
+    build, so a caption seen before is looked up instead of encoded again. The rows of new
+    captions are encoded together, in one call per batch. Past ``limit`` distinct captions (a
+    real corpus's LLM captions rarely repeat) the memory is cleared and starts again.
+    """
+
+    def __init__(self, encoders, limit: int = 200_000) -> None:
+        self.encoders = encoders
+        self.limit = limit
+        self.rows: dict[str, np.ndarray] = {}
+
+    def __call__(self, captions: Sequence[str]) -> np.ndarray:
+        captions = [str(c) for c in captions]
+        if not captions:
+            return np.zeros((0, self.encoders.dim), np.float32)
+        new = list(dict.fromkeys(c for c in captions if c not in self.rows))
+        if len(self.rows) + len(new) > self.limit:
+            self.rows = {}
+            new = list(dict.fromkeys(captions))
+        if new:
+            self.rows.update(zip(new, np.asarray(self.encoders.encode_text(new), np.float32)))
+        return np.stack([self.rows[c] for c in captions])
+
+
 def embed_corpus(corpus: str | os.PathLike, encoders, batch: int = 500, workers: int = 2,
                  progress: bool = True) -> dict:
     """Embed every entry's image and tactile caption; resume an interrupted run.
@@ -106,10 +134,11 @@ def embed_corpus(corpus: str | os.PathLike, encoders, batch: int = 500, workers:
     if start:
         log.info("resuming embedding of %s at %d / %d", corpus, start, n)
     pos = start
+    captions = CaptionEmbeddings(encoders)
     for images in corpus_images(entries, start, batch, workers, progress):
         m = len(images)
         img[pos:pos + m] = encoders.encode_image(list(images))
-        txt[pos:pos + m] = encoders.encode_text([e.caption for e in entries[pos:pos + m]])
+        txt[pos:pos + m] = captions([e.caption for e in entries[pos:pos + m]])
         pos += m
         img.flush()
         txt.flush()

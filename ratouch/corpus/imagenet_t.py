@@ -29,7 +29,7 @@ from ratouch.corpus.recaption import RecaptionConfig, create_recaptioner
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import _fork_context, check_writable, world_for
-from ratouch.world.generator import CORPUS_POOL_PER_CLASS, World
+from ratouch.world.generator import CORPUS_MAX_PER_CLASS, CORPUS_POOL_PER_CLASS, World
 from ratouch.world.material import MATERIALS
 from ratouch.world.objects import OBJECT_CLASSES
 
@@ -105,19 +105,23 @@ def stratified_world_ids(size: int, seed: int, n_classes: int = len(OBJECT_CLASS
 
     Each class gets size // n_classes entries (the remainder goes to a seeded choice of
     classes), taken as a prefix of a seeded permutation of the class's pool, so smaller
-    subsets are contained in larger ones.
+    subsets are contained in larger ones. Past the pool (ImageNet's size: 1300 per class), a
+    class's order goes on with the instances after its pool, in order, up to
+    `CORPUS_MAX_PER_CLASS`, so a 1M corpus holds every entry of the full pool.
     """
-    pool = n_classes * CORPUS_POOL_PER_CLASS
-    if size > pool:
-        raise ConfigError(f"size={size} exceeds the world's pool of {pool} entries "
-                          f"({n_classes} classes x {CORPUS_POOL_PER_CLASS})")
+    pool, most = n_classes * CORPUS_POOL_PER_CLASS, n_classes * CORPUS_MAX_PER_CLASS
+    if not 0 < size <= most:
+        raise ConfigError(f"size={size} must lie in [1, {most}] (the world renders at most "
+                          f"{CORPUS_MAX_PER_CLASS} entries for each of its {n_classes} classes; "
+                          f"its ImageNet-sized pool holds {pool})")
     rng = np.random.default_rng([seed, 31337])
     quota = np.full(n_classes, size // n_classes)
     quota[rng.permutation(n_classes)[: size % n_classes]] += 1
+    beyond = np.arange(CORPUS_POOL_PER_CLASS, max(CORPUS_POOL_PER_CLASS, int(quota.max())))
     ids = []
     for c in range(n_classes):
         order = np.random.default_rng([seed, 4242, c]).permutation(CORPUS_POOL_PER_CLASS)
-        ids.extend((c, int(i)) for i in order[: quota[c]])
+        ids.extend((c, int(i)) for i in np.concatenate([order, beyond])[: quota[c]])
     return ids
 
 
