@@ -59,5 +59,5 @@ def test_cascade_and_other_encoders_are_marked_against_the_reference():
     assert "-0.200*" in table and "+0.000~" in table
     fig = tradeoff_figure(result)
     others = [t for t in fig.data if t.name == "other encoder sets and the cascade"]
-    assert len(others) == 3 and list(others[0].text) == ["default-tiny", "cascade (25% escalated)"]
+    assert len(others) == 3 and list(others[0].text) == ["default-tiny", "cascade, 25% escalated"]
     assert list(others[0].marker.symbol) == ["triangle-up", "star"]

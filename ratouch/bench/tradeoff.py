@@ -398,14 +398,16 @@ def tradeoff_figure(result: dict):
         up = result["upstream"]
         if up.get(key) is not None:
             fig.add_scatter(x=[up["p50_ms"]], y=[up[key]], mode="markers+text",
-                            text=["upstream"], textposition="top center",
+                            text=["upstream"], textposition="bottom left",
                             marker={"symbol": "x", "size": 12, "color": "red"},
                             name="upstream retrieval", showlegend=col == 1, row=1, col=col)
         sel = [q for q in others if q.get(key) is not None]
         if sel:
             fig.add_scatter(
                 x=[q["p50_ms"] for q in sel], y=[q[key] for q in sel], mode="markers+text",
-                text=[_short(q) for q in sel], textposition="bottom center",
+                text=[_short(q) for q in sel],
+                textposition=["top left" if q["system"].endswith("cascade") else "bottom center"
+                              for q in sel],
                 name="other encoder sets and the cascade", legendgroup="others",
                 showlegend=col == 1, error_y=_error_bars(sel, key),
                 hovertext=[q["system"] + _noise_note(q, key) for q in sel],
@@ -414,7 +416,8 @@ def tradeoff_figure(result: dict):
                 row=1, col=col)
         if key == "judge":
             fig.add_hline(y=result["baseline_judge"], line_dash="dash", line_color="black",
-                          annotation_text="baseline (no retrieval)", row=1, col=col)
+                          annotation_text="baseline (no retrieval)",
+                          annotation_position="bottom left", row=1, col=col)
     fig.update_xaxes(type="log", title="p50 latency per query, ms (warm, 1 thread)")
     fig.update_layout(title="Speed against accuracy (marker size = K, colour = corpus size; "
                             "bars: 95 % CIs)",
@@ -426,7 +429,7 @@ def tradeoff_figure(result: dict):
 def _short(q: dict) -> str:
     """A point's label on the chart: the encoder set, or the cascade with its escalations."""
     if q["system"].endswith("cascade"):
-        return f"cascade ({q['escalated']:.0%} escalated)"
+        return f"cascade, {q['escalated']:.0%} escalated"
     return q["encoder"] + ("" if q["system"] == "RA-Touch" else " (retrieval only)")
 
 
