@@ -125,13 +125,14 @@ def _peak_rss_mb() -> float:
     return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
 
 
-def _sweep(index, setting: str, values, queries, truth, k: int) -> dict:
-    """Latency and recall@5 of the same index searched with each value of one setting."""
+def _sweep(index, setting: str, values, queries, k: int, recall) -> dict:
+    """Latency and recall@5 (``recall(ids)``) of the same index searched with each value of
+    one setting, keyed by the value."""
     out = {}
     for value in values:
         tuned = index.with_search(**{setting: value})
         ids, times = _latencies(lambda q: tuned.search(q, max(k, 5))[1], queries)
-        out[str(value)] = {**_summary(times), "recall_at_5": recall_at(ids, truth, 5)}
+        out[str(value)] = {**_summary(times), "recall_at_5": recall(ids)}
     return out
 
 
@@ -193,10 +194,11 @@ def bench_retrieval(n: int = 150_000, dim: int = 768, k: int = 5, n_queries: int
             row["batch_ms_per_query"] = round((time.perf_counter() - t0) * 1e3 / n_queries, 4)
             row["vs_bound"] = round(row["p50_ms"] / bound_ms, 3)
         if name == "hnsw":
-            row["ef_search_sweep"] = _sweep(index, "ef_search", HNSW_EF_SWEEP, queries, truth, k)
+            row["ef_search_sweep"] = _sweep(index, "ef_search", HNSW_EF_SWEEP, queries, k,
+                                            lambda ids: recall_at(ids, truth, 5))
         if name == "ivfpq":
-            row["refine_sweep"] = _sweep(index, "refine_factor", IVFPQ_REFINE_SWEEP, queries,
-                                         truth, k)
+            row["refine_sweep"] = _sweep(index, "refine_factor", IVFPQ_REFINE_SWEEP, queries, k,
+                                         lambda ids: recall_at(ids, truth, 5))
         results[name] = row
         say("%s: p50 %.3f ms, recall@5 %.3f, build %.1f s", name, row["p50_ms"],
             row["recall_at_5"], build_s)
@@ -259,11 +261,8 @@ def bench_scale(n: int = 1_000_000, dim: int = 768, kind: str = "ivfpq",
                                      expected_encoder="synthetic-clustered")
         t3 = time.perf_counter()
         ids, times = _latencies(lambda q: loaded.search(q, 5)[1], queries)
-        sweep = {}
-        for ef in SCALE_EF_SWEEP if kind == "hnsw" else ():
-            tuned = loaded.with_search(ef_search=ef)
-            s_ids, s_times = _latencies(lambda q: tuned.search(q, 5)[1], queries)
-            sweep[str(ef)] = {**_summary(s_times), "recall_at_5": recall_at(s_ids, truth, 5)}
+        sweep = _sweep(loaded, "ef_search", SCALE_EF_SWEEP if kind == "hnsw" else (), queries, 5,
+                       lambda ids: recall_at(ids, truth, 5))
         file_mb = (target / "index.faiss").stat().st_size / 2**20
     finally:
         if own:
@@ -337,6 +336,10 @@ def bench_corpus_index(corpus: str | Path, encoder: str = "default-s", key: str 
     truth_ids = exact_topk(queries, keys, 5)
     scores = np.einsum("qd,qkd->qk", queries, keys[truth_ids])
     truth_scores = -np.sort(-scores, axis=1)
+
+    def recall(ids: np.ndarray) -> float:
+        return recall_by_score(ids, queries, keys, truth_scores)
+
     results = {}
     for kind in kinds:
         cfg = _method_config(kind)
@@ -344,19 +347,13 @@ def bench_corpus_index(corpus: str | Path, encoder: str = "default-s", key: str 
         index = VectorIndex.build(keys, cfg, seed=seed)
         build_s = time.perf_counter() - t0
         ids, times = _latencies(lambda q: index.search(q, 5)[1], queries)
-        row = {**_summary(times), "recall_at_5": recall_by_score(ids, queries, keys,
-                                                                 truth_scores),
-               "build_s": round(build_s, 1), "config": asdict(cfg)}
+        row = {**_summary(times), "recall_at_5": recall(ids), "build_s": round(build_s, 1),
+               "config": asdict(cfg)}
         setting, values = {"hnsw": ("ef_search", SCALE_EF_SWEEP),
                            "ivfflat": ("nprobe", NPROBE_SWEEP),
                            "ivfpq": ("refine_factor", IVFPQ_REFINE_SWEEP)}.get(kind, (None, ()))
-        sweep = {}
-        for value in values:
-            tuned = index.with_search(**{setting: value})
-            s_ids, s_times = _latencies(lambda q: tuned.search(q, 5)[1], queries)
-            sweep[f"{setting}={value}"] = {**_summary(s_times), "recall_at_5": recall_by_score(
-                s_ids, queries, keys, truth_scores)}
-        row["sweep"] = sweep
+        row["sweep"] = {f"{setting}={value}": r for value, r in
+                        _sweep(index, setting, values, queries, 5, recall).items()}
         results[kind] = row
         say("%s: p50 %.3f ms, p95 %.3f ms, recall@5 %.3f, build %.1f s", kind, row["p50_ms"],
             row["p95_ms"], row["recall_at_5"], build_s)
