@@ -116,3 +116,14 @@ def test_the_benchmark_on_a_built_corpus_holds_its_queries_out(small_corpus):
     assert "recall@5" in format_real(r)
     with pytest.raises(ConfigError, match="n_queries"):
         bench_corpus_index(small_corpus, "debug", n_queries=10**7)
+
+
+def test_cli_bench_retrieval_on_a_corpus(small_corpus, capsys):
+    from ratouch.cli import main
+
+    assert main(["bench", "retrieval", "--corpus", str(small_corpus), "--encoder", "debug",
+                 "--kinds", "flat", "--queries", "20", "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert set(r) == {"image", "text"} and r["text"]["kinds"]["flat"]["recall_at_5"] == 1.0
+    assert main(["bench", "retrieval", "--corpus", str(small_corpus), "--encoder", "debug",
+                 "--kinds", "annoy"]) == 2
