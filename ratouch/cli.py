@@ -349,6 +349,9 @@ def _add_query(sub) -> None:
                    help="encoder set (default-tiny, default-s, default-b where trained), or "
                         "'cascade': the smallest confident one answers")
     q.add_argument("--corpus", default=None, help="corpus folder (default: the cached 10k)")
+    q.add_argument("--index", choices=("flat", "hnsw", "ivfpq", "ivfflat"), default="flat",
+                   help="the corpus's index kind to search (a large corpus built with "
+                        "--index ivfflat|ivfpq loads that index memory-mapped)")
     q.add_argument("--json", action="store_true", help="print JSON (the default output)")
     q.add_argument("--drop", type=_id_list, default=None, metavar="IDS",
                    help="comma-separated corpus ids: regenerate the RA-Touch description "
@@ -631,7 +634,7 @@ def _run_query(args: argparse.Namespace) -> int:
 def _query(args: argparse.Namespace, swap: list[int] | None) -> int:
     from ratouch.serve.models import load_model
 
-    pipe = load_model(args.encoder, corpus=args.corpus)
+    pipe = load_model(args.encoder, corpus=args.corpus, index=args.index)
     result = pipe.query(args.vision, args.tactile, box=args.box, k=args.k, label=args.label,
                         background=args.background)
     if args.drop is not None or swap is not None:

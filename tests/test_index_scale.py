@@ -28,7 +28,7 @@ def _recall(got: np.ndarray, want: np.ndarray) -> float:
     return float(np.mean([len(set(g) & set(w)) / len(w) for g, w in zip(got, want)]))
 
 
-def test_ondisk_ivf_from_shards_matches_exact_search(tmp_path):
+def test_ondisk_ivf_from_shards_matches_exact_search(tmp_path, capfd):
     x = _vectors(6000)
     shards = [x[:2500], x[2500:4000], x[4000:]]
     folder = tmp_path / "idx"
@@ -36,8 +36,10 @@ def test_ondisk_ivf_from_shards_matches_exact_search(tmp_path):
     index = VectorIndex.build_ondisk(shards, folder, cfg, meta={"encoder": "e"})
     assert sorted(p.name for p in folder.iterdir()) == ["index.faiss", "lists.ivfdata",
                                                         "manifest.json"]
+    capfd.readouterr()
     loaded, meta = VectorIndex.load(folder, expected_dim=32, expected_encoder="e")
     assert loaded.count == 6000 and meta == {"encoder": "e"}
+    assert capfd.readouterr().out == ""  # faiss's notes go to stderr: stdout stays parseable
     q = x[[5, 3000, 5999]]
     want = exact_topk(q, x, 5)
     for ix in (index, loaded):

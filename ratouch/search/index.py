@@ -17,9 +17,11 @@ import logging
 import math
 import os
 import shutil
+import sys
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Sequence
@@ -42,6 +44,20 @@ _FAISS_TYPES = {"flat": ("IndexFlatIP",), "hnsw": ("IndexHNSWFlat",),
                 "ivfpq": ("IndexIVFPQ", "IndexRefineFlat"), "ivfflat": ("IndexIVFFlat",)}
 SEARCH_FIELDS = frozenset({"ef_search", "nprobe", "refine_factor", "threads",
                            "blas_threshold"})
+
+
+@contextmanager
+def _stdout_to_stderr():
+    """Send what C code writes to file descriptor 1 to descriptor 2 for a while, so that a
+    command's standard output holds only what it means to print."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 @dataclass(frozen=True)
@@ -508,8 +524,9 @@ class VectorIndex:
                 raise DataError(f"index {str(folder)!r}: {ondisk['file']} is missing or has "
                                 f"the wrong size (expected {ondisk['bytes']} bytes)")
         try:
-            index = faiss.read_index(str(index_path),
-                                     faiss.IO_FLAG_ONDISK_SAME_DIR if ondisk else 0)
+            with _stdout_to_stderr():  # faiss prints on-disk renames to stdout (`query --json`)
+                index = faiss.read_index(str(index_path),
+                                         faiss.IO_FLAG_ONDISK_SAME_DIR if ondisk else 0)
         except RuntimeError as exc:
             raise DataError(f"index {str(folder)!r}: faiss cannot read {INDEX_FILE}: "
                             f"{exc}") from exc
