@@ -33,10 +33,11 @@ def test_ondisk_ivf_from_shards_matches_exact_search(tmp_path, capfd):
     shards = [x[:2500], x[2500:4000], x[4000:]]
     folder = tmp_path / "idx"
     cfg = IndexConfig(kind="ivfflat", nlist=32, nprobe=32)  # every list: exact
+    capfd.readouterr()
     index = VectorIndex.build_ondisk(shards, folder, cfg, meta={"encoder": "e"})
     assert sorted(p.name for p in folder.iterdir()) == ["index.faiss", "lists.ivfdata",
                                                         "manifest.json"]
-    capfd.readouterr()
+    assert capfd.readouterr().out == ""  # building and loading print nothing to stdout
     loaded, meta = VectorIndex.load(folder, expected_dim=32, expected_encoder="e")
     assert loaded.count == 6000 and meta == {"encoder": "e"}
     assert capfd.readouterr().out == ""  # faiss's notes go to stderr: stdout stays parseable

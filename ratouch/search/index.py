@@ -361,7 +361,8 @@ class VectorIndex:
             with ThreadPoolExecutor(max(1, workers)) as pool:
                 parts = list(pool.map(add, range(len(shards))))
             merged = faiss.clone_index(trained)
-            merge_ondisk(merged, parts, str(tmp / ONDISK_FILE))
+            with _stdout_to_stderr():  # faiss prints the list file's resizing to stdout
+                merge_ondisk(merged, parts, str(tmp / ONDISK_FILE))
             faiss.write_index(merged, str(tmp / INDEX_FILE))
             for part in parts:
                 os.unlink(part)
@@ -524,7 +525,7 @@ class VectorIndex:
                 raise DataError(f"index {str(folder)!r}: {ondisk['file']} is missing or has "
                                 f"the wrong size (expected {ondisk['bytes']} bytes)")
         try:
-            with _stdout_to_stderr():  # faiss prints on-disk renames to stdout (`query --json`)
+            with _stdout_to_stderr():  # faiss prints on-disk renames to stdout
                 index = faiss.read_index(str(index_path),
                                          faiss.IO_FLAG_ONDISK_SAME_DIR if ondisk else 0)
         except RuntimeError as exc:
