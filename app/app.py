@@ -3,7 +3,8 @@
 Upload a visual and a tactile image (or pick a pair from the world's test split), mark the
 contact box, and compare the neighbours that image, tactile and joint queries retrieve, where
 they fall in the PCA frame, and the descriptions generated with and without retrieval.
-`build_demo(pipeline)` builds the UI around a loaded pipeline; `main()` loads one and serves it.
+`build_demo(pipeline)` builds the UI around a serving `Answerer` (`ratouch.serve.request`);
+`main()` loads one and serves it.
 """
 
 from __future__ import annotations
@@ -22,9 +23,13 @@ if __package__ in (None, ""):  # run as a script (`python app/app.py`, as `ratou
 import gradio as gr  # noqa: E402
 
 from app import handlers, view  # noqa: E402
+from app.loading import BackgroundPipeline  # noqa: E402
 from ratouch.errors import RATouchError  # noqa: E402
+from ratouch.eval import failures  # noqa: E402
+from ratouch.eval.judge import OfflineJudge  # noqa: E402
 from ratouch.paths import DOCS  # noqa: E402
 from ratouch.serve.batcher import QueryBatcher  # noqa: E402
+from ratouch.world.generator import TEST_SIZE, World  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -62,12 +67,15 @@ start-up. Conditions:
 
 
 def build_demo(pipeline, world=None, failure_options: dict | None = None,
-               docs: str | Path | None = None, models: list[str] | None = None) -> gr.Blocks:
-    """The app around a pipeline (read-only, shared by all sessions).
+               docs: str | Path | None = None, models: list[str] | None = None,
+               max_batch: int | None = None) -> gr.Blocks:
+    """The app around a serving answerer (read-only, shared by all sessions).
 
     Args:
-        pipeline: a `RATouchPipeline` (or an object with the same `query()`, `corpus` and
-            `encoders`), or an `app.loading.BackgroundPipeline` still loading one.
+        pipeline: an `Answerer` that also names its loaded model (`model(name)`: its
+            `corpus`, `name`, `regenerate`): a `RATouchPipeline`, a `QueryBatcher` or a
+            `ModelChoice`, or an `app.loading.BackgroundPipeline` still loading one (whose
+            `ready()` and `status()` the header shows).
         world: the `World` whose test split gives the examples (default: the default world).
         failure_options: `ratouch.eval.failures.load_or_compute`'s k / conditions / indices
             (default: K=5, every condition, the whole test split, on `world`'s config).
@@ -75,11 +83,9 @@ def build_demo(pipeline, world=None, failure_options: dict | None = None,
         models: the models a query may choose (encoder sets, "cascade"), the first being the
             default, for a pipeline that offers the choice (`ratouch.serve.models.ModelChoice`);
             None: the pipeline's one model, no choice.
+        max_batch: how many concurrent queries the pipeline answers together (None: a
+            `QueryBatcher`'s own `max_batch`, else 2).
     """
-    from ratouch.eval import failures  # heavy (torch): imported when the page is built
-    from ratouch.eval.judge import OfflineJudge
-    from ratouch.world.generator import World
-
     world = world or World()
     try:  # scores the descriptions of labelled examples; shared, read-only
         judge = OfflineJudge()
@@ -92,18 +98,28 @@ def build_demo(pipeline, world=None, failure_options: dict | None = None,
 
     @functools.lru_cache(maxsize=512)  # corpus thumbnails are re-rendered; keep recent ones
     def thumbnail(i: int):
-        return pipeline.corpus.thumbnail(i, THUMBNAIL_SIDE)
+        return pipeline.model().corpus.thumbnail(i, THUMBNAIL_SIDE)
 
+    if max_batch is None:
+        max_batch = pipeline.max_batch if isinstance(pipeline, QueryBatcher) else 2
     with gr.Blocks(title="RA-Touch Explorer", delete_cache=(1800, SESSION_TTL_S)) as demo:
         ui = _layout(pipeline, world, options["conditions"], models)
-        _wire(demo, ui, pipeline, world, thumbnail, options, docs, judge, bool(models))
+        _wire(demo, ui, pipeline, world, thumbnail, options, docs, judge, bool(models),
+              max_batch)
     demo.ratouch_docs = docs  # `launch` serves its images (and nothing else from disk)
     return demo
 
 
 def _pending(pipeline) -> bool:
+    """Whether the models are still loading (or failed to): an `app.loading.BackgroundPipeline`
+    says so; anything else is loaded."""
     ready = getattr(pipeline, "ready", None)
     return callable(ready) and not ready()
+
+
+def _corpus_size(pipeline) -> int:
+    """Entries of the corpus the loaded models search (MAX_K while they load)."""
+    return MAX_K if _pending(pipeline) else len(pipeline.model().corpus.entries)
 
 
 def _header(pipeline) -> str:
@@ -115,16 +131,16 @@ def _header(pipeline) -> str:
                     f"({time.perf_counter() - pipeline.started:.0f} s so far): browse "
                     "examples meanwhile; a query waits until they are ready")
         return f"{title}`{pipeline.name}` · ⛔ {status}"
-    return f"{title}`{pipeline.encoders.name}` · {view.corpus_provenance(pipeline.corpus)}"
+    model = pipeline.model()
+    prior = getattr(getattr(model, "encoders", None), "prior_note", None)
+    return (f"{title}`{model.name}` · {view.corpus_provenance(model.corpus)}"
+            + (f" · {prior}" if prior else ""))
 
 
 def _layout(pipeline, world, conditions, models: list[str] | None) -> SimpleNamespace:
     """Place the components; returns them by name."""
-    from ratouch.eval import failures  # heavy (torch): imported when the page is built
-    from ratouch.world.generator import TEST_SIZE
-
     ui = SimpleNamespace(state=gr.State(None, time_to_live=SESSION_TTL_S))
-    n_corpus = MAX_K if _pending(pipeline) else len(pipeline.corpus.entries)
+    n_corpus = _corpus_size(pipeline)
     # refreshed on every page load, and by the timer while the models load
     ui.header = gr.Markdown(_header(pipeline), elem_id="header")
     ui.timer = gr.Timer(2.0, active=_pending(pipeline))
@@ -244,7 +260,7 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int,
 
 
 def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, options: dict,
-          docs: Path, judge, choice: bool) -> None:
+          docs: Path, judge, choice: bool, max_batch: int) -> None:
     """Connect events to the handlers. Only `/query` is an API; the UI's events are private.
 
     Long on purpose: the page's whole event table in one place, so which event calls which
@@ -265,9 +281,7 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
     light = dict(concurrency_limit=None, show_progress="hidden", **private)  # milliseconds
     shared = {}  # the failure table once loaded: read-only, the same for every session
     # queries share one pool; a batching pipeline answers its concurrent calls together
-    batching = isinstance(pipeline, QueryBatcher)
-    queries = dict(concurrency_id="query",
-                   concurrency_limit=pipeline.max_batch if batching else 2)
+    queries = dict(concurrency_id="query", concurrency_limit=max_batch)
 
     def select_example(evt: gr.SelectData):
         return handlers.load_example(world, EXAMPLES[evt.index])
@@ -277,7 +291,7 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
         return handlers.click_box(state, x, y, (a, b, c, d))
 
     def show_query(state, tac, a, b, c, d, k, bg, model, progress=gr.Progress()):
-        largest = MAX_K if _pending(pipeline) else min(MAX_K, len(pipeline.corpus.entries))
+        largest = min(MAX_K, _corpus_size(pipeline))
         return tuple(handlers.run_query(pipeline, thumbnail, state, tac, a, b, c, d, k,
                                         progress, background=bg, largest_k=largest,
                                         judge=judge, encoder=model if choice else None))
@@ -354,17 +368,17 @@ def main(argv: list[str] | None = None) -> None:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     # heavy (torch, faiss, transformers): imported here, after the arguments are parsed, and
     # the models loaded in the background, so that the server answers at once
-    from app.loading import BackgroundPipeline
     from ratouch.serve.models import ModelChoice, available_models
 
     # serve at once; the models load meanwhile and a query waits for them. Concurrent
-    # queries are answered in batches (one model pass for all of them).
+    # queries are answered in batches (one model pass for all of them), each by the model
+    # it names.
     log.info("loading the RA-Touch pipeline (encoder %s) in the background ...", args.encoder)
     models = list(dict.fromkeys([args.encoder, *available_models()]))
     loading = BackgroundPipeline(
-        lambda: ModelChoice(args.encoder, models, corpus=args.corpus), args.encoder,
-        start=False)
-    demo = build_demo(QueryBatcher(loading, max_batch=args.max_batch), models=models)
+        lambda: QueryBatcher(ModelChoice(args.encoder, models, corpus=args.corpus),
+                             max_batch=args.max_batch), args.encoder, start=False)
+    demo = build_demo(loading, models=models, max_batch=args.max_batch)
     launch(demo, args.host, args.port, block=False)
     loading.start()  # after the server is up: both compete for the same cores and the GIL
     log.info("serving on http://%s:%d/ (%.1f s after main()); the models are loading",

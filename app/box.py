@@ -15,10 +15,8 @@ from typing import Sequence
 import numpy as np
 from PIL import Image, ImageDraw
 
+from ratouch.encoders.preprocess import to_rgb_array, tvl_contact_box
 from ratouch.errors import DataError
-
-# `ratouch.encoders.preprocess` (and torch with it) is imported on first use, so that the app
-# answers HTTP before torch has loaded: the models load in the background meanwhile.
 
 PREVIEW_SIDE = 512
 MARKED = (230, 30, 30)     # a box the user marked or typed
@@ -31,7 +29,8 @@ class Visual:
     """A visual image loaded into one user's session (kept in a `gr.State`).
 
     Attributes:
-        source: what `pipe.query` gets: the uploaded file's path, or an example's array.
+        source: what a query decodes (`QueryRequest.decode`): the uploaded file's path, or
+            an example's array.
         size: (width, height) of the image, EXIF orientation applied.
         base: the preview, (h, w, 3) uint8, without any drawing on it.
         scale: preview pixels per image pixel.
@@ -55,8 +54,6 @@ def load_visual(source: str | np.ndarray, title: str, label: str | None = None) 
     Raises:
         DataError / DataNotFoundError: the image cannot be used (the library's message).
     """
-    from ratouch.encoders.preprocess import to_rgb_array
-
     image = to_rgb_array(source, name="visual image")
     h, w = image.shape[:2]
     scale = PREVIEW_SIDE / max(w, h)
@@ -69,8 +66,6 @@ def load_visual(source: str | np.ndarray, title: str, label: str | None = None) 
 
 def default_box(visual: Visual) -> tuple[int, int, int, int]:
     """TVL's centred contact crop, which the pipeline uses when no box is given."""
-    from ratouch.encoders.preprocess import tvl_contact_box
-
     return tvl_contact_box(*visual.size)
 
 

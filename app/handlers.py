@@ -1,6 +1,8 @@
 """The app's event handlers: convert what the browser sends, call the library, format.
 
-Each takes the loaded pipeline (read-only, shared) and the user's `Visual` state explicitly.
+Each takes the serving `Answerer` (`ratouch.serve.request`: the loaded pipeline, or what
+wraps it; read-only, shared) and the user's `Visual` state explicitly. A query's inputs are
+decoded here, once, into a `QueryRequest`, which is handed down as it is.
 Anything a user can cause (a bad file, a bad box, no image) becomes a message; only a bug
 reaches the server log, and even then the browser gets a message, not a stack trace.
 """
@@ -9,6 +11,8 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
@@ -22,6 +26,7 @@ from app.plot import pca_figure
 from ratouch.encoders.preprocess import QUERY_MAX_SIDE, to_rgb_array
 from ratouch.errors import DataError, RATouchError
 from ratouch.eval import failures
+from ratouch.serve.request import QueryRequest, answer_one
 
 log = logging.getLogger(__name__)
 
@@ -248,10 +253,11 @@ def error_view(message: str) -> QueryView:
 def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual | None,
               tactile: Any, x0, y0, x1, y1, k, progress=None, background: Any = None,
               largest_k: int = MAX_K, judge=None, encoder: str | None = None) -> QueryView:
-    """Run `pipe.query` on the session's image, the tactile image (and the sensor's
-    background frame, if given) and the box, and format it. `tactile` and `background` may
-    be the components' raw values; `judge` scores the descriptions of labelled examples;
-    `encoder` chooses the model where the pipeline offers a choice (`ModelChoice`)."""
+    """Decode the session's image, the tactile image (and the sensor's background frame, if
+    given) and the box into a request, have `pipe` answer it, and format the answer.
+    `tactile` and `background` may be the components' raw values; `judge` scores the
+    descriptions of labelled examples; `encoder` names the model where `pipe` offers a
+    choice (`ModelChoice`)."""
     tactile, background = upload_path(tactile), upload_path(background)
     try:
         if visual is None:
@@ -260,10 +266,9 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
         k = parse_k(k, largest_k)
         if progress is not None:
             progress(0.05, desc="encoding, retrieving, generating…")
-        extra = {} if background is None else {"background": background}
-        if encoder:
-            extra["encoder"] = encoder
-        result = pipe.query(visual.source, tactile, box=box, k=k, label=visual.label, **extra)
+        request = QueryRequest.decode(visual.source, tactile, box=box, k=k, label=visual.label,
+                                      background=background, model=encoder or None)
+        result = answer_one(pipe, request).to_dict()
         t0 = time.perf_counter()
         if progress is not None:
             progress(0.9, desc="thumbnails…")
@@ -273,8 +278,10 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
                  "background image": background}
         return error_view(_fail(e, files))
     tables = [view.neighbour_table(result, m) for m in view.MODES]
-    # a ground-truth label (test-split examples): score both descriptions against it
-    scores = failures.judge_scores(visual.label, result["description"], judge) if judge else {}
+    # a ground-truth label (test-split examples): score both descriptions against it; a failure
+    # case's descriptions that its table row judged keep the row's scores
+    scores = (failures.judge_scores(visual.label, result["description"], judge,
+                                    judged_descriptions(visual)) if judge else {})
     render_ms = (time.perf_counter() - t0) * 1000
     return QueryView(view.status_md(visual.title, result["warnings"], result.get("box"), result),
                      *galleries, *tables, pca_figure(result, visual.label),
@@ -291,30 +298,34 @@ def neighbour_picker(result: dict | None):
 def regenerate(pipe, visual: boxes.Visual | None, tactile: Any, x0, y0, x1, y1,
                kept: list[int] | None, result: dict | None, judge=None,
                encoder: str | None = None) -> str:
-    """RA-Touch's description again, reading only the ticked neighbours (`pipe.regenerate`),
-    beside the description it answered with."""
+    """RA-Touch's description again, reading only the ticked neighbours (the `regenerate` of
+    the model that `encoder` names, `pipe.model(encoder)`), beside the description it
+    answered with."""
     tactile = upload_path(tactile)
     try:
         if visual is None or not result or not result.get("neighbours", {}).get("joint"):
             raise DataError("run a query with a tactile image first")
         kept = [int(i) for i in (kept or [])]
         box = boxes.fields_to_box(x0, y0, x1, y1)
-        extra = {"encoder": encoder} if encoder else {}
-        again = pipe.regenerate(visual.source, tactile, kept, box=box, **extra)
+        request = QueryRequest.decode(visual.source, tactile, box=box, model=encoder or None)
+        again = pipe.model(encoder or None).regenerate(request, kept)
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         return view.error_md(_fail(e, {"visual image": getattr(visual, "source", None),
                                        "tactile image": tactile}))
     scores = {}
     if judge is not None and visual.label:
+        ra = judged_descriptions(visual).get("ra_touch")
         scores = failures.judge_scores(visual.label, {
             "new": again["description"]["ra_touch"],
-            "old": result["description"]["ra_touch"]}, judge)
+            "old": result["description"]["ra_touch"]}, judge,
+            {"new": ra, "old": ra} if ra else None)
     return view.regenerated_md(result, again, kept, scores.get("new"), scores.get("old"))
 
 
 def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k,
               encoder: str | None = None) -> dict:
-    """The `/query` API: image files, box, K and the model in, `pipe.query`'s JSON out.
+    """The `/query` API: image files, box, K and the model in, the answer's JSON out
+    (`QueryResult.to_dict`).
 
     Raises:
         gr.Error: with the reason, for anything the caller can fix.
@@ -323,8 +334,9 @@ def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k,
         if visual is None:
             raise DataError("a visual image is required")
         box = boxes.fields_to_box(x0, y0, x1, y1)
-        extra = {"encoder": encoder} if encoder else {}
-        return pipe.query(visual, tactile, box=box, k=parse_k(5 if k is None else k), **extra)
+        request = QueryRequest.decode(visual, tactile, box=box,
+                                      k=parse_k(5 if k is None else k), model=encoder or None)
+        return answer_one(pipe, request).to_dict()
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         files = {"visual image": visual, "tactile image": tactile}
         raise gr.Error(user_message(e, files), print_exception=False) from e
@@ -342,9 +354,13 @@ class FailureView(NamedTuple):
 
 def failure_table(pipe, options: dict, compute: bool, progress=None) -> dict | None:
     """The failure-case table for the app's settings: cached, else computed (`compute`) or
-    None. `options` are `ratouch.eval.failures.load_or_compute`'s world/k/conditions/indices."""
+    None, with the pipeline of `pipe`'s default model (a cascade's: its first stage).
+    `options` are `ratouch.eval.failures.load_or_compute`'s world/k/conditions/indices."""
     report = None if progress is None else (lambda f, what: progress(f, desc=what))
-    return failures.load_or_compute(pipe, progress=report, cached_only=not compute, **options)
+    model = pipe.model()
+    pipeline = model.stages[0] if hasattr(model, "stages") else model
+    return failures.load_or_compute(pipeline, progress=report, cached_only=not compute,
+                                    **options)
 
 
 def failures_tab(pipe, options: dict, shared: dict, compute: bool, subset: str,
@@ -381,8 +397,40 @@ def failure_view(table: dict | None, subset: str, condition: str, view_label: st
                        view.summary_frame(summary), view.cases_frame(shown))
 
 
+@dataclass(frozen=True)
+class CaseVisual(boxes.Visual):
+    """A failure case's visual image (`open_case`), with the descriptions its table row judged:
+    {system: (description, score)} (`failures.row_scores`). The case view shows a description
+    the table judged with the table's score (`failures.judge_scores`)."""
+
+    judged: Mapping[str, tuple[str | None, float]] = field(default_factory=dict)
+
+
+def judged_descriptions(visual: boxes.Visual | None) -> dict[str, tuple[str | None, float]]:
+    """The judged descriptions a session's visual image carries ({} unless a failure case)."""
+    return dict(visual.judged) if isinstance(visual, CaseVisual) else {}
+
+
+def _row_judged(row: Any, label: str) -> dict[str, tuple[str | None, float]]:
+    """A clicked failure-table row's judged descriptions; {} for a row without them (a row
+    holds the table's columns, `view.CASE_COLUMNS`, in order) or judged against another
+    label than the case's."""
+    keys = [key for _, key in view.CASE_COLUMNS]
+    if not isinstance(row, (list, tuple)) or len(row) != len(keys):
+        return {}
+    values = dict(zip(keys, row))
+    if values.get("label") != label:
+        return {}
+    try:
+        return failures.row_scores(values)
+    except (TypeError, ValueError):
+        return {}
+
+
 def open_case(world_cfg, row: Any) -> tuple:
-    """Open a failure-table row (its condition and test index come first) in Explore.
+    """Open a failure-table row (its condition and test index come first) in Explore. The
+    session's image carries the row's judged descriptions (`CaseVisual`), so that the case
+    view shows the table's scores.
 
     Returns:
         load_example's outputs: (visual state, preview, tactile image, x0, y0, x1, y1, note)
@@ -393,13 +441,15 @@ def open_case(world_cfg, row: Any) -> tuple:
     try:
         condition, index = row[0], int(row[1])
         s = failures.case_sample(condition, index, world_cfg)
-        visual = boxes.load_visual(
+        loaded = boxes.load_visual(
             s.visual, f"failure case #{index} under “{condition}” ({s.subset}: "
             f"{s.class_name or 'close-up'}, {s.material.replace('_', ' ')})", label=s.caption)
     except (TypeError, ValueError, IndexError, *USER_ERRORS) as e:
         raise gr.Error(user_message(e if isinstance(e, USER_ERRORS) else
                                     DataError(f"not a failure case: {row!r}")),
                        print_exception=False) from e
+    visual = CaseVisual(**{f.name: getattr(loaded, f.name) for f in fields(loaded)},
+                        judged=_row_judged(row, s.caption))
     box = tuple(int(v) for v in s.box)
     return (visual, boxes.draw(visual, box), s.tactile, *box,
             f"Ground-truth label: **{s.caption}** · condition **{condition}** · "

@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Sequence
 from typing import Any, Callable
 
 from ratouch.errors import RATouchError
@@ -18,13 +19,13 @@ class PipelineNotReady(RATouchError):
 
 
 class BackgroundPipeline:
-    """A pipeline being loaded by `load()` in a daemon thread.
+    """An `Answerer` (`ratouch.serve.request`) being loaded by `load()` in a daemon thread.
 
-    Attribute access (`query`, `corpus`, ...) waits for it, so the app's handlers use it like
-    the pipeline itself; `ready()` and `status()` never wait.
+    `answer` and `model` wait for it, so the app's handlers use it like the loaded answerer
+    itself; `ready()` and `status()` never wait.
 
     Args:
-        load: returns the loaded pipeline.
+        load: returns the loaded answerer (a `RATouchPipeline`, a `QueryBatcher`, ...).
         name: the encoder set, for the status line while loading.
         wait_s: longest wait of one attribute access.
         start: start loading now; False waits for `start()` (e.g. until the server is up,
@@ -85,8 +86,16 @@ class BackgroundPipeline:
             raise PipelineNotReady(f"the pipeline failed to load: {self._error}")
         return self._pipeline
 
-    def __getattr__(self, name: str) -> Any:
-        # only called for what this object lacks: its own fields are never forwarded
-        if name.startswith("__") or name in ("_pipeline", "_error", "_done", "_thread"):
-            raise AttributeError(name)
-        return getattr(self.get(), name)
+    def answer(self, requests: Sequence) -> list:
+        """The loaded answerer's `answer`, once it is loaded; every request's answer is
+        `PipelineNotReady` when it failed to load, or is still loading after `wait_s`."""
+        try:
+            answerer = self.get()
+        except PipelineNotReady as e:
+            return [e] * len(requests)
+        return answerer.answer(requests)
+
+    def model(self, name: str | None = None) -> Any:
+        """The loaded model answering requests that name `name` (the loaded answerer's
+        `model`), once it is loaded."""
+        return self.get().model(name)

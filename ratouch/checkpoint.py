@@ -13,7 +13,6 @@ import json
 import os
 import pickle
 import re
-import tempfile
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -21,7 +20,8 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from ratouch.errors import DataError, DataNotFoundError
+from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.files import json_text, publish, staged
 
 WEIGHTS = "model.safetensors"
 CONFIG = "config.json"
@@ -55,15 +55,13 @@ def save_checkpoint(folder: str | os.PathLike, state: dict[str, torch.Tensor], c
         if half and v.is_floating_point():
             v = v.half()
         tensors[k] = v.contiguous()
-    with tempfile.TemporaryDirectory(dir=folder) as tmp:
-        tmp = Path(tmp)
+    with staged(folder) as tmp:
         save_file(tensors, tmp / WEIGHTS)
-        (tmp / CONFIG).write_text(json.dumps(config, indent=2))
+        (tmp / CONFIG).write_text(json_text(config, indent=2, newline=False))
         manifest = {"files": {WEIGHTS: sha256_file(tmp / WEIGHTS), CONFIG: sha256_file(tmp / CONFIG)},
                     "dtype": "float16" if half else "float32", "meta": meta or {}}
-        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2))
-        for name in (WEIGHTS, CONFIG, MANIFEST):
-            os.replace(tmp / name, folder / name)
+        (tmp / MANIFEST).write_text(json_text(manifest, indent=2, newline=False))
+        publish(tmp, folder, (WEIGHTS, CONFIG, MANIFEST))  # the manifest last
     return folder
 
 
@@ -129,6 +127,35 @@ def load_into(module: torch.nn.Module, state: dict[str, torch.Tensor], source: s
             raise DataError(f"{source} does not fit the model: {k} has shape {tuple(v.shape)}, "
                             f"the model expects {tuple(own[k].shape)}")
     module.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()}, strict=True)
+
+
+def load_checkpoint(folder: str | os.PathLike, module: torch.nn.Module, name: str | None = None,
+                    prefix: str = "") -> tuple[dict, dict]:
+    """Verify a checkpoint folder and load its weights strictly into `module`: the one loader
+    of the project's own weights into a model that is already built.
+
+    Args:
+        folder: the checkpoint (`save_checkpoint`).
+        module: the model whose state the weights must fit exactly (`load_into`).
+        name: the config's "name" the checkpoint must carry (an encoder set's), if given.
+        prefix: load only the tensors under this prefix (e.g. "vision."), stripped of it.
+
+    Returns:
+        (config, manifest) of the checkpoint.
+
+    Raises:
+        ConfigError: If the checkpoint is another model's (`name`).
+        DataError: If it is corrupt or does not fit `module`.
+    """
+    folder = Path(folder)
+    state, config, manifest = read_checkpoint(folder)
+    if name is not None and config.get("name") != name:
+        raise ConfigError(f"checkpoint {folder} is for encoder {config.get('name')!r}, "
+                          f"not {name!r}")
+    if prefix:
+        state = {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}
+    load_into(module, state, f"{folder} ({prefix}*)" if prefix else str(folder))
+    return config, manifest
 
 
 # --------------------------------------------------------------------- foreign checkpoints

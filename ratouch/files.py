@@ -1,27 +1,112 @@
-"""Atomic file writes: the content goes to a hidden temporary file beside the target, which is
-then renamed over it, so a reader never sees half a file and an interrupted write leaves the
-old file (or nothing) behind."""
+"""Atomic file writes, the one implementation the project has: content goes to a hidden
+temporary file (or folder) beside its target and is then renamed over it, so a reader never
+sees half a file and an interrupted write leaves the old file (or nothing) behind.
+
+* `atomic_path`: the temporary path to write one file to, renamed into place at the end;
+  `write_atomic` (bytes or text), `write_json_atomic`, `write_npz_atomic` and `write_npy_atomic`
+  are built on it.
+* `staged` and `publish`: several files (a checkpoint, a corpus, a data set, a shard) written
+  into a hidden folder first and moved into place in a given order, the last one (a manifest)
+  marking completion; `replace_folder` swaps a whole folder in.
+"""
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
+import tempfile
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 
-def write_atomic(path: str | os.PathLike, data: bytes | str) -> Path:
-    """Write bytes, or text as UTF-8, to `path` atomically (parent folders are created)."""
+@contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """The hidden temporary path (``.<name>.partial`` beside `path`, parent folders created)
+    to write `path`'s content to; renamed over `path` when the block ends without an error,
+    removed otherwise."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.partial")
     try:
-        tmp.write_bytes(data.encode("utf-8") if isinstance(data, str) else data)
+        yield tmp
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
-    return path
 
 
-def write_json_atomic(path: str | os.PathLike, obj) -> Path:
-    """`obj` as indented JSON, written atomically."""
-    return write_atomic(path, json.dumps(obj, indent=1) + "\n")
+def write_atomic(path: str | os.PathLike, data: bytes | str) -> Path:
+    """Write bytes, or text as UTF-8, to `path` atomically (parent folders are created)."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data.encode("utf-8") if isinstance(data, str) else data)
+    return Path(path)
+
+
+def json_text(obj, indent: int | None = 1, sort_keys: bool = False, newline: bool = True
+              ) -> str:
+    """`obj` as JSON text: indented by `indent` (None: one line), keys sorted when asked, and
+    ending in a new line unless `newline` is False."""
+    return json.dumps(obj, indent=indent, sort_keys=sort_keys) + ("\n" if newline else "")
+
+
+def write_json_atomic(path: str | os.PathLike, obj, indent: int | None = 1,
+                      sort_keys: bool = False, newline: bool = True) -> Path:
+    """`obj` as JSON (`json_text`: indented by 1 and ending in a new line by default),
+    written atomically."""
+    return write_atomic(path, json_text(obj, indent, sort_keys, newline))
+
+
+def write_npz_atomic(path: str | os.PathLike, **arrays) -> Path:
+    """Arrays into an uncompressed ``.npz`` file (`numpy.savez`), written atomically."""
+    import numpy as np
+
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, **arrays)
+    return Path(path)
+
+
+def write_npy_atomic(path: str | os.PathLike, array) -> Path:
+    """One array into a ``.npy`` file (`numpy.save`), written atomically."""
+    import numpy as np
+
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.save(f, array)
+    return Path(path)
+
+
+@contextmanager
+def staged(folder: str | os.PathLike, prefix: str = ".partial-") -> Iterator[Path]:
+    """A hidden temporary folder inside `folder` (created) to write several files into before
+    `publish` moves them into place; removed, with anything left in it, when the block ends."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=prefix, dir=folder))
+    try:
+        yield tmp
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def publish(staging: str | os.PathLike, folder: str | os.PathLike,
+            names: Iterable[str] | None = None) -> None:
+    """Move files from a `staged` folder into `folder` by rename, in the order of `names`
+    (relative paths; the last one, e.g. a manifest, marks completion), or every file under
+    `staging` in sorted order when None. Sub-folders are created."""
+    staging, folder = Path(staging), Path(folder)
+    if names is None:
+        names = [str(p.relative_to(staging)) for p in sorted(staging.rglob("*"))
+                 if not p.is_dir()]
+    for name in names:
+        dst = folder / name
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(staging / name, dst)
+
+
+def replace_folder(staging: str | os.PathLike, folder: str | os.PathLike) -> None:
+    """Put a complete folder (`staging`, made beside `folder` on the same file system) in the
+    place of `folder`, which is removed first if it exists."""
+    folder = Path(folder)
+    if folder.exists():
+        shutil.rmtree(folder)
+    os.replace(staging, folder)

@@ -32,10 +32,10 @@ import numpy as np
 import torch
 from scipy import stats
 
+from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split
 from ratouch.eval.controls import derangement
-from ratouch.eval.judge import OfflineJudge, judge_results
+from ratouch.eval.judge import OfflineJudge
 from ratouch.eval.premise import GROUPS, group_split
-from ratouch.eval.tvl import describe, records_for
 from ratouch.model.generator import load_generator, trainable_parameters
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.paths import generator_weights
@@ -95,17 +95,14 @@ def main() -> None:
                                                           if k in VARIANTS}}}
 
     def scores(gen, split, nb, name):
-        answers = describe(gen, split.V, split.T, *pipe.neighbour_embeddings(nb))
-        rows, _ = judge_results(records_for(split, answers, name), judge)
-        return np.array([r[judge.key] for r in rows], float)
+        return answer_split(pipe, split, RA_TOUCH, ids=nb, generator=gen, name=name,
+                            judge=judge).scores
 
     for g in GROUPS:
         split = group_split(pipe.encoders, g, args.n, ScarceRegime())
         nb = pipe.joint_neighbours(split.V, split.T, 5)
         shuffled = nb[derangement(len(nb), 0)]
-        rows, _ = judge_results(records_for(split, describe(pipe.generator_base, split.V, split.T),
-                                            "baseline"), judge)
-        base = np.array([r[judge.key] for r in rows], float)
+        base = answer_split(pipe, split, BASELINE, judge=judge).scores
         out[g] = {"baseline": round(float(base.mean()), 4)}
         for name, gen in models.items():
             own, shuf = scores(gen, split, nb, name), scores(gen, split, shuffled, name + "_shuf")

@@ -20,9 +20,9 @@ import torch
 from scipy import stats
 
 from ratouch.eval.controls import derangement
-from ratouch.eval.judge import OfflineJudge, judge_results
+from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split
+from ratouch.eval.judge import OfflineJudge
 from ratouch.eval.premise import GROUPS, group_split
-from ratouch.eval.tvl import describe, records_for
 from ratouch.model.generator import load_generator
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.paths import generator_weights
@@ -62,14 +62,10 @@ def main() -> None:
         split = group_split(pipe.encoders, g, args.n, ScarceRegime())
         nb = perfect_ids(split.materials, by_material,
                          pipe.joint_neighbours(split.V, split.T, 5), 5, rng)
-        scores = {}
-        for name, answers in (
-                ("baseline", describe(pipe.generator_base, split.V, split.T)),
-                ("perfect", describe(gen, split.V, split.T, *pipe.neighbour_embeddings(nb))),
-                ("perfect_shuffled", describe(gen, split.V, split.T, *pipe.neighbour_embeddings(
-                    nb[derangement(len(nb), 0)])))):
-            rows, _ = judge_results(records_for(split, answers, name), judge)
-            scores[name] = np.array([r[judge.key] for r in rows], float)
+        scores = {"baseline": answer_split(pipe, split, BASELINE, judge=judge).scores}
+        for name, ids in (("perfect", nb), ("perfect_shuffled", nb[derangement(len(nb), 0)])):
+            scores[name] = answer_split(pipe, split, RA_TOUCH, ids=ids, generator=gen, name=name,
+                                        judge=judge).scores
         d, drop = scores["perfect"] - scores["baseline"], scores["perfect"] - scores["perfect_shuffled"]
         out[g] = {k: round(float(v.mean()), 4) for k, v in scores.items()}
         out[g].update(gain=round(float(d.mean()), 4), gain_p=float(stats.ttest_1samp(d, 0).pvalue),

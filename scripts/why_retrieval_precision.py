@@ -18,6 +18,7 @@ import numpy as np
 
 from ratouch.eval.premise import GROUPS, group_split
 from ratouch.eval.retrieval import entry_materials
+from ratouch.search.retrieval import QUERY_MODES, mode_query
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.world.scarcity import ScarceRegime
 
@@ -29,7 +30,7 @@ def main() -> None:
     out = {}
     for g in GROUPS:
         split = group_split(p.encoders, g, n, ScarceRegime())
-        queries = {"image": split.V, "tactile": split.T, "joint": p.joint_query(split.V, split.T)}
+        queries = {m: mode_query(m, split.V, split.T, p.joint_query) for m in QUERY_MODES}
         truth = np.array(split.materials)
         out[g] = {mode: round(float((mats[ids] == truth[:, None]).mean()), 4)
                   for mode, (_, ids) in p.retriever.retrieve(queries, k=5).items()}

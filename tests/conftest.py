@@ -15,8 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ratouch.encoders.preprocess import crop_box, to_rgb_array, tvl_contact_box
-from ratouch.errors import DataError
+from ratouch.errors import DataError, RATouchError
 from ratouch.paths import generator_weights
 
 from ratouch.world.config import WorldConfig
@@ -88,6 +87,41 @@ def small_corpus(tmp_path_factory, debug_encoders):
     return folder
 
 
+@pytest.fixture(scope="session")
+def debug_pipeline(debug_encoders, small_corpus):
+    """A whole `RATouchPipeline` without trained weights: the debug encoders over the
+    240-entry corpus, a random Tactile-Guided Retriever and two tiny random generators, no
+    trust calibration. Its answers mean nothing; its query path is the real one."""
+    import torch
+
+    from ratouch.model.decoder import DecoderConfig, build_small_decoder
+    from ratouch.model.generator import BaselinePrompt, PromptConfig, RATouchGenerator
+    from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
+    from ratouch.model.retriever import RetrieverConfig, TactileGuidedRetriever
+    from ratouch.search.index import IndexConfig
+    from ratouch.search.retrieval import CorpusIndex, CorpusSearch
+    from ratouch.serve.pipeline import RATouchPipeline
+    from ratouch.vocabulary import TVL_ADJECTIVES
+
+    dim = debug_encoders.dim
+
+    def generator(integrator: bool):
+        cfg = DecoderConfig(hidden=32, layers=2, heads=2, intermediate=64, max_new_tokens=6,
+                            lora_r=4, lora_alpha=8)
+        return RATouchGenerator(
+            BaselinePrompt(PromptConfig(dim=dim, out_dim=32)),
+            build_small_decoder(cfg, TVL_ADJECTIVES[:48], seed=0),
+            TextureAwareIntegrator(IntegratorConfig(dim=dim, out_dim=32)) if integrator
+            else None).eval()
+
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        tgr = TactileGuidedRetriever(RetrieverConfig(dim=dim, cross_residual=True)).eval()
+        ra, base = generator(True), generator(False)
+    index = CorpusIndex(small_corpus, debug_encoders.name, dim, IndexConfig(kind="flat"))
+    return RATouchPipeline(CorpusSearch(debug_encoders, index), tgr, ra, base)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _isolated_cache(tmp_path_factory):
     """Tests never read or write the user's cache of corpora and training data."""
@@ -138,7 +172,7 @@ def tiny_llama(tmp_path_factory):
 def shipped_corpus(tmp_path_factory):
     """A 600-entry world corpus embedded with the shipped default encoder."""
     from ratouch.corpus.imagenet_t import build_corpus
-    from ratouch.serve.pipeline import embed_and_index
+    from ratouch.search.retrieval_side import embed_and_index
 
     folder = tmp_path_factory.mktemp("shipped") / "c600"
     build_corpus(folder, 600, seed=0, progress=False)
@@ -246,7 +280,8 @@ def real_pipeline(tmp_path_factory):
     """The real pipeline (shipped default-s weights) on a 600-entry world corpus, built once
     per session and shared, read-only, by every test that needs it."""
     from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
-    from ratouch.serve.pipeline import RATouchPipeline, embed_and_index
+    from ratouch.search.retrieval_side import embed_and_index
+    from ratouch.serve.pipeline import RATouchPipeline
 
     if not HAVE_ASSETS:
         pytest.skip("the trained retriever/generator weights are not in assets/")
@@ -272,53 +307,65 @@ class FakeCorpus:
 
 
 class FakePipeline:
-    """`RATouchPipeline.query`'s output shape, with the library's real input checks.
+    """An `Answerer` (`ratouch.serve.request`) with `RATouchPipeline.answer`'s result shape;
+    its requests are decoded by the library (`QueryRequest.decode`, the real input checks),
+    as the app sends them.
 
     The image query returns ids 0..k-1, the tactile query 2..k+1, the joint one 1..k: ids 2..k-1
     are shared by all three modes, 1 by image and joint, k by tactile and joint.
     """
 
+    name = "fake"
+
     def __init__(self, n: int = 60, delay_s: float = 0.0):
         self.corpus = FakeCorpus(n)
-        self.encoders = SimpleNamespace(name="fake", dim=8)
+        self.encoders = SimpleNamespace(name=self.name, dim=8)
         self.delay_s = delay_s
         self.calls: list[dict] = []
 
-    def query(self, visual, tactile=None, box=None, k=5, label=None) -> dict:
-        image = to_rgb_array(visual, name="visual image")
-        warnings = []
-        if box is None:
-            box = tvl_contact_box(image.shape[1], image.shape[0])
-            warnings.append(f"no contact box given: used TVL's centred crop {list(box)}")
-        crop_box(image, box)
-        frame = to_rgb_array(tactile, name="tactile image") if tactile is not None else None
-        if not 1 <= k <= len(self.corpus.entries):
-            raise DataError(f"k must be in 1..{len(self.corpus.entries)}, got {k}")
-        self.calls.append({"shape": image.shape, "box": list(box), "k": k, "label": label,
-                           "tactile": frame is not None})
+    def model(self, name=None) -> "FakePipeline":
+        return self
+
+    def answer(self, requests) -> list:
+        out = []
+        for req in requests:
+            try:
+                out.append(self._answer(req))
+            except RATouchError as e:
+                out.append(e)
+        return out
+
+    def _answer(self, req):
+        from ratouch.serve.request import QueryResult, check_k
+
+        check_k(req.k, len(self.corpus.entries))
+        frame = req.frame
+        self.calls.append({"crop": req.crop.shape, "box": list(req.box), "k": req.k,
+                           "label": req.label, "tactile": frame is not None,
+                           "model": req.model})
         time.sleep(self.delay_s)
+        k = req.k
         starts = {"image": 0, "tactile": 2, "joint": 1} if frame is not None else {"image": 0}
-        if frame is None:
-            warnings.append("no tactile image: image-only retrieval; the tactile and joint "
-                            "queries and the RA-Touch description are not available")
         neighbours = {m: [self._neighbour(i, 0.9 - 0.01 * r)
                           for r, i in enumerate(range(s, s + k))] for m, s in starts.items()}
         points = [{"role": f"query_{m}", "x": float(j), "y": 1.0} for j, m in enumerate(starts)]
         points += [{"role": f"neighbour_{m}", "x": 0.1 * n["id"], "y": -0.1 * n["id"],
                     "id": n["id"]} for m, ns in neighbours.items() for n in ns]
-        if label:
+        if req.label:
             points.append({"role": "ground_truth", "x": 0.5, "y": 0.5})
-        return {"neighbours": neighbours,
-                "description": {"ra_touch": "soft and grainy" if frame is not None else "",
-                                "baseline": "smooth" if frame is not None else ""},
-                "pca": {"points": points, "explained": [0.3, 0.2]},
-                "timings_ms": {"preprocess": 1.0, "encode_image": 2.0, "total": 3.0},
-                "warnings": warnings, "box": [int(v) for v in box]}
+        return QueryResult(
+            neighbours=neighbours,
+            description={"ra_touch": "soft and grainy" if frame is not None else "",
+                         "baseline": "smooth" if frame is not None else ""},
+            attention={}, pca={"points": points, "explained": [0.3, 0.2]},
+            timings_ms={"preprocess": 1.0, "encode_image": 2.0, "total": 3.0},
+            warnings=list(req.warnings), box=[int(v) for v in req.box], encoder=self.name,
+            visual_route={"route": "render"}, trust=None)
 
-    def regenerate(self, visual, tactile, neighbours, box=None) -> dict:
-        if tactile is None:
+    def regenerate(self, request, neighbours) -> dict:
+        if request.frame is None:
             raise DataError("regenerating the RA-Touch description needs a tactile image")
-        self.calls.append({"regenerate": list(neighbours), "box": box})
+        self.calls.append({"regenerate": list(neighbours), "box": list(request.box)})
         return {"description": {"ra_touch": f"read {len(neighbours)} neighbours"},
                 "neighbours": [self._neighbour(i, 0.5) for i in neighbours],
                 "attention": {"image": [0.1] * len(neighbours), "text": [0.1] * len(neighbours)},

@@ -208,14 +208,15 @@ def test_awkward_but_valid_images_are_accepted(fake, tmp_path):
         assert max(preview.shape[:2]) == 512 and preview.shape[2] == 3
         v = handlers.run_query(fake, _thumb, visual, path, None, None, None, None, 2)
         assert not v.status.startswith("**⛔"), v.status
-    assert fake.calls[-1]["shape"] == (3648, 5472, 3)  # the query gets the original
+    # the query is decoded from the original, not from the preview
+    assert fake.calls[-1]["box"] == list(tvl_contact_box(5472, 3648))
 
 
 def test_unexpected_errors_are_logged_not_shown(pair_files, caplog):
     from app import handlers
 
     class Broken(FakePipeline):
-        def query(self, *a, **kw):
+        def answer(self, requests):
             raise KeyError("bug")
 
     visual = handlers.upload_visual(str(pair_files[0]))[0]
@@ -330,6 +331,62 @@ def test_opening_a_case_brings_its_stressed_inputs_and_label(fake):
             handlers.open_case(WorldConfig(), bad)
 
 
+class _Answering(FakePipeline):
+    """The fake pipeline, answering with given descriptions (a failure case's)."""
+
+    def __init__(self, description: dict):
+        super().__init__()
+        self.description = description
+
+    def _answer(self, req):
+        result = super()._answer(req)
+        result.description = dict(self.description)
+        return result
+
+    def regenerate(self, *args, **kwargs) -> dict:
+        out = super().regenerate(*args, **kwargs)
+        out["description"] = {"ra_touch": self.description["ra_touch"]}
+        return out
+
+
+def test_a_case_shows_the_judge_score_of_its_table_row():
+    """The failure table judges each system's answers together (with the system's word rates);
+    a case opened from the table shows its row's scores, not those of a lone answer, in the
+    description and in "take retrieval apart"."""
+    from test_failures import CONDS, INDICES
+    from test_failures import FakePipeline as FailurePipeline
+
+    from app import handlers, view
+    from ratouch.eval import failures
+    from ratouch.eval.judge import OfflineJudge
+    from ratouch.world.config import WorldConfig
+
+    judge = OfflineJudge()
+    rows = failures.failure_cases(FailurePipeline(), k=3, conditions=CONDS, indices=INDICES)
+    frame = view.cases_frame(rows)
+    for i in (0, 1, 3, 10):  # both conditions; structured and wild
+        r, clicked = rows[i], frame.iloc[i].tolist()  # what a click on the row sends
+        # judged alone, the answer would score otherwise: the check can fail
+        assert (round(judge.score(r["label"], r["ra_touch"]), 3) != r["ra_score"]
+                or round(judge.score(r["label"], r["baseline"]), 3) != r["baseline_score"])
+        visual, _, tactile, *box, _ = handlers.open_case(WorldConfig(), clicked)
+        pipe = _Answering({"ra_touch": r["ra_touch"], "baseline": r["baseline"]})
+        v = handlers.run_query(pipe, _thumb, visual, tactile, *box, 5, judge=judge)
+        assert f"{r['ra_touch']} · judge **{r['ra_score']:.1f}**/10" in v.description
+        assert f"{r['baseline']} · judge **{r['baseline_score']:.1f}**/10" in v.description
+        assert failures.judge_scores(r["label"], v.raw["description"], judge,
+                                     handlers.judged_descriptions(visual)) == \
+            {"ra_touch": r["ra_score"], "baseline": r["baseline_score"]}
+        ids = [n["id"] for n in v.raw["neighbours"]["joint"]]
+        again = handlers.regenerate(pipe, visual, tactile, *box, ids, v.raw, judge)
+        assert again.count(f"{r['ra_touch']} · judge **{r['ra_score']:.1f}**/10") == 2
+    # a description the row did not judge (another box, another model) is judged alone
+    visual = handlers.open_case(WorldConfig(), frame.iloc[1].tolist())[0]
+    other = failures.judge_scores(rows[1]["label"], {"ra_touch": "soft, rubbery"}, judge,
+                                  handlers.judged_descriptions(visual))
+    assert other == {"ra_touch": round(judge.score(rows[1]["label"], "soft, rubbery"), 3)}
+
+
 # ------------------------------------------------------------------------- benchmarks tab
 
 def _figure_json(title: str) -> str:
@@ -431,24 +488,25 @@ def test_the_batcher_answers_concurrent_queries_together(monkeypatch):
     import threading
 
     from ratouch.serve import batcher as serving
+    from ratouch.serve.request import QueryRequest, answer_one
 
     batches = []
 
-    def fake_many(requests):
+    def fake_answer(requests):
         batches.append(len(requests))
         time.sleep(0.05)
-        return [DataError(f"bad {r['k']}") if r["k"] == 13 else {"k": r["k"]}
-                for r in requests]
+        return [DataError(f"bad {r.k}") if r.k == 13 else {"k": r.k} for r in requests]
 
-    b = serving.QueryBatcher(SimpleNamespace(corpus="the corpus", query_many=fake_many,
-                                             prepare_request=dict),
+    b = serving.QueryBatcher(SimpleNamespace(answer=fake_answer,
+                                             model=lambda name=None: "the model"),
                              max_batch=4)
-    assert b.corpus == "the corpus"
+    assert b.model() == "the model"  # the loaded model behind it, asked explicitly
     out, errors = {}, {}
 
     def ask(k):
         try:
-            out[k] = b.query("visual", k=k)
+            out[k] = answer_one(b, QueryRequest(np.zeros((4, 4, 3), np.uint8), None, None,
+                                                (0, 0, 4, 4), k))
         except DataError as e:
             errors[k] = str(e)
 
@@ -484,7 +542,8 @@ def test_query_api_through_gradio_client(served, pair_files):
     client = Client(url, verbose=False)
     out = client.predict(handle_file(str(pair_files[0])), handle_file(str(pair_files[1])),
                          10, 20, 70, 90, 4, api_name="/query")
-    assert set(out) == {"neighbours", "description", "pca", "timings_ms", "warnings", "box"}
+    assert set(out) == {"neighbours", "description", "attention", "pca", "timings_ms",
+                        "warnings", "box", "encoder", "visual_route", "trust"}
     assert out["box"] == [10, 20, 70, 90] and len(out["neighbours"]["joint"]) == 4
     assert out["description"]["ra_touch"] == "soft and grainy"
     json.dumps(out)
@@ -563,6 +622,29 @@ def test_real_pipeline_example_query(real_pipeline, world):
     assert "image-only" in v.status
 
 
+@pytest.mark.slow
+def test_real_failure_cases_show_their_table_scores(real_pipeline):
+    """The real pipeline: a failure case opened from the table is answered with the table's
+    descriptions, and the case view shows the table's judge scores for them."""
+    from app import handlers, view
+    from ratouch.eval import failures
+    from ratouch.eval.judge import OfflineJudge
+    from ratouch.world.config import WorldConfig
+
+    table = failures.load_or_compute(real_pipeline, conditions=("natural", "noisy touch"),
+                                     indices=[0, 60, 200])  # test_failures' table: cached
+    rows, frame, judge = table["rows"], view.cases_frame(table["rows"]), OfflineJudge()
+    thumb = lambda i: real_pipeline.corpus.thumbnail(i, 64)  # noqa: E731
+    for i in (1, 4, 5):
+        r = rows[i]
+        visual, _, tactile, *box, _ = handlers.open_case(WorldConfig(), frame.iloc[i].tolist())
+        v = handlers.run_query(real_pipeline, thumb, visual, tactile, *box, 5, judge=judge)
+        assert v.raw["description"]["ra_touch"] == r["ra_touch"]
+        assert f"{r['ra_touch']} · judge **{r['ra_score']:.1f}**/10" in v.description
+        if v.raw["description"]["baseline"] == r["baseline"]:
+            assert f"{r['baseline']} · judge **{r['baseline_score']:.1f}**/10" in v.description
+
+
 # ------------------------------------------------------------------------- load
 
 @pytest.mark.slow
@@ -618,16 +700,22 @@ def _tie_free(neighbours: dict) -> dict:
 
 @pytest.mark.slow
 def test_real_pipeline_batched_queries_match_single_ones(real_pipeline, world):
+    from ratouch.errors import ConfigError
+    from ratouch.serve.request import QueryRequest
+
     samples = [world.sample("test", i) for i in (60, 140, 290)]
     reqs = [{"visual": s.visual, "tactile": s.tactile, "box": s.box, "k": k, "label": s.caption}
             for s, k in zip(samples, (5, 5, 3))]
     reqs += [{"visual": samples[0].visual, "k": 4},  # image-only
-             {"visual": samples[0].visual, "box": (9, 9, 2, 2)},  # a bad box
-             {"visual": samples[0].visual, "k": 0}]  # a bad k
-    many = real_pipeline.query_many(reqs)
-    assert isinstance(many[4], DataError) and "box" in str(many[4])
-    assert isinstance(many[5], Exception) and "k must be" in str(many[5])
+             {"visual": samples[0].visual, "k": len(real_pipeline.corpus.entries) + 1}]
+    many = real_pipeline.answer([QueryRequest.decode(**req) for req in reqs])
+    assert isinstance(many[4], ConfigError) and "k must be" in str(many[4])  # K > the corpus
+    with pytest.raises(DataError, match="box"):  # decoding says what is wrong with a request
+        QueryRequest.decode(samples[0].visual, box=(9, 9, 2, 2))
+    with pytest.raises(ConfigError, match="k must be"):
+        QueryRequest.decode(samples[0].visual, k=0)
     for req, got in zip(reqs[:4], many[:4]):
+        got = got.to_dict()
         want = real_pipeline.query(**req)
         assert _tie_free(got["neighbours"]) == _tie_free(want["neighbours"])
         assert got["box"] == want["box"]

@@ -1,33 +1,60 @@
-"""The batching server's worker: its own intra-op thread count, the callers' left alone."""
+"""The batching server: an `Answerer` wrapping an `Answerer`; its worker runs on its own
+intra-op thread count, the callers' left alone."""
 
 from __future__ import annotations
 
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 import torch
 
-from ratouch.errors import ConfigError
+from ratouch.errors import ConfigError, DataError
 from ratouch.serve.batcher import QueryBatcher
+from ratouch.serve.request import QueryRequest, answer_one
+
+
+def _request(k: int = 5) -> QueryRequest:
+    return QueryRequest(np.zeros((4, 4, 3), np.uint8), None, None, (0, 0, 4, 4), k)
 
 
 def test_worker_runs_batches_on_its_own_thread_count():
     seen = []
 
-    def fake_many(requests):
+    def fake_answer(requests):
         seen.append(torch.get_num_threads())
-        return [{"k": r["k"]} for r in requests]
+        return [{"k": r.k} for r in requests]
 
-    pipe = SimpleNamespace(query_many=fake_many, prepare_request=dict)
+    inner = SimpleNamespace(answer=fake_answer)
     before = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
-        assert QueryBatcher(pipe).query("v", k=3) == {"k": 3}
-        assert QueryBatcher(pipe, threads=None).query("v")
+        assert answer_one(QueryBatcher(inner), _request(3)) == {"k": 3}
+        assert answer_one(QueryBatcher(inner, threads=None), _request())
         assert torch.get_num_threads() == 2  # the caller's setting is untouched
     finally:
         torch.set_num_threads(before)
     assert seen[0] == 1
     for bad in (0, 1.5, True):
         with pytest.raises(ConfigError, match="threads"):
-            QueryBatcher(pipe, threads=bad)
+            QueryBatcher(inner, threads=bad)
+
+
+def test_a_call_of_several_requests_gets_each_its_own_answer():
+    def fake_answer(requests):
+        return [DataError("bad") if r.k == 2 else {"k": r.k} for r in requests]
+
+    b = QueryBatcher(SimpleNamespace(answer=fake_answer), max_batch=2)
+    out = b.answer([_request(k) for k in (1, 2, 3)])
+    assert out[0] == {"k": 1} and isinstance(out[1], DataError) and out[2] == {"k": 3}
+    assert sorted(b.batches) == [1, 2]  # at most two requests a batch
+    with pytest.raises(DataError):
+        answer_one(b, _request(2))
+
+
+def test_a_failing_batch_answers_every_caller_with_its_error():
+    def broken(requests):
+        raise RuntimeError("the model broke")
+
+    out = QueryBatcher(SimpleNamespace(answer=broken)).answer([_request(), _request()])
+    assert all(isinstance(e, RuntimeError) for e in out)

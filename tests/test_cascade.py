@@ -1,5 +1,6 @@
 """The encoder cascade (`ratouch.serve.cascade`), its calibration rule
-(`ratouch.train.cascade`) and the per-query model choice (`ratouch.serve.models`)."""
+(`ratouch.train.cascade`) and the per-query model choice (`ratouch.serve.models`); the
+serving ones over the debug pipeline (the real query path, untrained weights)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import pytest
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.serve.cascade import Cascade, CascadeCalibration, joint_confidence
 from ratouch.serve.models import ModelChoice
+from ratouch.serve.request import QueryRequest, answer_one
 from ratouch.train.cascade import choose_thresholds
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -72,11 +74,19 @@ def _cascade(pipeline, threshold: float) -> Cascade:
                    CascadeCalibration((name, name), "agreement", 5, (threshold,)))
 
 
-def test_cascade_answers_with_the_first_confident_stage(pipeline, world):
+def _ask(answerer, s, **kw) -> dict:
+    """A world sample's query (with its tactile image and box), answered, as JSON."""
+    return answer_one(answerer, QueryRequest.decode(s.visual, s.tactile, box=s.box,
+                                                    **kw)).to_dict()
+
+
+def test_cascade_answers_with_the_first_confident_stage(debug_pipeline, world):
+    pipeline = debug_pipeline
     s = world.sample("test", 150)
     alone = pipeline.query(s.visual, s.tactile, box=s.box)
-    first = _cascade(pipeline, -np.inf).query(s.visual, s.tactile, box=s.box)
-    last = _cascade(pipeline, np.inf).query(s.visual, s.tactile, box=s.box)
+    first = _ask(_cascade(pipeline, -np.inf), s)
+    last = _ask(_cascade(pipeline, np.inf), s)
+    assert "cascade" not in alone and alone["encoder"] == "debug"
     assert first["cascade"]["stage"] == 0 and not first["cascade"]["escalated"]
     assert last["cascade"]["stage"] == 1 and last["cascade"]["escalated"]
     # the confidence is measured at the first stage only; the last stage always answers
@@ -88,28 +98,30 @@ def test_cascade_answers_with_the_first_confident_stage(pipeline, world):
             [n["id"] for n in alone["neighbours"]["joint"]]
     # the threshold really decides: at the measured confidence the first stage answers
     c = first["cascade"]["confidence"][0]
-    assert _cascade(pipeline, c).query(s.visual, s.tactile, box=s.box)["cascade"]["stage"] == 0
-    assert _cascade(pipeline, c + 1e-6).query(s.visual, s.tactile,
-                                              box=s.box)["cascade"]["stage"] == 1
+    assert _ask(_cascade(pipeline, c), s)["cascade"]["stage"] == 0
+    assert _ask(_cascade(pipeline, c + 1e-6), s)["cascade"]["stage"] == 1
 
 
-def test_cascade_batches_mixed_requests(pipeline, world):
-    casc = _cascade(pipeline, np.inf)
+def test_cascade_batches_mixed_requests(debug_pipeline, world):
+    casc = _cascade(debug_pipeline, np.inf)
     a, b = world.sample("test", 160), world.sample("test", 170)
-    out = casc.query_many([{"visual": a.visual, "tactile": a.tactile, "box": a.box},
-                           {"visual": b.visual, "box": b.box},  # no tactile: no joint query
-                           {"visual": "no-such-file.png"}])
+    first = QueryRequest.decode(a.visual, a.tactile, box=a.box)
+    out = casc.answer([first,
+                       QueryRequest.decode(b.visual, box=b.box),  # no tactile: no joint query
+                       QueryRequest.decode(a.visual, k=10_000)])  # more than the corpus has
+    out[:2] = [r.to_dict() for r in out[:2]]
     assert out[0]["cascade"]["escalated"]
     assert out[1]["cascade"] == {**out[1]["cascade"], "stage": 0, "confidence": []}
-    assert isinstance(out[2], Exception)
-    again = casc.regenerate(a.visual, a.tactile, [n["id"] for n in out[0]["neighbours"]["joint"]],
-                            box=a.box)
+    assert isinstance(out[2], ConfigError) and "k must be" in str(out[2])
+    again = casc.regenerate(first, [n["id"] for n in out[0]["neighbours"]["joint"]])
     assert again["description"]["ra_touch"] == out[0]["description"]["ra_touch"]
+    assert casc.model() is casc and casc.corpus is debug_pipeline.corpus
     with pytest.raises(ConfigError, match="not a stage"):
-        casc.regenerate(a.visual, a.tactile, [1], box=a.box, encoder="default-xl")
+        casc.regenerate(first, [1], encoder="default-xl")
 
 
-def test_model_choice_routes_each_request(pipeline, world):
+def test_model_choice_routes_each_request(debug_pipeline, world):
+    pipeline = debug_pipeline
     loads = []
 
     def load(name):
@@ -119,16 +131,16 @@ def test_model_choice_routes_each_request(pipeline, world):
     choice = ModelChoice("default-s", ["default-s", "other"], load=load)
     assert loads == ["default-s"]  # the others load on first use
     s = world.sample("test", 180)
-    out = choice.query_many([{"visual": s.visual, "tactile": s.tactile, "box": s.box},
-                             {"visual": s.visual, "tactile": s.tactile, "box": s.box,
-                              "encoder": "other"},
-                             {"visual": s.visual, "encoder": "nope"}])
+    out = choice.answer([QueryRequest.decode(s.visual, s.tactile, box=s.box),
+                         QueryRequest.decode(s.visual, s.tactile, box=s.box, model="other"),
+                         QueryRequest.decode(s.visual, model="nope")])
     assert loads == ["default-s", "other"]
-    assert out[0]["description"] == out[1]["description"]
+    assert out[0].description == out[1].description
     assert isinstance(out[2], ConfigError) and "unknown model 'nope'" in str(out[2])
     with pytest.raises(ConfigError, match="unknown model"):
-        choice.query(s.visual, encoder="nope")
-    assert choice.corpus is pipeline.corpus  # the default model's parts
+        answer_one(choice, QueryRequest.decode(s.visual, model="nope"))
+    assert choice.model().corpus is pipeline.corpus  # the default model, asked explicitly
+    assert choice.model("other") is pipeline
 
 
 def test_the_page_says_which_model_answered_and_why():
@@ -146,10 +158,12 @@ def test_the_page_says_which_model_answered_and_why():
     assert "top1 0.500 < ∞" in never
 
 
-def test_model_choice_builds_the_cascade_from_its_own_models(pipeline, tmp_path, monkeypatch):
+def test_model_choice_builds_the_cascade_from_its_own_models(debug_pipeline, tmp_path,
+                                                            monkeypatch):
     import ratouch.paths
     import ratouch.serve.models as models
 
+    pipeline = debug_pipeline
     name = pipeline.encoders.name
     path = CascadeCalibration((name, name), "margin", 5, (0.05,)).save(tmp_path / "c.json")
     monkeypatch.setattr(ratouch.paths, "cascade_calibration", lambda *a: path)

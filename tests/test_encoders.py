@@ -131,12 +131,13 @@ def test_tvl_weights_fingerprint_follows_the_files_not_their_folder(tmp_path, mo
     is stubbed here)."""
     import shutil
 
-    from ratouch.encoders import factory
+    from ratouch.encoders import tvl
 
     class Loaded:
         weights_fingerprint = None
 
-    monkeypatch.setattr(factory, "load_tvl", lambda clip, tactile, cfg: Loaded())
+    # the factory imports the TVL backend when it creates a TVL model
+    monkeypatch.setattr(tvl, "load_tvl", lambda clip, tactile, cfg: Loaded())
     one = tmp_path / "one"
     one.mkdir()
     (one / "open_clip_model.safetensors").write_bytes(b"clip weights")

@@ -160,7 +160,7 @@ def test_a_change_to_the_training_code_retrains_instead_of_reusing(tmp_path, mon
     """Results cached before the code that trains a variant changed are not reused."""
     from types import SimpleNamespace
 
-    from ratouch.eval import experiments
+    from ratouch.eval.experiments import lab as experiments  # Lab reads source_sha256 there
 
     monkeypatch.setenv("RATOUCH_CACHE", str(tmp_path))
     stub = SimpleNamespace(corpus=SimpleNamespace(manifest={"metadata_sha256": "c"}),

@@ -28,7 +28,7 @@ class FakeEncoders:
     def encode_image(self, crops):
         return np.array([[c.mean(), c.std(), c[..., 0].mean(), 1.0] for c in crops], np.float32)
 
-    def encode_tactile(self, frames):
+    def encode_tactile(self, frames, backgrounds=None):  # the frames decide; backgrounds unused
         return np.array([[f.std(), f.mean(), 1.0, f[..., 1].mean()] for f in frames],
                         np.float32)
 

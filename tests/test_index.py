@@ -294,3 +294,28 @@ def test_planted_neighbours_are_found_in_order(cfg):
     index = VectorIndex.build(corpus, cfg)
     _, ids = index.search(queries, 5)
     np.testing.assert_array_equal(ids, np.array(truth))
+
+
+def test_one_top_k_decides_equal_scores_by_id():
+    """`top_k` is the project's one top-k (exact reference, the flat index's few-query scan,
+    the sharded merge): the k best by (higher score, lower id), in the order and at the k-th
+    place alike, as a full lexicographic sort would give."""
+    from ratouch.search.index import exact_topk, top_k
+
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        q, n = rng.integers(1, 5), rng.integers(1, 40)
+        sims = rng.integers(0, 4, (q, n)).astype(np.float32)  # many equal scores
+        k = int(rng.integers(1, n + 1))
+        scores, ids = top_k(sims, k)
+        ref = np.array([np.lexsort((np.arange(n), -row))[:k] for row in sims])
+        assert ids.dtype == np.int64 and (ids == ref).all()
+        assert (scores == np.take_along_axis(sims, ref, 1)).all()
+        assert (top_k(np.ascontiguousarray(sims.T).T, k)[1] == ref).all()  # a transposed view
+    # duplicate keys (captions repeat): the exact reference and the flat index's scan agree
+    keys = rng.standard_normal((300, 8)).astype(np.float32)
+    keys[[40, 7, 250, 90]] = keys[3]
+    keys /= np.linalg.norm(keys, axis=1, keepdims=True)
+    index = VectorIndex.build(keys, IndexConfig(kind="flat"))
+    assert exact_topk(keys[[3]], keys, 3).tolist() == [[3, 7, 40]]
+    assert index.search(keys[3], 3)[1].tolist() == [[3, 7, 40]]

@@ -182,7 +182,8 @@ def test_unweighted_matching_is_fooled_by_padding(monkeypatch):
     """The check can fail: with every word at full weight, generic padding raises the score."""
     data = J.load_tvl_results()
     fit, held = J.heldout_split(data[J.MODELS[0]])
-    monkeypatch.setattr(J, "informativeness", lambda word, label_rates, rates: 1.0)
+    # `word_table` (in the features module) looks the weight up there
+    monkeypatch.setattr(J.features, "informativeness", lambda word, label_rates, rates: 1.0)
     judge = J.OfflineJudge(J.fit_calibration(data, J.MODELS, fit))
     sh = J.style_shifts(data, held, judge)
     assert sh["shifts"]["pad"]["change"] > 0.1 and not sh["shifts"]["pad"]["as_expected"]

@@ -1,4 +1,6 @@
-"""The RA-Touch query pipeline (shipped weights) and `ratouch query`, as a user meets them."""
+"""The RA-Touch query pipeline (shipped weights) and `ratouch query`, as a user meets them;
+the query path itself (a request decoded once, answered alone or in a batch, the result's
+JSON) also on the debug pipeline, which needs no trained weights."""
 
 from __future__ import annotations
 
@@ -8,7 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from ratouch.errors import DataError
+from ratouch.errors import ConfigError, DataError
+from ratouch.serve.request import QueryRequest, QueryResult, answer_one
 
 
 def test_query_returns_every_documented_field(pipeline, world):
@@ -84,31 +87,30 @@ def test_query_reports_the_integrators_attention(pipeline, world):
 
 
 def test_regenerate_with_pinned_dropped_and_swapped_neighbours(pipeline, world):
-    from ratouch.errors import ConfigError
-
     s, other = world.sample("test", 180), world.sample("test", 30)
     r = pipeline.query(s.visual, s.tactile, box=s.box, k=5)
     ids = [n["id"] for n in r["neighbours"]["joint"]]
-    same = pipeline.regenerate(s.visual, s.tactile, ids, box=s.box)
+    request = QueryRequest.decode(s.visual, s.tactile, box=s.box)
+    same = pipeline.regenerate(request, ids)
     assert same["description"]["ra_touch"] == r["description"]["ra_touch"]
     assert same["attention"] == r["attention"]
     assert [n["id"] for n in same["neighbours"]] == ids
     assert [n["score"] for n in same["neighbours"]] == pytest.approx(
         [n["score"] for n in r["neighbours"]["joint"]], abs=2e-4)
-    kept = pipeline.regenerate(s.visual, s.tactile, ids[:2], box=s.box)
+    kept = pipeline.regenerate(request, ids[:2])
     assert len(kept["attention"]["text"]) == 2
     assert sum(kept["attention"]["image"]) == pytest.approx(1.0, abs=1e-3)
     swapped_ids = [n["id"] for n in pipeline.query(other.visual, other.tactile,
                                                    box=other.box)["neighbours"]["joint"]]
-    swapped = pipeline.regenerate(s.visual, s.tactile, swapped_ids, box=s.box)
+    swapped = pipeline.regenerate(request, swapped_ids)
     assert [n["id"] for n in swapped["neighbours"]] == swapped_ids
     # no neighbours at all: the integrator adds nothing, so p' is the baseline prompt
-    assert pipeline.regenerate(s.visual, s.tactile, [], box=s.box)["attention"] == {}
+    assert pipeline.regenerate(request, [])["attention"] == {}
     for bad in ([len(pipeline.corpus)], [-1], [ids[0], ids[0]], ["3"]):
         with pytest.raises(ConfigError, match="neighbour ids"):
-            pipeline.regenerate(s.visual, s.tactile, bad, box=s.box)
+            pipeline.regenerate(request, bad)
     with pytest.raises(ConfigError, match="tactile"):
-        pipeline.regenerate(s.visual, None, ids, box=s.box)
+        pipeline.regenerate(QueryRequest.decode(s.visual, None, box=s.box), ids)
 
 
 def test_cli_query_drop_and_neighbours_from(tmp_path, shipped_corpus, world, capsys):
@@ -152,7 +154,7 @@ def test_cached_default_corpus_is_embedded_again_after_retraining(tmp_path, monk
     """The shipped encoder is retrained: the user's cached corpus is re-embedded (not served
     with the old weights' embeddings), and so is one embedded before weights were recorded."""
     from ratouch.encoders import factory
-    from ratouch.serve import pipeline as pl
+    from ratouch.search import retrieval_side as pl
 
     monkeypatch.setenv("RATOUCH_CACHE", str(tmp_path))
     shipped = {"folder": debug_checkpoints[0]}
@@ -163,7 +165,7 @@ def test_cached_default_corpus_is_embedded_again_after_retraining(tmp_path, monk
     assert first["encoder_weights"] == factory.shipped_fingerprint("debug")
 
     shipped["folder"] = debug_checkpoints[1]  # retrained
-    with caplog.at_level("INFO", logger="ratouch.serve.pipeline"):
+    with caplog.at_level("INFO", logger="ratouch.search.retrieval_side"):
         assert pl.default_corpus("debug", size="20", progress=False) == folder
     assert "re-embedding the default corpus" in caplog.text
     second = json.loads(manifest.read_text())
@@ -178,3 +180,70 @@ def test_cached_default_corpus_is_embedded_again_after_retraining(tmp_path, monk
     manifest.write_text(json.dumps({k: v for k, v in second.items() if k != "encoder_weights"}))
     pl.default_corpus("debug", size="20", progress=False)  # made before weights were recorded
     assert json.loads(manifest.read_text())["encoder_weights"] == second["encoder_weights"]
+
+
+# --- the query path on the debug pipeline (no trained weights needed) -------------------------
+
+def test_a_request_is_decoded_once_and_says_what_it_assumed(world, tmp_path):
+    s = world.sample("test", 60)
+    Image.fromarray(s.visual).save(tmp_path / "v.png")
+    req = QueryRequest.decode(tmp_path / "v.png", s.tactile, k=3, label="soft", model="m")
+    assert req.crop.dtype == np.uint8 and req.crop.ndim == 3 and req.frame.shape == s.tactile.shape
+    assert req.background is None and (req.k, req.label, req.model) == (3, "soft", "m")
+    assert req.warnings == ("no contact box given: used TVL's centred crop [48, 48, 81, 81]",)
+    assert req.decode_ms >= 0
+    alone = QueryRequest.decode(s.visual, None, box=s.box, background=s.tactile)
+    assert alone.frame is None and alone.background is None and len(alone.warnings) == 2
+    for bad in (0, 2.5, True):
+        with pytest.raises(ConfigError, match="k must be a whole number"):
+            QueryRequest.decode(s.visual, k=bad)
+    with pytest.raises(DataError, match="background"):
+        QueryRequest.decode(s.visual, s.tactile, background=np.zeros((9, 9, 3), np.uint8))
+
+
+def test_answer_is_query_and_batches_match_single_answers(debug_pipeline, world):
+    pipe = debug_pipeline
+    samples = [world.sample("test", i) for i in (60, 140, 290)]
+    requests = [QueryRequest.decode(s.visual, s.tactile, box=s.box, k=k, label=s.caption)
+                for s, k in zip(samples, (5, 3, 4))]
+    requests += [QueryRequest.decode(samples[0].visual, k=2),  # image-only
+                 QueryRequest.decode(samples[0].visual, k=len(pipe.corpus.entries) + 1)]
+    batch = pipe.answer(requests)
+    assert isinstance(batch[-1], ConfigError) and "k must be a whole number" in str(batch[-1])
+    for req, got in zip(requests[:-1], batch[:-1]):
+        assert isinstance(got, QueryResult)
+        alone = answer_one(pipe, req).to_dict()
+        got = got.to_dict()
+        assert got["timings_ms"]["batch_size"] == 4 and alone["timings_ms"]["batch_size"] == 1
+        assert got["timings_ms"]["decode"] == req.decode_ms
+        for key in ("description", "attention", "warnings", "box", "encoder", "visual_route",
+                    "trust"):
+            assert got[key] == alone[key], key
+        assert [n["id"] for ns in got["neighbours"].values() for n in ns] == \
+            [n["id"] for ns in alone["neighbours"].values() for n in ns]
+        assert len(got["neighbours"]["image"]) == req.k
+    s = samples[0]
+    once = pipe.query(s.visual, s.tactile, box=s.box, k=5, label=s.caption)
+    again = batch[0].to_dict()
+    assert list(once) == ["neighbours", "description", "attention", "pca", "timings_ms",
+                          "warnings", "box", "encoder", "visual_route", "trust"]
+    # the same request alone: the same answer (a batch's floats differ in the last bits)
+    assert {k: v for k, v in once.items() if k not in ("timings_ms", "pca")} == \
+        {k: v for k, v in again.items() if k not in ("timings_ms", "pca")}
+    assert [p["role"] for p in once["pca"]["points"]] == \
+        [p["role"] for p in again["pca"]["points"]]
+    assert once["warnings"][-1].startswith("no trust calibration for encoder debug")
+    json.dumps(once)
+
+
+def test_regenerate_reads_the_decoded_request(debug_pipeline, world):
+    s = world.sample("test", 190)
+    request = QueryRequest.decode(s.visual, s.tactile, box=s.box)
+    r = answer_one(debug_pipeline, request)
+    ids = [n["id"] for n in r.neighbours["joint"]]
+    same = debug_pipeline.regenerate(request, ids)
+    assert same["description"]["ra_touch"] == r.description["ra_touch"]
+    assert same["attention"] == r.attention and [n["id"] for n in same["neighbours"]] == ids
+    assert debug_pipeline.model() is debug_pipeline and debug_pipeline.name == "debug"
+    with pytest.raises(ConfigError, match="unknown model"):
+        debug_pipeline.model("default-b")

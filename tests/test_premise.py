@@ -111,7 +111,7 @@ def test_verdict_follows_the_preregistered_criteria(scarce, verdict):
 @pytest.mark.slow
 def test_premise_runs_end_to_end_on_the_shipped_weights(real_pipeline):
     lines = []
-    r = run_premise(runs=1, n=12, pipeline=real_pipeline, report=lines.append, arm=False)
+    r = run_premise(runs=1, n=12, pipeline=real_pipeline, progress=lines.append, arm=False)
     assert r["verdict"] in ("supported", "refuted", "inconclusive")
     for g in ("seen", "scarce"):
         s = r["groups"][g]

@@ -26,7 +26,7 @@ from ratouch.corpus.imagenet_t import build_corpus, load_corpus, world_lexicon
 from ratouch.build.ray_corpus import SHARD_DIR, plan_cpus
 from ratouch.corpus.recaption import OfflineRecaptioner
 from ratouch.errors import ConfigError
-from ratouch.serve.pipeline import embed_and_index, open_retriever
+from ratouch.search.retrieval_side import embed_and_index, open_retriever
 
 REPO = Path(__file__).resolve().parents[1]
 N = 360  # entries of the fast comparison (the 2k one is marked slow)

@@ -124,7 +124,7 @@ def test_embeddings_made_with_other_weights_are_refused(tiny_corpus, debug_check
     """A user corpus embedded before the encoder was retrained gives wrong neighbours: every
     way of opening it with the new weights says so instead."""
     from ratouch.encoders.factory import create_model
-    from ratouch.serve.pipeline import open_retriever
+    from ratouch.search.retrieval_side import open_retriever
 
     old, new = (create_model("debug", pretrained=f) for f in debug_checkpoints)
     assert old.weights_fingerprint != new.weights_fingerprint

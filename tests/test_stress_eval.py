@@ -192,3 +192,35 @@ def test_cli_bad_arguments_write_nothing(tmp_path, capsys, argv, match):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and match in err
     assert not out.exists()
+
+
+def test_answer_split_is_what_every_evaluation_answers_with(fake_pipeline):
+    """`answer_split`: a system's descriptions of a split (RA-Touch reading the neighbours of
+    a query mode, of given ids or of given embeddings, with the pipeline's generator or
+    another), judged as the TVL protocol judges them."""
+    from ratouch.eval.answer import answer_split, describe, records_for
+    from ratouch.eval.judge import OfflineJudge, judge_results
+    from ratouch.search.retrieval import QUERY_MODES, mode_query
+    from ratouch.world.splits import encode_test_split
+
+    p, judge = fake_pipeline, OfflineJudge()
+    split = encode_test_split(p.encoders, indices=range(0, 402, 50))
+    base = answer_split(p, split, "baseline", judge=judge)
+    assert base.ids is None and base.responses == describe(p.generator_base, split.V, split.T)
+    rows, _ = judge_results(records_for(split, base.responses, "baseline"), judge)
+    assert base.scores.tolist() == [r[judge.key] for r in rows]
+    for mode in QUERY_MODES:
+        q = mode_query(mode, split.V, split.T, p.joint_query)
+        assert q.dtype == np.float32 and q.flags.c_contiguous
+        ra = answer_split(p, split, "ra-touch", k=3, mode=mode, judge=judge)
+        assert (ra.ids == p.corpus.search("text", q, 3)[1]).all()
+        assert [r["neighbours"] for r in ra.records] == ra.ids.tolist()
+        given = answer_split(p, split, "ra-touch", neighbours=p.neighbour_embeddings(ra.ids))
+        assert given.responses == ra.responses and given.scores is None
+    other = answer_split(None, split, "baseline", generator=p.generator_ra.__class__(False),
+                         name="variant")
+    assert other.name == "variant" and len(other.responses) == len(split.labels)
+    with pytest.raises(ConfigError):
+        answer_split(p, split, "ra_touch")
+    with pytest.raises(ConfigError):
+        mode_query("both", split.V, split.T, p.joint_query)

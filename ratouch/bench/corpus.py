@@ -24,6 +24,7 @@ from ratouch.encoders.factory import create_model
 from ratouch.errors import ConfigError
 from ratouch.search.index import IndexConfig
 from ratouch.search.retrieval import CorpusIndex
+from ratouch.timing import Laps
 
 ENGINES = ("local", "ray")
 
@@ -66,19 +67,16 @@ class PeakRSS:
 
 def _local(out: Path, n: int, workers: int, encoder: str) -> dict:
     """The single-process build, phase by phase, as `ratouch corpus build` runs it."""
-    stages = {}
-    t = time.perf_counter()
+    clock = Laps()
     build_corpus(out, n, seed=0, progress=False)
-    stages["plan_recaption"] = time.perf_counter() - t
-    t = time.perf_counter()
+    clock.lap("plan_recaption")
     model = create_model(encoder)
     embed_corpus(out, model, workers=workers, progress=False)
-    stages["render_embed"] = time.perf_counter() - t
-    t = time.perf_counter()
+    clock.lap("render_embed")
     CorpusIndex(out, model.name, model.dim, IndexConfig(kind="flat"))
-    stages["index"] = time.perf_counter() - t
+    clock.lap("index")
     return {s: {"seconds": round(v, 3), "entries_per_s": round(n / v, 1)}
-            for s, v in stages.items()}
+            for s, v in clock.laps.items()}
 
 
 def _ray(out: Path, n: int, workers: int, encoder: str, batch_size: int) -> dict:

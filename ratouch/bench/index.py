@@ -24,11 +24,19 @@ import torch
 import torch.nn.functional as F
 
 from ratouch.errors import ConfigError
-from ratouch.search.index import KINDS, IndexConfig, VectorIndex, exact_topk
+from ratouch.search.index import (
+    APPROXIMATE_KINDS,
+    BENCH_KINDS,
+    KINDS,
+    IndexConfig,
+    VectorIndex,
+    exact_topk,
+)
+from ratouch.timing import Laps, lines
 
 logger = logging.getLogger(__name__)
 
-METHODS = ("upstream", "flat", "hnsw", "ivfpq")
+METHODS = ("upstream", *BENCH_KINDS)
 HNSW_EF_SWEEP = (32, 48, 64, 128)
 SCALE_EF_SWEEP = (128, 256, 512)
 IVFPQ_REFINE_SWEEP = (1, 5, 20)  # 1: the PQ ranking alone (then exact scores of its top k)
@@ -158,7 +166,7 @@ def bench_retrieval(n: int = 150_000, dim: int = 768, k: int = 5, n_queries: int
         raise ConfigError(f"K={k!r} must lie in [1, n={n}]")
     if n_queries < 1 or batch < 1:
         raise ConfigError(f"n_queries={n_queries!r} and batch={batch!r} must be positive")
-    say = logger.info if progress else logger.debug
+    say = lines(progress, logger)
     data = clustered_vectors(n + n_queries, dim, seed=seed)
     corpus, queries = data[:n], data[n:]
     say("data: %d x %d corpus, %d queries", n, dim, n_queries)
@@ -243,23 +251,22 @@ def bench_scale(n: int = 1_000_000, dim: int = 768, kind: str = "ivfpq",
     cfg = _method_config(kind)
     if kind == "hnsw":
         cfg = replace(cfg, ef_construction=ef_construction)
-    say = logger.info if progress else logger.debug
+    say = lines(progress, logger)
     data = clustered_vectors(n + n_queries, dim, seed=seed)
     corpus, queries = data[:n], data[n:]
     truth = exact_topk(queries, corpus, 5)
     own = folder is None
     target = Path(tempfile.mkdtemp(prefix="ratouch-index-")) if own else Path(folder)
     try:
-        t0 = time.perf_counter()
+        clock = Laps()
         index = VectorIndex.build(corpus, cfg, seed=seed)
-        t1 = time.perf_counter()
-        say("built %s over %d x %d in %.1f s", kind, n, dim, t1 - t0)
+        say("built %s over %d x %d in %.1f s", kind, n, dim, clock.lap("build"))
         index.save(target, {"encoder": "synthetic-clustered", "seed": seed})
-        t2 = time.perf_counter()
+        clock.lap("save")
         del index
         loaded, _ = VectorIndex.load(target, expected_dim=dim,
                                      expected_encoder="synthetic-clustered")
-        t3 = time.perf_counter()
+        clock.lap("load")
         ids, times = _latencies(lambda q: loaded.search(q, 5)[1], queries)
         sweep = _sweep(loaded, "ef_search", SCALE_EF_SWEEP if kind == "hnsw" else (), queries, 5,
                        lambda ids: recall_at(ids, truth, 5))
@@ -268,8 +275,7 @@ def bench_scale(n: int = 1_000_000, dim: int = 768, kind: str = "ivfpq",
         if own:
             shutil.rmtree(target, ignore_errors=True)
     out = {"n": n, "dim": dim, "kind": kind, "config": asdict(cfg),
-           "build_s": round(t1 - t0, 2), "save_s": round(t2 - t1, 2),
-           "load_s": round(t3 - t2, 2), **_summary(times),
+           **{f"{k}_s": v for k, v in clock.seconds(2).items()}, **_summary(times),
            "recall_at_5": recall_at(ids, truth, 5), "index_file_mb": round(file_mb, 1),
            "peak_rss_mb": _peak_rss_mb()}
     if sweep:
@@ -277,7 +283,7 @@ def bench_scale(n: int = 1_000_000, dim: int = 768, kind: str = "ivfpq",
     return out
 
 
-REAL_KINDS = ("hnsw", "ivfflat", "ivfpq")
+REAL_KINDS = APPROXIMATE_KINDS
 NPROBE_SWEEP = (8, 16, 32, 64)
 _TIE = 1e-5  # scores this close to the k-th true score count as found (captions repeat)
 
@@ -321,7 +327,7 @@ def bench_corpus_index(corpus: str | Path, encoder: str = "default-s", key: str 
         raise ConfigError(f"kinds={tuple(kinds)!r} must be a non-empty subset of {KINDS}")
     if key not in ("image", "text"):
         raise ConfigError(f"key={key!r} must be 'image' or 'text'")
-    say = logger.info if progress else logger.debug
+    say = lines(progress, logger)
     image, text, manifest = load_embeddings(corpus, encoder, verify=False)
     rows = image if key == "image" else text
     n_all = len(rows)

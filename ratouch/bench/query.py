@@ -19,7 +19,11 @@ from ratouch.corpus.imagenet_t import (
 )
 from ratouch.model.decoder import generate_together
 from ratouch.model.fastpath import GreedyStack, StackCache
-from ratouch.serve.pipeline import RATouchPipeline, default_corpus
+from ratouch.search.retrieval_side import default_corpus
+from ratouch.serve.cascade import CASCADE, Cascade
+from ratouch.serve.models import Model, load_model
+from ratouch.serve.pipeline import RATouchPipeline
+from ratouch.serve.request import QueryRequest, answer_one
 from ratouch.threads import intra_op_threads
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import write_split
@@ -72,47 +76,50 @@ def bench_world(corpus_size: int = 10_000, workers: int = 2, seed: int = 0,
 def bench_query(encoder: str = "default-s", corpus: str | None = None, n: int = 60,
                 k: int = 5, seed: int = 0) -> dict:
     """Cold start and warm latency of the whole RA-Touch query (both encoders, three
-    retrievals, retriever, integrator, both generations, PCA) on world test pairs."""
-    from ratouch.serve.cascade import CASCADE
-    from ratouch.serve.models import load_model
-
+    retrievals, retriever, integrator, both generations, PCA) on world test pairs; of the
+    cascade, the generation figures are its first stage's."""
     if encoder != CASCADE:  # the cascade's stages each use their default corpus
         corpus = corpus or str(default_corpus(encoder, progress=False))  # built before timing
     t0 = time.perf_counter()
-    pipe = load_model(encoder, corpus=corpus)
+    model = load_model(encoder, corpus=corpus)
     cold = time.perf_counter() - t0
     world = World(WorldConfig(seed=seed))
     samples = [world.sample("test", 46 + (7 * i) % 356) for i in range(n)]
-    pipe.query(samples[0].visual, samples[0].tactile, box=samples[0].box, k=k)  # warm-up
+    _ask(model, samples[0], k)  # warm-up
     totals, stages, escalated = [], {}, []
     for s in samples:
-        r = pipe.query(s.visual, s.tactile, box=s.box, k=k)
-        totals.append(r["timings_ms"]["total"])
-        if "cascade" in r:
-            escalated.append(r["cascade"]["escalated"])
-        for name, ms in r["timings_ms"].items():
+        r = _ask(model, s, k)
+        totals.append(r.timings_ms["total"])
+        if r.cascade is not None:
+            escalated.append(r.cascade["escalated"])
+        for name, ms in r.timings_ms.items():
             stages.setdefault(name, []).append(ms)
-    return {"encoder": encoder, "corpus_size": len(pipe.corpus), "n_queries": n, "k": k,
+    return {"encoder": encoder, "corpus_size": len(model.corpus), "n_queries": n, "k": k,
             "cold_start_s": round(cold, 2),
             "p50_ms": round(float(np.percentile(totals, 50)), 1),
             "p95_ms": round(float(np.percentile(totals, 95)), 1),
             "stages_p50_ms": {k_: round(float(np.median(v)), 2) for k_, v in stages.items()},
             **({"escalated": round(float(np.mean(escalated)), 4)} if escalated else {}),
-            "generation": bench_generation(pipe, samples[:20], k),
-            "regenerate_after_drop_ms": bench_regenerate(pipe, samples[:20], k),
+            "generation": bench_generation(
+                model.stages[0] if isinstance(model, Cascade) else model, samples[:20], k),
+            "regenerate_after_drop_ms": bench_regenerate(model, samples[:20], k),
             "loadavg": [round(x, 2) for x in os.getloadavg()],
             "target": {"p50_ms": 40, "p95_ms": 80, "generation_each_ms": 10,
                        "cold_start_s": 10}}
 
 
-def bench_regenerate(pipe: RATouchPipeline, samples: list, k: int = 5) -> dict:
+def _ask(model: Model, s, k: int):
+    """A world sample's query, answered by `model` (a `QueryResult`)."""
+    return answer_one(model, QueryRequest.decode(s.visual, s.tactile, box=s.box, k=k))
+
+
+def bench_regenerate(model: Model, samples: list, k: int = 5) -> dict:
     """`regenerate` with the first joint neighbour dropped (the neighbour-shuffle control)."""
     times = []
     for s in samples:
-        ids = [n["id"] for n in pipe.query(s.visual, s.tactile, box=s.box, k=k)["neighbours"]
-               ["joint"]]
-        times.append(pipe.regenerate(s.visual, s.tactile, ids[1:], box=s.box)
-                     ["timings_ms"]["total"])
+        request = QueryRequest.decode(s.visual, s.tactile, box=s.box, k=k)
+        ids = [n["id"] for n in answer_one(model, request).neighbours["joint"]]
+        times.append(model.regenerate(request, ids[1:])["timings_ms"]["total"])
     return {"p50": round(float(np.median(times)), 1),
             "p95": round(float(np.percentile(times, 95)), 1), "target": 50}
 

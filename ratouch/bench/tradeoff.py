@@ -25,13 +25,15 @@ import numpy as np
 import torch
 
 from ratouch.bench.index import upstream_retrieve
+from ratouch.encoders.factory import OTHER_SETS
+from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split
 from ratouch.eval.experiments import Lab
-from ratouch.eval.judge import judge_results, mean_ci, score_stats
+from ratouch.eval.judge import mean_ci, score_stats
 from ratouch.eval.retrieval import entry_materials, material_precision
-from ratouch.eval.tvl import describe, records_for
 from ratouch.vocabulary import adjective_f1
-from ratouch.search.index import IndexConfig, VectorIndex
+from ratouch.search.index import BENCH_KINDS, KINDS, IndexConfig, VectorIndex
 from ratouch.serve.pipeline import default_corpus, open_retriever
+from ratouch.timing import Progress, lines
 from ratouch.world.dataset import world_for
 from ratouch.world.splits import encode_test_split
 
@@ -52,14 +54,14 @@ def _subset_index(lab, kind: str, size: int):
     return ids, VectorIndex.build(emb, IndexConfig(kind=kind))
 
 
-def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
+def bench_tradeoff(lab=None, indexes: Sequence[str] = BENCH_KINDS,
                    sizes: Sequence[int] = (1000, 2500, 10000), ks: Sequence[int] = (1, 5, 10),
-                   other_encoders: Sequence[str] = ("default-tiny", "default-b"),
-                   n_latency: int = 30, progress: Callable[[str], None] | None = None) -> dict:
+                   other_encoders: Sequence[str] = OTHER_SETS,
+                   n_latency: int = 30, progress: Progress = None) -> dict:
     """Measure every point; returns {"points": [...], "upstream": {...}, "settings": {...}}.
 
     `progress` is called with one line per measured point (the CLI prints them)."""
-    say = progress or (lambda line: None)
+    say = lines(progress, log)
     lab = lab or Lab()
     p, test = lab.pipeline, lab.test
     torch.set_num_threads(1)
@@ -75,7 +77,7 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
             for k in ks:
                 t0 = time.perf_counter()
                 ids = ids_map[index.search(joint, k)[1]]
-                judged, per_sample = _judge_stats(lab, p.neighbour_embeddings(ids))
+                judged, per_sample = _judge_stats(lab, ids)
                 prec = material_precision(ids_map[index.search(joint, 5)[1]], test.materials,
                                           entry_mats)
                 per_sample["precision_at_5"] = prec
@@ -104,26 +106,17 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = ("flat", "hnsw", "ivfpq"),
                                  "other points change retrieval at inference only"}}
 
 
-def _judge_stats(lab, neighbours: tuple[np.ndarray, np.ndarray] | None
+def _judge_stats(lab, ids: np.ndarray | None, pipeline=None, split=None
                  ) -> tuple[dict, dict[str, np.ndarray]]:
-    """The judge on the test split, RA-Touch reading `neighbours` (Rv, Rl) or the baseline
-    when None: ({"judge", "judge_ci", "f1", "mean_length"}, per-sample {"judge", "f1"})."""
-    test, p = lab.test, lab.pipeline
-    if neighbours is None:
-        responses, system = describe(p.generator_base, test.V, test.T), "baseline"
-    else:
-        responses, system = describe(p.generator_ra, test.V, test.T, *neighbours), "ra-touch"
-    return _answer_stats(lab.judge, test, responses, system)
-
-
-def _answer_stats(judge, split, responses: Sequence[str], system: str
-                  ) -> tuple[dict, dict[str, np.ndarray]]:
-    """Judge (with its 95 % CI), adjective F1 and length of answers to a split's pairs, and
-    the per-sample judge scores and F1."""
-    rows, _ = judge_results(records_for(split, responses, system), judge)
-    per_sample = np.array([r[judge.key] for r in rows], float)
+    """The judge on the test split (or `split`), RA-Touch reading the neighbours `ids` or the
+    baseline when None, with the lab's pipeline (or `pipeline`): ({"judge", "judge_ci", "f1",
+    "mean_length"}, per-sample {"judge", "f1"})."""
+    split = lab.test if split is None else split
+    ans = answer_split(pipeline or lab.pipeline, split, BASELINE if ids is None else RA_TOUCH,
+                       ids=ids, judge=lab.judge)
+    responses, per_sample = ans.responses, ans.scores
     st = score_stats(split.labels, responses, per_sample)
-    f1 = np.array([adjective_f1(lab, r) for lab, r in zip(split.labels, responses)])
+    f1 = np.array([adjective_f1(label, r) for label, r in zip(split.labels, responses)])
     return ({"judge": round(st["mean"], 4),
              "judge_ci": [round(st["ci_low"], 4), round(st["ci_high"], 4)],
              "f1": round(st["f1"], 4), "f1_ci": [round(x, 4) for x in mean_ci(f1)[1:]],
@@ -240,8 +233,7 @@ def _encoder_points(encoders: Sequence[str], lab, alone: dict, pairs: tuple[list
             continue
         p = RATouchPipeline.load(name)
         a = alone[name] = _Alone(p, encode_test_split(p.encoders, test.world))
-        answers = describe(p.generator_ra, a.split.V, a.split.T, *p.neighbour_embeddings(a.ids))
-        judged, a.per_sample = _answer_stats(lab.judge, a.split, answers, "ra-touch")
+        judged, a.per_sample = _judge_stats(lab, a.ids, p, a.split)
         a.per_sample["precision_at_5"] = material_precision(
             a.ids, a.split.materials, entry_materials(p.corpus))
         pt = {"encoder": name, "index": "flat", "corpus": len(p.corpus), "k": 5,
@@ -369,13 +361,14 @@ def tradeoff_figure(result: dict):
               ("f1", "adjective F1 of the answer"),
               ("precision_at_5", "material precision@5 of the neighbours"))
     fig = make_subplots(rows=1, cols=3, subplot_titles=[t for _, t in panels])
-    symbols = {"flat": "circle", "hnsw": "diamond", "ivfpq": "square", "upstream": "x"}
+    symbols = {"flat": "circle", "hnsw": "diamond", "ivfpq": "square", "ivfflat": "cross",
+               "upstream": "x"}
     pts = result["points"]
     served = result.get("settings", {}).get("encoder", "default-s")
     sweep = [q for q in pts if q["system"] == "RA-Touch" and q["encoder"] == served]
     others = [q for q in pts if q not in sweep]
     for col, (key, _) in enumerate(panels, 1):
-        for kind in ("flat", "hnsw", "ivfpq"):
+        for kind in KINDS:
             sel = [q for q in sweep if q["index"] == kind and q.get(key) is not None]
             if sel:
                 fig.add_scatter(

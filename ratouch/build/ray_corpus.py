@@ -41,23 +41,24 @@ from ratouch.corpus.embed import (
     CaptionEmbeddings,
     embeddings_dir,
     read_corpus_image,
+    write_embeddings_manifest,
 )
 from ratouch.corpus.imagenet_t import (
     MANIFEST,
     CorpusEntry,
-    _write_atomic,
     parse_size,
     parse_world_source,
     read_image_list,
     stratified_rows,
     stratified_world_ids,
     world_lexicon,
+    write_corpus_metadata,
 )
 from ratouch.corpus.recaption import LLMRecaptioner, OfflineRecaptioner, RecaptionConfig
 from ratouch.encoders.factory import create_model
 from ratouch.errors import ConfigError, DataError, ServiceError
-from ratouch.files import write_json_atomic
-from ratouch.search.index import IndexConfig, VectorIndex
+from ratouch.files import publish, write_json_atomic
+from ratouch.search.index import ONDISK_KINDS, IndexConfig, VectorIndex
 from ratouch.search.retrieval import CorpusIndex, index_folder
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import check_writable
@@ -70,8 +71,6 @@ PARTIAL_DIR = ".partial"
 META_COLUMNS = ("id", "class_name", "description", "caption", "source", "material")
 #: CPUs asked by each light task (plan, offline recaption) and each LLM actor.
 LIGHT_CPUS = 0.25
-#: Index kinds the Ray build makes from its shards as one on-disk index (lists memory-mapped).
-ONDISK_KINDS = ("ivfflat", "ivfpq")
 STAGES = ("plan", "recaption", "render", "embed", "write", "assemble", "index")
 
 
@@ -342,8 +341,7 @@ class ShardStore:
         np.save(tmp["image.npy"], np.ascontiguousarray(cols["image_emb"], np.float32))
         np.save(tmp["text.npy"], np.ascontiguousarray(cols["text_emb"], np.float32))
         sums = {k: sha256_file(p) for k, p in tmp.items()}
-        for k in final:
-            os.replace(tmp[k], final[k])
+        publish(self.partial, self.dir, [p.name for p in final.values()])
         self.manifest["shards"][str(shard)] = {"count": len(table), "sha256": sums}
         write_json_atomic(self.path, self.manifest)
 
@@ -491,7 +489,7 @@ def assemble(out: Path, store: ShardStore, manifest: dict, encoder: str, dim: in
         for s in range(store.n_shards):
             entries.extend(store.read(s)[0])
         manifest = {**manifest, "n_classes": len({e.class_name for e in entries})}
-        _write_atomic(out, entries, manifest)
+        write_corpus_metadata(out, entries, manifest)
     corpus_manifest = json.loads((out / MANIFEST).read_text())
     emb = embeddings_dir(out, encoder)
     if (emb / EMBED_MANIFEST).is_file():
@@ -508,13 +506,9 @@ def assemble(out: Path, store: ShardStore, manifest: dict, encoder: str, dim: in
     for m in mm.values():
         m.flush()
     del mm
-    emb_manifest = {"encoder": encoder, "encoder_weights": weights, "dim": dim, "count": store.n,
-                    "corpus_sha256": corpus_manifest["metadata_sha256"],
-                    "image_sha256": sha256_file(tmp["image"]),
-                    "text_sha256": sha256_file(tmp["text"])}
-    for k, p in tmp.items():
-        os.replace(p, emb / f"{k}.npy")
-    write_json_atomic(emb / EMBED_MANIFEST, emb_manifest)
+    publish(store.partial, emb, [p.name for p in tmp.values()])
+    write_embeddings_manifest(emb, encoder, weights, dim, store.n,
+                              corpus_manifest["metadata_sha256"])
     return corpus_manifest
 
 

@@ -17,7 +17,6 @@ from typing import Iterator, Sequence
 
 import numpy as np
 from PIL import Image
-from tqdm import tqdm
 
 from ratouch.checkpoint import sha256_file
 from ratouch.corpus.imagenet_t import (
@@ -28,6 +27,8 @@ from ratouch.corpus.imagenet_t import (
 )
 from ratouch.encoders.preprocess import to_rgb_array
 from ratouch.errors import DataError, DataNotFoundError
+from ratouch.files import write_json_atomic
+from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 
 log = logging.getLogger(__name__)
@@ -54,7 +55,7 @@ def corpus_images(entries: Sequence[CorpusEntry], start: int, batch: int, worker
                                        chunk=batch, progress=progress)
         return
 
-    for k in tqdm(range(0, len(rest), batch), desc="read corpus images", disable=not progress):
+    for k in progress_bar(range(0, len(rest), batch), progress, desc="read corpus images"):
         yield [read_corpus_image(e.source) for e in rest[k:k + batch]]
 
 
@@ -144,18 +145,24 @@ def embed_corpus(corpus: str | os.PathLike, encoders, batch: int = 500, workers:
         txt.flush()
         state = {"done": pos, "count": n, "dim": d, "corpus_sha256": manifest["metadata_sha256"],
                  "encoder_weights": weights}
-        tmp = state_path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(state))
-        os.replace(tmp, state_path)
+        write_json_atomic(state_path, state, indent=None, newline=False)
     del img, txt
-    emb_manifest = {"encoder": encoders.name, "encoder_weights": weights, "dim": d, "count": n,
-                    "corpus_sha256": manifest["metadata_sha256"],
-                    "image_sha256": sha256_file(out / "image.npy"),
-                    "text_sha256": sha256_file(out / "text.npy")}
-    tmp = done_manifest.with_suffix(".tmp")
-    tmp.write_text(json.dumps(emb_manifest, indent=2))
-    os.replace(tmp, done_manifest)
+    emb_manifest = write_embeddings_manifest(out, encoders.name, weights, d, n,
+                                             manifest["metadata_sha256"])
     state_path.unlink(missing_ok=True)
+    return emb_manifest
+
+
+def write_embeddings_manifest(folder: Path, encoder: str, weights: str | None, dim: int,
+                              count: int, corpus_sha256: str) -> dict:
+    """Finish a corpus's embeddings in `folder` (``image.npy`` and ``text.npy`` in place): the
+    manifest with their checksums, written atomically and last, since it marks them complete.
+    The one writer of it (a local build's `embed_corpus`, a Ray build's assembly)."""
+    emb_manifest = {"encoder": encoder, "encoder_weights": weights, "dim": dim, "count": count,
+                    "corpus_sha256": corpus_sha256,
+                    "image_sha256": sha256_file(folder / "image.npy"),
+                    "text_sha256": sha256_file(folder / "text.npy")}
+    write_json_atomic(folder / EMBED_MANIFEST, emb_manifest, indent=2, newline=False)
     return emb_manifest
 
 

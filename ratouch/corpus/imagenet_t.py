@@ -16,17 +16,18 @@ import logging
 import os
 import re
 import shutil
-import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from tqdm import tqdm
 
 from ratouch.corpus.recaption import RecaptionConfig, create_recaptioner
+from ratouch.encoders.preprocess import resize_array
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.files import json_text, publish, staged
+from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import _fork_context, check_writable, world_for
 from ratouch.world.generator import CORPUS_MAX_PER_CLASS, CORPUS_POOL_PER_CLASS, World
@@ -229,7 +230,7 @@ def build_corpus(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
         world = World(world_cfg or WorldConfig(seed=seed))
         ids = stratified_world_ids(n, seed)
         items = []
-        for c, i in tqdm(ids, desc="corpus plan", disable=not progress):
+        for c, i in progress_bar(ids, desc="corpus plan", progress=progress):
             r = world.corpus_record(c, i)
             items.append((r.class_name, r.description, f"world:{world.cfg.seed}:{c}:{i}",
                           r.material))
@@ -239,7 +240,7 @@ def build_corpus(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
     recaptioner = create_recaptioner(recaption, world_lexicon())
     pairs = [(cls, desc) for cls, desc, _, _ in items]
     captions = []
-    for k in tqdm(range(0, len(pairs), 512), desc="recaption", disable=not progress):
+    for k in progress_bar(range(0, len(pairs), 512), desc="recaption", progress=progress):
         captions.extend(recaptioner.recaption_many(pairs[k:k + 512]))
     entries = [CorpusEntry(i, cls, desc, ", ".join(cap), src, mat)
                for i, ((cls, desc, src, mat), cap) in enumerate(zip(items, captions))]
@@ -251,32 +252,30 @@ def build_corpus(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
         "captioner": recaption.backend, "captioner_stats": stats,
         "build_seconds": round(time.perf_counter() - t0, 2),
     }
-    return _write_atomic(out, entries, manifest)
+    return write_corpus_metadata(out, entries, manifest)
 
 
-def _write_atomic(out: Path, entries: list[CorpusEntry], manifest: dict) -> dict:
-    """Write metadata and manifest (with the metadata checksum); returns the manifest."""
+def write_corpus_metadata(out: Path, entries: list[CorpusEntry], manifest: dict) -> dict:
+    """Write metadata and manifest (with the metadata checksum) atomically, the manifest last
+    (it marks completion); returns the manifest. A corpus folder this call created is removed
+    again when the write fails."""
     created = not out.exists()
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".partial-corpus-", dir=out))
     try:
-        h = hashlib.sha256()
-        with open(tmp / METADATA, "w") as f:
-            for e in entries:
-                line = json.dumps(asdict(e)) + "\n"
-                h.update(line.encode())
-                f.write(line)
-        manifest = dict(manifest, metadata_sha256=h.hexdigest())
-        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2))
-        os.replace(tmp / METADATA, out / METADATA)
-        os.replace(tmp / MANIFEST, out / MANIFEST)  # the manifest last: it marks completion
+        with staged(out, ".partial-corpus-") as tmp:
+            h = hashlib.sha256()
+            with open(tmp / METADATA, "w") as f:
+                for e in entries:
+                    line = json.dumps(asdict(e)) + "\n"
+                    h.update(line.encode())
+                    f.write(line)
+            manifest = dict(manifest, metadata_sha256=h.hexdigest())
+            (tmp / MANIFEST).write_text(json_text(manifest, indent=2, newline=False))
+            publish(tmp, out, (METADATA, MANIFEST))
         return manifest
     except BaseException:
         if created:
             shutil.rmtree(out, ignore_errors=True)
         raise
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def load_corpus(folder: str | os.PathLike) -> tuple[dict, list[CorpusEntry]]:
@@ -314,10 +313,8 @@ def _render_chunk(args: tuple[WorldConfig, list[tuple[int, int]], int]) -> list[
     out = []
     for c, i in ids:
         img = world.corpus_image(c, i)
-        if thumb and thumb != img.shape[0]:
-            from PIL import Image
-
-            img = np.asarray(Image.fromarray(img).resize((thumb, thumb), Image.BILINEAR))
+        if thumb:
+            img = resize_array(img, thumb)
         out.append(img)
     return out
 
@@ -330,7 +327,7 @@ def render_world_images(ids: Sequence[tuple[int, int]], cfg: WorldConfig, worker
 
 
     jobs = [(cfg, list(ids[k:k + chunk]), thumb) for k in range(0, len(ids), chunk)]
-    bar = tqdm(total=len(ids), desc="render corpus", unit="img", disable=not progress)
+    bar = progress_bar(total=len(ids), desc="render corpus", unit="img", progress=progress)
     if workers == 1:
         results = map(_render_chunk, jobs)
         for imgs in results:

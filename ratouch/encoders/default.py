@@ -20,6 +20,7 @@ from PIL import Image
 from scipy.ndimage import gaussian_filter
 
 from ratouch.encoders.text import MINILM_DIM, MiniLM, TextCache
+from ratouch.encoders.prior import PRIORS, load_prior
 from ratouch.errors import ConfigError
 
 
@@ -31,6 +32,12 @@ class DefaultConfig:
     vision_size: tuple[int, int] = (64, 64)
     tactile_size: tuple[int, int] = (64, 48)
     text_hidden: int = 768
+    #: The frozen visual prior beside the render CNN ("lite0", "lite2"; None: the CNN alone),
+    #: and the square side (pixels) crops are resized to for it.
+    prior: str | None = None
+    prior_size: int = 128
+    #: Hidden width of the trained head that maps the prior's features into the shared space.
+    prior_hidden: int = 512
 
     def __post_init__(self) -> None:
         if self.dim != MINILM_DIM:
@@ -44,6 +51,10 @@ class DefaultConfig:
                 raise ConfigError(f"{field_name}={(h, w)} must be at least 16 x 16")
         if self.text_hidden < 1:
             raise ConfigError(f"text_hidden={self.text_hidden} must be >= 1")
+        if self.prior is not None and self.prior not in PRIORS:
+            raise ConfigError(f"prior={self.prior!r}: known priors are {sorted(PRIORS)}")
+        if self.prior_size < 32:
+            raise ConfigError(f"prior_size={self.prior_size} must be >= 32")
 
 
 class ConvEncoder(nn.Module):
@@ -90,25 +101,76 @@ def vision_tensor(images: Sequence[np.ndarray], size: tuple[int, int]) -> torch.
     return torch.from_numpy((arr - 0.5) / 0.25).permute(0, 3, 1, 2).contiguous()
 
 
-def tactile_difference(frame: np.ndarray) -> np.ndarray:
-    """Frame minus the sensor's smooth illumination field, estimated by a heavy blur of the
-    frame itself (float, about -1..1). Uploads rarely come with the sensor's no-contact image,
-    so the default backend never needs one: training and queries see the same input."""
+#: Channels of the tactile input: the normalised difference image (3) and its log contrast (1).
+TACTILE_CHANNELS = 4
+#: Blur (pixels at a 128-pixel longer side) of the illumination field a frame is taken from.
+FIELD_SIGMA = 10.0
+#: Floor of the per-frame contrast a difference image is divided by (about 1 / 255).
+CONTRAST_FLOOR = 0.004
+#: Reference contrast of the log-contrast channel (a typical pressed DIGIT-like frame).
+CONTRAST_REF = 0.02
+
+
+def tactile_difference(frame: np.ndarray, background: np.ndarray | None = None) -> np.ndarray:
+    """What touch changed in a frame, float (H, W, 3).
+
+    Without the sensor's no-contact frame: the frame minus its own smooth illumination field
+    (a heavy blur). With it: the same band of the difference from the background, which also
+    removes the sensor's own structure (marker dots, vignetting, the gel's tint). Both inputs
+    keep the same frequency band, so an encoder trained on a mix of the two reads either.
+    """
     f = frame.astype(np.float32) / 255.0
+    if background is not None:
+        if background.shape != frame.shape:
+            background = np.asarray(Image.fromarray(background).resize(
+                (frame.shape[1], frame.shape[0]), Image.BILINEAR))
+        f = f - background.astype(np.float32) / 255.0
     scale = max(frame.shape[:2]) / 128
-    return f - gaussian_filter(f, sigma=(10 * scale, 10 * scale, 0))
+    sigma = FIELD_SIGMA * scale
+    return f - gaussian_filter(f, sigma=(sigma, sigma, 0))
 
 
-def tactile_tensor(frames: Sequence[np.ndarray], size: tuple[int, int]) -> torch.Tensor:
-    """uint8 tactile frames -> (N, 3, H, W) float tensor."""
+def tactile_input(frame: np.ndarray, size: tuple[int, int],
+                  background: np.ndarray | None = None) -> np.ndarray:
+    """One frame -> the tactile encoder's (4, H, W) float32 input.
+
+    The difference image is divided by its own RMS contrast, so a low-contrast sensor (a
+    GelSight Mini changes pixels by 2-5 of 255) and a crisp one (a DIGIT) look alike to the
+    CNN; the contrast itself is kept as a fourth, constant channel (log, against
+    :data:`CONTRAST_REF`), so how strongly the gel was pressed is not lost.
+    """
     h, w = size
-    out = []
-    for frame in frames:
-        d = tactile_difference(frame)
-        chans = [np.asarray(Image.fromarray(d[..., c]).resize((w, h), Image.BILINEAR))
-                 for c in range(3)]
-        out.append(np.stack(chans) * 4.0)
-    return torch.from_numpy(np.stack(out).astype(np.float32))
+    d = tactile_difference(frame, background)
+    rms = float(np.sqrt(np.mean(d * d)))
+    d = d / max(rms, CONTRAST_FLOOR)
+    chans = [np.asarray(Image.fromarray(d[..., c]).resize((w, h), Image.BILINEAR))
+             for c in range(3)]
+    level = np.clip(np.log(max(rms, CONTRAST_FLOOR) / CONTRAST_REF), -3.0, 3.0)
+    chans.append(np.full((h, w), level, np.float32))
+    return np.stack(chans).astype(np.float32)
+
+
+def tactile_tensor(frames: Sequence[np.ndarray], size: tuple[int, int],
+                   backgrounds: Sequence[np.ndarray | None] | None = None) -> torch.Tensor:
+    """uint8 tactile frames (and their sensors' no-contact frames, where known) ->
+    (N, 4, H, W) float tensor."""
+    bgs = list(backgrounds) if backgrounds is not None else [None] * len(frames)
+    if len(bgs) != len(frames):
+        raise ConfigError(f"{len(bgs)} backgrounds for {len(frames)} tactile frames")
+    return torch.from_numpy(np.stack([tactile_input(f, size, b) for f, b in zip(frames, bgs)]))
+
+
+class PriorHead(nn.Module):
+    """The trained map from the frozen prior's pooled features into the shared space."""
+
+    def __init__(self, in_dim: int, hidden: int, dim: int):
+        super().__init__()
+        self.norm = nn.LayerNorm(in_dim)
+        self.fc1 = nn.Linear(in_dim, hidden)
+        self.fc2 = nn.Linear(hidden, dim)
+
+    def forward(self, feats: torch.Tensor) -> torch.Tensor:
+        return self.fc2(F.gelu(self.fc1(self.norm(feats))))
 
 
 class DefaultEncoders(nn.Module):
@@ -128,15 +190,25 @@ class DefaultEncoders(nn.Module):
         self.name = cfg.name
         self.dim = cfg.dim
         self.vision = ConvEncoder(cfg.width, cfg.dim)
-        self.tactile = ConvEncoder(cfg.width, cfg.dim)
+        self.prior_head = (PriorHead(PRIORS[cfg.prior].dim, cfg.prior_hidden, cfg.dim)
+                           if cfg.prior else None)
+        self.tactile = ConvEncoder(cfg.width, cfg.dim, in_ch=TACTILE_CHANNELS)
         self.text_proj = TextProjection(cfg.dim, cfg.text_hidden)
         self.logit_scale = nn.Parameter(torch.tensor(float(np.log(1 / 0.07))))
         object.__setattr__(self, "_minilm", text_encoder)  # not a registered submodule
         object.__setattr__(self, "_text_cache", None)
 
     # -- raw (differentiable) forward passes used by training -----------------------------
-    def embed_vision(self, x: torch.Tensor) -> torch.Tensor:
-        return F.normalize(self.vision(x), dim=-1)
+    def embed_vision(self, x: torch.Tensor, prior: torch.Tensor | None = None) -> torch.Tensor:
+        """Render-CNN input `x` (N, 3, h, w) and, with a prior, its pooled features (N, 1280)
+        of the same crops -> (N, D) unit vectors: the CNN's and the prior head's sum."""
+        v = self.vision(x)
+        if self.prior_head is not None:
+            if prior is None:
+                raise ConfigError(f"encoder {self.name!r} has a visual prior "
+                                  f"({self.cfg.prior}): embed_vision needs its features")
+            v = v + self.prior_head(prior)
+        return F.normalize(v, dim=-1)
 
     def embed_tactile(self, x: torch.Tensor) -> torch.Tensor:
         return F.normalize(self.tactile(x), dim=-1)
@@ -153,23 +225,68 @@ class DefaultEncoders(nn.Module):
         return self._text_cache(list(texts))
 
     # -- the public encoding API shared with the TVL backend --------------------------------
+    @property
+    def prior_note(self) -> str:
+        """Which visual prior the set uses, in words (the app's header, the CLI)."""
+        if not self.cfg.prior:
+            return "vision: a CNN trained on world renders only (no real-photo prior)"
+        return (f"vision: frozen ImageNet-trained EfficientNet-{self.cfg.prior.title()} prior "
+                f"({self.cfg.prior_size} px) with a head trained on renders, beside a "
+                "render-trained CNN; real photos answered through its ImageNet classifier")
+
+    @property
+    def visual_prior(self):
+        """The frozen prior (:class:`ratouch.encoders.prior.VisualPrior`), or None."""
+        return load_prior(self.cfg.prior) if self.cfg.prior else None
+
+    def prior_features(self, images: Sequence[np.ndarray]) -> np.ndarray | None:
+        """The prior's pooled features of uint8 crops, (N, 1280); None without a prior."""
+        prior = self.visual_prior
+        return None if prior is None else prior.features(list(images), self.cfg.prior_size)
+
     @torch.no_grad()
     def encode_image(self, images: Sequence[np.ndarray], batch_size: int = 256) -> np.ndarray:
         """uint8 RGB images (already cropped to the contact box where that applies) ->
         (N, D) unit vectors."""
+        return self.encode_image_features(images, batch_size)[0]
+
+    @torch.no_grad()
+    def encode_image_features(self, images: Sequence[np.ndarray], batch_size: int = 256
+                              ) -> tuple[np.ndarray, np.ndarray | None]:
+        """`encode_image`, and the prior's features of the same crops (None without a
+        prior): what the trust signals and the photo route read."""
         self.eval()
-        return self._batched(lambda b: self.embed_vision(vision_tensor(b, self.cfg.vision_size)),
-                             list(images), batch_size)
+        images = list(images)
+        feats = self.prior_features(images) if images else None
+
+        def run(k: int, batch: list) -> torch.Tensor:
+            p = None if feats is None else torch.from_numpy(feats[k:k + len(batch)])
+            return self.embed_vision(vision_tensor(batch, self.cfg.vision_size), p)
+
+        if not images:
+            return np.zeros((0, self.dim), np.float32), None
+        V = np.concatenate([run(k, images[k:k + batch_size]).numpy()
+                            for k in range(0, len(images), batch_size)]).astype(np.float32)
+        return V, feats
 
     @torch.no_grad()
     def encode_tactile(self, frames: Sequence[np.ndarray],
                        backgrounds: Sequence[np.ndarray | None] | None = None,
                        batch_size: int = 256) -> np.ndarray:
-        """uint8 tactile frames -> (N, D) unit vectors. `backgrounds` is accepted for the
-        shared API but not needed: the illumination field is estimated from each frame."""
+        """uint8 tactile frames -> (N, D) unit vectors. Where a frame's sensor background
+        (its no-contact frame) is given, the input is the difference from it; otherwise the
+        difference from the frame's own illumination field."""
         self.eval()
-        return self._batched(lambda b: self.embed_tactile(tactile_tensor(b, self.cfg.tactile_size)),
-                             list(frames), batch_size)
+        frames = list(frames)
+        bgs = list(backgrounds) if backgrounds is not None else [None] * len(frames)
+        if len(bgs) != len(frames):
+            raise ConfigError(f"{len(bgs)} backgrounds for {len(frames)} tactile frames")
+        if not frames:
+            return np.zeros((0, self.dim), np.float32)
+        return np.concatenate([
+            self.embed_tactile(tactile_tensor(frames[k:k + batch_size], self.cfg.tactile_size,
+                                              bgs[k:k + batch_size])).numpy()
+            for k in range(0, len(frames), batch_size)]).astype(np.float32)
 
     @torch.no_grad()
     def encode_text(self, texts: Sequence[str]) -> np.ndarray:
@@ -178,9 +295,3 @@ class DefaultEncoders(nn.Module):
             return np.zeros((0, self.dim), np.float32)
         feats = torch.from_numpy(self.minilm_features(texts))
         return self.embed_text_features(feats).numpy()
-
-    def _batched(self, fn, items: list, batch_size: int) -> np.ndarray:
-        if not items:
-            return np.zeros((0, self.dim), np.float32)
-        return np.concatenate([fn(items[k:k + batch_size]).numpy()
-                               for k in range(0, len(items), batch_size)]).astype(np.float32)

@@ -3,6 +3,11 @@
 Named architectures are JSON files in `ratouch/configs/` (a read-only registry, with a tiny
 `debug` one for tests). Default-backend weights that ship with the project live in
 `assets/encoders/<name>/`; the TVL backend loads local OpenCLIP and TVL checkpoints.
+
+The registry of encoder sets by role (`DEFAULT_SETS`, `CHAIN_SETS`, `DEFAULT_ENCODER`) is read
+from here by every caller, the command line's choices included; importing this module loads
+no model code (the backends are imported when a model is created), so the command line stays
+fast.
 """
 
 from __future__ import annotations
@@ -12,20 +17,13 @@ import os
 from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
-from typing import Mapping
+from typing import TYPE_CHECKING, Mapping
 
-from ratouch.checkpoint import (
-    checkpoint_fingerprint,
-    files_fingerprint,
-    load_into,
-    read_checkpoint,
-)
-from ratouch.encoders.default import DefaultConfig, DefaultEncoders
-from ratouch.encoders.tvl import TVLConfig, load_tvl
 from ratouch.errors import ConfigError, DataNotFoundError
 from ratouch.paths import encoder_weights
 
-DEFAULT_ENCODER = "default-s"
+if TYPE_CHECKING:
+    from ratouch.encoders.default import DefaultConfig
 
 
 def _scan() -> Mapping[str, dict]:
@@ -38,6 +36,21 @@ def _scan() -> Mapping[str, dict]:
 
 
 MODEL_CONFIGS: Mapping[str, dict] = _scan()
+
+#: The encoder set served and evaluated when none is named.
+DEFAULT_ENCODER = "default-s"
+#: The default-backend encoder sets that ship (trained by `ratouch train all`), smallest first.
+DEFAULT_SETS = ("default-tiny", "default-s", "default-b")
+#: Those that also ship a retriever and both generators, smallest first: the cascade's chain.
+CHAIN_SETS = ("default-tiny", "default-s")
+#: Those trained as encoders only (no retriever, no generators).
+ENCODER_ONLY_SETS = tuple(n for n in DEFAULT_SETS if n not in CHAIN_SETS)
+#: The shipped sets other than the default one (the speed/accuracy trade-off's other points).
+OTHER_SETS = tuple(n for n in DEFAULT_SETS if n != DEFAULT_ENCODER)
+
+for _name in DEFAULT_SETS:  # the registry names only what the configs define
+    if MODEL_CONFIGS.get(_name, {}).get("backend") != "default":
+        raise ConfigError(f"DEFAULT_SETS names {_name!r}, which is not a default-backend config")
 
 
 def list_models() -> list[str]:
@@ -56,9 +69,13 @@ def shipped_weights(name: str) -> Path:
 
 
 def default_config(cfg: dict) -> DefaultConfig:
+    from ratouch.encoders.default import DefaultConfig
+
     return DefaultConfig(name=cfg["name"], dim=cfg["dim"], width=cfg["width"],
                          vision_size=tuple(cfg["vision_size"]),
-                         tactile_size=tuple(cfg["tactile_size"]), text_hidden=cfg["text_hidden"])
+                         tactile_size=tuple(cfg["tactile_size"]), text_hidden=cfg["text_hidden"],
+                         prior=cfg.get("prior"), prior_size=cfg.get("prior_size", 128),
+                         prior_hidden=cfg.get("prior_hidden", 512))
 
 
 def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | dict | None = "shipped"):
@@ -75,8 +92,12 @@ def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | di
         An object with encode_image / encode_tactile / encode_text, `name`, `dim` and
         `weights_fingerprint` (what identifies the loaded weights; None for random init).
     """
+    from ratouch.checkpoint import checkpoint_fingerprint, files_fingerprint, load_checkpoint
+
     cfg = model_config(name)
     if cfg["backend"] == "default":
+        from ratouch.encoders.default import DefaultEncoders
+
         model = DefaultEncoders(default_config(cfg))
         if pretrained is None:
             return model
@@ -84,13 +105,11 @@ def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | di
         if not folder.exists():
             raise DataNotFoundError(f"no weights for encoder {name!r} at {folder}; train them "
                                     f"with `ratouch train encoders --model {name}`")
-        state, saved_cfg, _ = read_checkpoint(folder)
-        if saved_cfg.get("name") != name:
-            raise ConfigError(f"checkpoint {folder} is for encoder {saved_cfg.get('name')!r}, "
-                              f"not {name!r}")
-        load_into(model, state, str(folder))
+        load_checkpoint(folder, model, name=name)
         model.weights_fingerprint = checkpoint_fingerprint(folder)
         return model.eval()
+    from ratouch.encoders.tvl import TVLConfig, load_tvl
+
     clip, tactile = _tvl_files(cfg, pretrained)
     model = load_tvl(str(clip), str(tactile),
                      TVLConfig(clip_arch=cfg["clip_arch"], tactile_arch=cfg["tactile_arch"],
@@ -104,6 +123,8 @@ def shipped_fingerprint(name: str) -> str:
     `create_model(name).weights_fingerprint`, without loading them)."""
     if model_config(name)["backend"] != "default":
         raise ConfigError(f"encoder {name!r} has no shipped weights (it needs local TVL weights)")
+    from ratouch.checkpoint import checkpoint_fingerprint
+
     folder = shipped_weights(name)
     if not folder.exists():
         raise DataNotFoundError(f"no weights for encoder {name!r} at {folder}; train them "

@@ -497,12 +497,18 @@ def tvl_contact_box(width: int, height: int, version: str = "v1",
 # --------------------------------------------------------------------------- tensors
 
 
-def _resize_uint8(arr: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Antialiased bilinear resize of a ``uint8`` RGB array with PIL (as TVL's ``Resize``)."""
+def resize_array(arr: np.ndarray, size: int | tuple[int, int],
+                 resample: Image.Resampling = Image.Resampling.BILINEAR) -> np.ndarray:
+    """The project's resize of a ``uint8`` image array (``(H, W)`` or ``(H, W, C)``) to `size`
+    (``(width, height)``, or a square side): PIL's antialiased bilinear filter by default (as
+    TVL's ``Resize``), another PIL filter where `resample` says so. An array already of that
+    size is returned as it is. (Uploads are reduced by `fit_within`, which keeps the aspect
+    ratio and shrinks in integer steps first.)"""
+    width, height = (size, size) if isinstance(size, int) else size
     if arr.shape[1] == width and arr.shape[0] == height:
         return arr
     img = Image.fromarray(np.ascontiguousarray(arr))
-    return np.asarray(img.resize((width, height), Image.Resampling.BILINEAR), dtype=np.uint8)
+    return np.asarray(img.resize((width, height), resample), dtype=np.uint8)
 
 
 def _shorter_side_size(width: int, height: int, size: int) -> tuple[int, int]:
@@ -558,7 +564,7 @@ def clip_rgb_tensor(images: Sequence[ImageLike] | np.ndarray, size: int = 224, *
         arr = to_rgb_array(image, name=f"image {i + index_offset}")
         height, width = arr.shape[:2]
         new_w, new_h = _shorter_side_size(width, height, size)
-        arr = _resize_uint8(arr, new_w, new_h)
+        arr = resize_array(arr, (new_w, new_h))
         top = int(round((new_h - size) / 2.0))
         left = int(round((new_w - size) / 2.0))
         arr = arr[top:top + size, left:left + size]
@@ -636,7 +642,7 @@ def tvl_tactile_tensor(frames: Sequence[ImageLike] | np.ndarray, size: int = 224
         j = i + index_offset
         rgb = to_rgb_array(frame, name=f"tactile frame {j}")
         if backgrounds is None or backgrounds[i] is None:
-            arr = _resize_uint8(_pad_square_rotate(rgb), size, size)
+            arr = resize_array(_pad_square_rotate(rgb), size)
             out[i] = _normalise(_to_chw_float(arr), TAC_MEAN, TAC_STD)
             continue
         key = id(backgrounds[i])

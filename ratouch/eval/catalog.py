@@ -1,4 +1,5 @@
-"""The paper's experiments by name, with one line each: what `ratouch eval <name>` runs.
+"""The names the evaluations use: the paper's experiments, with one line each (what `ratouch
+eval <name>` runs), and the two systems they compare.
 
 Kept apart from `ratouch.eval.experiments` (which imports the models) so that the command
 line can list the experiments without loading torch. `experiments.EXPERIMENTS` implements
@@ -17,3 +18,14 @@ EXPERIMENT_HELP: dict[str, str] = {
     "fig5": "Figure 5: PCA of the joint queries, alignment loss only vs alignment + stability.",
     "table6": "Table 6 (not in the paper): materials missing from the paired training data.",
 }
+
+#: The two systems every evaluation compares, by name: the baseline (no retrieval) and
+#: RA-Touch. The one spelling of a system's name: `ratouch eval tvl --system`, the "system"
+#: of a TVL result record, the stress report's series (`ratouch.eval.answer.answer_split`).
+SYSTEMS = ("baseline", "ra-touch")
+BASELINE, RA_TOUCH = SYSTEMS
+
+#: Where a system's output stands in a JSON result: a query's ``description.ra_touch``, a
+#: failure table's column, the controls' and the premise's answer sets. Public output names,
+#: spelled with an underscore; kept apart from the systems' names above.
+RESULT_KEY = {BASELINE: "baseline", RA_TOUCH: "ra_touch"}

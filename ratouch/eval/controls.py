@@ -32,14 +32,9 @@ import numpy as np
 import torch
 
 from ratouch.errors import ConfigError
-from ratouch.eval.judge import (
-    OfflineJudge,
-    format_stats,
-    judge_results,
-    mean_ci,
-    score_stats,
-)
-from ratouch.eval.tvl import describe, oracle_answer, records_for
+from ratouch.eval.answer import BASELINE, RA_TOUCH, Answers, answer_split, judge_answers
+from ratouch.eval.judge import OfflineJudge, format_stats, mean_ci, score_stats
+from ratouch.eval.tvl import oracle_answer
 from ratouch.vocabulary import parse_adjectives
 from ratouch.world.splits import TestSplit, encode_test_split
 
@@ -76,29 +71,36 @@ class _ZeroIntegrator:
         self.handle.remove()
 
 
-def _answers(pipeline, split: TestSplit, k: int, shuffles: int, seed: int
-             ) -> tuple[dict[str, list[str]], np.ndarray]:
-    """Every control's answers on the split, and the joint query's neighbour ids."""
+def _answers(pipeline, split: TestSplit, k: int, shuffles: int, seed: int, judge
+             ) -> tuple[dict[str, Answers], np.ndarray]:
+    """Every control's answers on the split, judged, and the joint query's neighbour ids."""
     p = pipeline
     ids = p.joint_neighbours(split.V, split.T, k)
-    gen = p.generator_ra
-    ra = lambda nb: describe(gen, split.V, split.T, *p.neighbour_embeddings(nb))  # noqa: E731
-    out = {"baseline": describe(p.generator_base, split.V, split.T), "ra_touch": ra(ids)}
+
+    def ra(name: str, nb: np.ndarray) -> Answers:
+        return answer_split(p, split, RA_TOUCH, ids=nb, name=name, judge=judge)
+
+    out = {"baseline": answer_split(p, split, BASELINE, judge=judge),
+           "ra_touch": ra("ra_touch", ids)}
     for s in range(shuffles):
-        out[f"shuffled_{s}"] = ra(ids[derangement(len(ids), seed + s)])
-    with _ZeroIntegrator(gen):
-        out["integrator_zeroed"] = ra(ids)
-    lengths = [len(parse_adjectives(a)) for a in out["baseline"]]
+        name = f"shuffled_{s}"
+        out[name] = ra(name, ids[derangement(len(ids), seed + s)])
+    with _ZeroIntegrator(p.generator_ra):
+        out["integrator_zeroed"] = ra("integrator_zeroed", ids)
+    lengths = [len(parse_adjectives(a)) for a in out["baseline"].responses]
     entries = p.corpus.entries
-    out["copy_captions"] = [vote([entries[i].caption for i in row], n)
-                            for row, n in zip(ids, lengths)]
     by_material: dict[str, list[int]] = {}
     for i, e in enumerate(entries):
         by_material.setdefault(e.material, []).append(i)
-    out["copy_perfect_retrieval"] = [
-        vote([entries[i].caption for i in by_material.get(m, [])[:k]], n)
-        for m, n in zip(split.materials, lengths)]
-    out["material_oracle"] = [oracle_answer(m, n) for m, n in zip(split.materials, lengths)]
+    made = {  # answers without a generator: length-matched copies and the oracle
+        "copy_captions": [vote([entries[i].caption for i in row], n)
+                          for row, n in zip(ids, lengths)],
+        "copy_perfect_retrieval": [
+            vote([entries[i].caption for i in by_material.get(m, [])[:k]], n)
+            for m, n in zip(split.materials, lengths)],
+        "material_oracle": [oracle_answer(m, n) for m, n in zip(split.materials, lengths)]}
+    for name, responses in made.items():
+        out[name] = Answers(name, responses, scores=judge_answers(judge, split, responses, name)[0])
     return out, ids
 
 
@@ -116,11 +118,9 @@ def run_controls(pipeline, k: int = 5, shuffles: int = 3, judge=None, seed: int 
         raise ConfigError(f"shuffles={shuffles} must be >= 1")
     judge = judge or OfflineJudge()
     split = split or encode_test_split(pipeline.encoders)
-    answers, ids = _answers(pipeline, split, k, shuffles, seed)
-    scores = {}
-    for name, responses in answers.items():
-        rows, _ = judge_results(records_for(split, responses, name), judge)
-        scores[name] = np.array([r[judge.key] for r in rows], float)
+    answered, ids = _answers(pipeline, split, k, shuffles, seed, judge)
+    answers = {name: a.responses for name, a in answered.items()}
+    scores = {name: a.scores for name, a in answered.items()}
     systems = {name: score_stats(split.labels, answers[name], scores[name], seed=seed)
                for name in answers if not name.startswith("shuffled_")}
     shuffled = np.mean([scores[f"shuffled_{s}"] for s in range(shuffles)], axis=0)

@@ -32,7 +32,7 @@ from ratouch.corpus.embed import EMBED_MANIFEST, embeddings_dir
 from ratouch.errors import ConfigError, DataError
 from ratouch.eval.judge import OfflineJudge, mean_ci, score_stats
 from ratouch.eval.retrieval import entry_materials, material_precision
-from ratouch.eval.tvl import retrieve, system_responses
+from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split, retrieve
 from ratouch.files import write_json_atomic
 from ratouch.paths import (
     cache_dir,
@@ -64,6 +64,9 @@ SUBSETS = ("structured", "wild")
 # view name -> what it shows
 VIEWS = {"ra_lowest": "RA-Touch scores lowest",
          "joint_loses": "joint query loses to a unimodal one"}
+# a row's descriptions and the keys of their judge scores
+SCORE_KEYS = {"baseline": "baseline_score", "ra_touch": "ra_score"}
+SCORE_DIGITS = 3  # judge scores are kept (in the table, in a case's view) to 3 decimals
 
 Progress = Callable[[float, str], Any]
 
@@ -99,16 +102,39 @@ def case_inputs(condition: str, index: int, world: WorldConfig | None = None
 
 # --------------------------------------------------------------------------- judging
 
-def judge_scores(label: str | None, descriptions: Mapping[str, str | None], judge
+def row_scores(row: Mapping[str, Any]) -> dict[str, tuple[str | None, float]]:
+    """The descriptions a table row's judge scores belong to: {system: (description, score)}
+    for "baseline" and "ra_touch" (`judge_scores`' `judged`)."""
+    return {name: (row.get(name), float(row[key])) for name, key in SCORE_KEYS.items()
+            if key in row}
+
+
+def judge_scores(label: str | None, descriptions: Mapping[str, str | None], judge,
+                 judged: Mapping[str, tuple[str | None, float]] | None = None
                  ) -> dict[str, float | None]:
     """Offline-judge score (1-10) of each description against the ground-truth label.
+
+    Args:
+        judged: {name: (description, score)} already judged, e.g. a failure-table row's
+            (`row_scores`): a description equal to its judged one gets that score, so that a
+            case shows one score wherever it is shown. (The table judges each system's answers
+            together, with the system's word rates, `OfflineJudge.score_many`; a lone answer
+            judged here has no rates to go by.)
 
     Returns {} without a label; a description that is missing or empty scores None (it was
     not generated), not the judge's 1."""
     if not label:
         return {}
-    return {name: (round(judge.score(label, text), 2) if text else None)
-            for name, text in descriptions.items()}
+    judged = judged or {}
+    out: dict[str, float | None] = {}
+    for name, text in descriptions.items():
+        if not text:
+            out[name] = None
+        elif name in judged and judged[name][0] == text:
+            out[name] = round(float(judged[name][1]), SCORE_DIGITS)
+        else:
+            out[name] = round(judge.score(label, text), SCORE_DIGITS)
+    return out
 
 
 # --------------------------------------------------------------------------- computing
@@ -157,16 +183,16 @@ def failure_cases(pipeline, world: WorldConfig | None = None, k: int = 5,
         step(f"{cond}: rendering and encoding the test split")
         split = encode_test_split(pipeline.encoders, condition_world(world, cond), indices)
         step(f"{cond}: baseline descriptions")
-        base, _ = system_responses(pipeline, split, "baseline", k)
+        base = answer_split(pipeline, split, BASELINE, judge=judge)
         step(f"{cond}: RA-Touch descriptions")
-        ra, joint_ids = system_responses(pipeline, split, "ra-touch", k)
+        ra = answer_split(pipeline, split, RA_TOUCH, k=k, judge=judge)
         step(f"{cond}: retrieval quality and judging")
-        prec = {"joint": material_precision(joint_ids, split.materials, entry_mats)}
+        prec = {"joint": material_precision(ra.ids, split.materials, entry_mats)}
         for mode in ("image", "tactile"):
             prec[mode] = material_precision(retrieve(pipeline, split.V, split.T, k, mode),
                                             split.materials, entry_mats)
-        s_base = judge.score_many(zip(split.labels, base))
-        s_ra = judge.score_many(zip(split.labels, ra))
+        s_base, s_ra = base.scores, ra.scores
+        base, ra = base.responses, ra.responses
         for j, idx in enumerate(split.indices):
             best = max(float(prec["image"][j]), float(prec["tactile"][j]))
             pj = float(prec["joint"][j])
@@ -174,9 +200,9 @@ def failure_cases(pipeline, world: WorldConfig | None = None, k: int = 5,
                 "condition": cond, "index": int(idx), "subset": split.subsets[j],
                 "material": split.materials[j], "object_scale": round(split.object_scale[j], 3),
                 "label": split.labels[j], "baseline": base[j], "ra_touch": ra[j],
-                "baseline_score": round(float(s_base[j]), 3),
-                "ra_score": round(float(s_ra[j]), 3),
-                "ra_delta": round(float(s_ra[j]) - float(s_base[j]), 3),
+                "baseline_score": round(float(s_base[j]), SCORE_DIGITS),
+                "ra_score": round(float(s_ra[j]), SCORE_DIGITS),
+                "ra_delta": round(float(s_ra[j]) - float(s_base[j]), SCORE_DIGITS),
                 **{f"precision_{m}": round(float(prec[m][j]), 4) for m in MODES},
                 "best_unimodal": round(best, 4), "joint_gap": round(best - pj, 4),
                 "joint_loses": bool(pj < best)})

@@ -15,19 +15,20 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
-from typing import Callable
+from types import SimpleNamespace
 
 import numpy as np
 from scipy import stats
 
 from ratouch.errors import ConfigError
+from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split
 from ratouch.eval.controls import derangement, run_controls
 from ratouch.eval.experiments import source_sha256
-from ratouch.eval.judge import OfflineJudge, judge_results
-from ratouch.eval.tvl import describe, records_for
+from ratouch.eval.judge import OfflineJudge
 from ratouch.model.generator import load_generator
 from ratouch.paths import cache_dir
 from ratouch.serve.pipeline import RATouchPipeline, integrator_factory, load_for_serving
+from ratouch.timing import Progress, bars, lines
 from ratouch.world.config import WorldConfig
 from ratouch.world.scarcity import ScarceRegime, premise_indices
 from ratouch.world.splits import TestSplit, encode_test_split
@@ -87,16 +88,14 @@ def _arm_scores(p: RATouchPipeline, gen, split: TestSplit, k: int, judge, seed: 
                 ) -> dict[str, np.ndarray]:
     """Judge scores of the neighbour-token arm with its own and with shuffled neighbours."""
     ids = p.joint_neighbours(split.V, split.T, k)
-    out = {}
-    for name, nb in (("tokens", ids), ("tokens_shuffled", ids[derangement(len(ids), seed)])):
-        answers = describe(gen, split.V, split.T, *p.neighbour_embeddings(nb))
-        rows, _ = judge_results(records_for(split, answers, name), judge)
-        out[name] = np.array([r[judge.key] for r in rows], float)
-    return out
+    return {name: answer_split(p, split, RA_TOUCH, ids=nb, generator=gen, name=name,
+                               judge=judge).scores
+            for name, nb in (("tokens", ids), ("tokens_shuffled",
+                                               ids[derangement(len(ids), seed)]))}
 
 
 def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int = 5,
-                progress: bool = False, report: Callable[[str], None] = log.info,
+                progress: Progress = False,
                 pipeline: RATouchPipeline | None = None, arm: bool = True) -> dict:
     """Baseline against RA-Touch on seen and scarce materials, over `runs` runs, with controls.
 
@@ -114,9 +113,10 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
         raise ConfigError(f"runs={runs} must be >= 1, n={n} >= 10 and k={k} >= 1")
     t0 = time.perf_counter()
     regime = ScarceRegime()
+    say, progress = lines(progress, log), bars(progress)  # lines; the training's bars
     pipe = pipeline or RATouchPipeline.load(encoder, progress=progress)
     splits = {g: group_split(pipe.encoders, g, n, regime) for g in GROUPS}
-    report(f"rendered and encoded {n} seen and {n} scarce pairs")
+    say(f"rendered and encoded {n} seen and {n} scarce pairs")
     judge = OfflineJudge()
     per_run: dict[str, list[dict]] = {g: [] for g in GROUPS}
     for run in range(runs):
@@ -129,9 +129,9 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
             if tokens is not None:
                 r["scores"].update(_arm_scores(p, tokens, splits[g], k, judge, seed=run))
             per_run[g].append(r)
-            report(f"run {run} {g}: baseline {r['systems']['baseline']['mean']:.3f}, RA-Touch "
-                   f"{r['systems']['ra_touch']['mean']:.3f}, shuffle drop "
-                   f"{r['shuffle']['diff']:+.3f}")
+            say(f"run {run} {g}: baseline {r['systems']['baseline']['mean']:.3f}, RA-Touch "
+                f"{r['systems']['ra_touch']['mean']:.3f}, shuffle drop "
+                f"{r['shuffle']['diff']:+.3f}")
     groups = {g: _aggregate(per_run[g], seed=0) for g in GROUPS}
     verdict, reason = decide(groups)
     return {"config": {"encoder": encoder, "runs": runs, "n": n, "k": k, "judge": judge.name,
@@ -310,8 +310,9 @@ def why_ignored(encoder: str = "default-s", n: int = 3000, seed: int = 0,
     sc = is_scarce[pick]
     ids = pipe.joint_neighbours(V, T, 5)
     rv, rl = pipe.neighbour_embeddings(ids)
-    base = describe(pipe.generator_base, V, T)
-    ra = describe(pipe.generator_ra, V, T, rv, rl)
+    pairs = SimpleNamespace(V=V, T=T)
+    base = answer_split(pipe, pairs, BASELINE).responses
+    ra = answer_split(pipe, pairs, RA_TOUCH, neighbours=(rv, rl)).responses
     entries = pipe.corpus.entries
     copy_ = [vote([entries[i].caption for i in row], len(parse_adjectives(b)))
              for row, b in zip(ids, base)]

@@ -13,89 +13,37 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
-import torch
 
-from ratouch.errors import ConfigError, DataError
+from ratouch.errors import DataError
+from ratouch.eval.answer import (  # noqa: F401 - describe, records_for, retrieve: re-exported
+    SYSTEMS,
+    answer_split,
+    describe,
+    records_for,
+    retrieve,
+)
 from ratouch.eval.judge import (
     LABEL_KEY,
     RESPONSE_KEY,
     OfflineJudge,
     format_stats,
-    judge_results,
     score_stats,
     subset_of,
 )
-from ratouch.search.retrieval import QUERY_MODES
-from ratouch.vocabulary import TVL_QUESTION
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
 from ratouch.world.generator import TEST_SIZE
 from ratouch.world.material import material
 from ratouch.world.splits import TestSplit, encode_test_split
 
-SYSTEMS = ("baseline", "ra-touch")
-
-
-def retrieve(pipeline, V: np.ndarray, T: np.ndarray, k: int, mode: str = "joint",
-             key: str = "text") -> np.ndarray:
-    """(N, k) corpus ids for a query mode (image / tactile / joint) against a key index."""
-    if mode not in QUERY_MODES:
-        raise ConfigError(f"mode must be one of {QUERY_MODES}, got {mode!r}")
-    q = {"image": V, "tactile": T}.get(mode)
-    if q is None:
-        q = pipeline.joint_query(V, T)
-    return pipeline.corpus.search(key, np.ascontiguousarray(q, np.float32), k)[1]
-
-
-def describe(gen, V: np.ndarray, T: np.ndarray, rv: np.ndarray | None = None,
-             rl: np.ndarray | None = None, batch: int = 128) -> list[str]:
-    """Greedy descriptions of a generator over arrays, in batches (neighbours optional)."""
-    out: list[str] = []
-    for s in range(0, len(V), batch):
-        args = [torch.from_numpy(np.ascontiguousarray(a[s:s + batch], np.float32))
-                for a in (V, T)]
-        if rv is not None:
-            args += [torch.from_numpy(np.ascontiguousarray(a[s:s + batch], np.float32))
-                     for a in (rv, rl)]
-        out += gen.describe(*args)
-    return out
-
-
-def records_for(split: TestSplit, responses: Sequence[str | None], system: str) -> list[dict]:
-    """TVL-format result records (plus the world's ground truth, for failure analysis)."""
-    if len(responses) != len(split.labels):
-        raise DataError(f"{len(responses)} responses for {len(split.labels)} test samples")
-    return [{"image_fp": split.image_fp(i), "tactile_fp": split.tactile_fp(i),
-             "label": split.labels[i], RESPONSE_KEY: responses[i], "prompt": TVL_QUESTION,
-             "system": system, "index": split.indices[i], "subset": split.subsets[i],
-             "material": split.materials[i], "object_scale": round(split.object_scale[i], 4)}
-            for i in range(len(responses))]
-
-
-def system_responses(pipeline, split: TestSplit, system: str, k: int = 5,
-                     mode: str = "joint") -> tuple[list[str], np.ndarray | None]:
-    """A system's answers on a split: (descriptions, the neighbour ids RA-Touch read)."""
-    if system not in SYSTEMS:
-        raise ConfigError(f"system must be one of {SYSTEMS}, got {system!r}")
-    if system == "baseline":
-        return describe(pipeline.generator_base, split.V, split.T), None
-    ids = retrieve(pipeline, split.V, split.T, k, mode)
-    rv, rl = pipeline.neighbour_embeddings(ids)
-    return describe(pipeline.generator_ra, split.V, split.T, rv, rl), ids
-
 
 def run_tvl(pipeline, system: str, k: int = 5, judge=None, world: WorldConfig | None = None,
             split: TestSplit | None = None) -> tuple[list[dict], dict]:
     """Generate, judge and summarise one system on the world's test split."""
     split = split or encode_test_split(pipeline.encoders, world)
-    responses, ids = system_responses(pipeline, split, system, k)
-    records = records_for(split, responses, system)
-    if ids is not None:
-        for rec, row in zip(records, ids):
-            rec["neighbours"] = [int(i) for i in row]
-    scored, summary = judge_results(records, judge or OfflineJudge())
-    summary.update({"system": system, "k": k, "world_seed": split.world.seed})
-    return scored, summary
+    ans = answer_split(pipeline, split, system, k=k, judge=judge or OfflineJudge())
+    ans.summary.update({"system": system, "k": k, "world_seed": split.world.seed})
+    return ans.records, ans.summary
 
 
 def score_key(records: Sequence[dict]) -> str:

@@ -16,9 +16,7 @@ import json
 import logging
 import math
 import os
-import shutil
 import sys
-import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -31,10 +29,16 @@ import numpy as np
 
 from ratouch.checkpoint import sha256_file
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.files import replace_folder, staged, write_json_atomic
+from ratouch.search.kinds import (  # noqa: F401 - the registry, re-exported
+    APPROXIMATE_KINDS,
+    BENCH_KINDS,
+    KINDS,
+    ONDISK_KINDS,
+)
 
 logger = logging.getLogger(__name__)
 
-KINDS = ("flat", "hnsw", "ivfpq", "ivfflat")
 ONDISK_FILE = "lists.ivfdata"
 INDEX_FILE = "index.faiss"
 MANIFEST_FILE = "manifest.json"
@@ -198,7 +202,7 @@ class VectorIndex:
         self._ivf_params: faiss.SearchParameters | None = None
         if cfg.kind == "hnsw":
             self._params = faiss.SearchParametersHNSW(efSearch=cfg.ef_search)
-        elif cfg.kind in ("ivfpq", "ivfflat"):
+        elif cfg.kind in ONDISK_KINDS:
             nprobe = min(cfg.nprobe, faiss.extract_index_ivf(index).nlist)
             self._params = faiss.SearchParametersIVF(nprobe=nprobe)
             if cfg.refine_factor:
@@ -334,7 +338,7 @@ class VectorIndex:
         """
         from faiss.contrib.ondisk import merge_ondisk  # faiss's own on-disk merge helper
 
-        if cfg.kind not in ("ivfflat", "ivfpq") or cfg.refine_factor:
+        if cfg.kind not in ONDISK_KINDS or cfg.refine_factor:
             raise ConfigError(f"kind={cfg.kind!r} (refine_factor={cfg.refine_factor}) cannot "
                               "be built on disk; use 'ivfflat' or 'ivfpq' without refinement")
         sizes = [len(x) for x in shards]
@@ -346,8 +350,7 @@ class VectorIndex:
         sample = _normalised(_as_matrix(sample, "index vectors"), "index vectors", warn=True)
         trained = cls._trained_ivfpq(sample, cfg, seed, n)
         folder = Path(folder)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}-", dir=folder.parent))
-        try:
+        with staged(folder.parent, prefix=f".{folder.name}-") as tmp:
             offsets = np.concatenate([[0], np.cumsum(sizes)])
 
             def add(k: int) -> str:
@@ -370,11 +373,7 @@ class VectorIndex:
             _write_manifest(tmp, cfg.kind, dim=int(merged.d), count=n, cfg=cfg,
                             meta=meta, ondisk=ondisk)
             del merged
-            if folder.exists():
-                shutil.rmtree(folder)
-            os.replace(tmp, folder)
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
+            replace_folder(tmp, folder)
         logger.info("built an on-disk %s index of %d vectors in %d shards at %s", cfg.kind, n,
                     len(shards), folder)
         return cls.load(folder)[0]
@@ -445,13 +444,8 @@ class VectorIndex:
             n, d = self.count, self.dim
             self._xb = faiss.rev_swig_ptr(self._index.get_xb(), n * d).reshape(n, d)
         sims = self._xb @ q.T if len(q) > 1 else (self._xb @ q[0])[:, None]
-        n = len(sims)
-        top = np.argpartition(sims, n - k, axis=0)[n - k:].T if k < n else \
-            np.broadcast_to(np.arange(n), (len(q), n))
-        top_scores = np.take_along_axis(sims.T, top, axis=1)
-        order = np.argsort(-top_scores, axis=1, kind="stable")
-        ids = np.take_along_axis(top, order, axis=1).astype(np.int64)
-        return np.take_along_axis(top_scores, order, axis=1).astype(np.float32), ids
+        scores, ids = top_k(sims.T, k)
+        return scores.astype(np.float32), ids
 
     def save(self, folder: str | os.PathLike, meta: dict | None = None) -> Path:
         """Write ``index.faiss`` and then, atomically, ``manifest.json`` into folder.
@@ -549,14 +543,7 @@ def _write_manifest(folder: Path, kind: str, dim: int, count: int, cfg: IndexCon
                 "index_sha256": sha256_file(folder / INDEX_FILE), "meta": dict(meta or {})}
     if ondisk:
         manifest["ondisk"] = ondisk
-    fd, tmp = tempfile.mkstemp(prefix=".manifest-", suffix=".json", dir=folder)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(manifest, fh, indent=2, sort_keys=True)
-        os.replace(tmp, folder / MANIFEST_FILE)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_json_atomic(folder / MANIFEST_FILE, manifest, indent=2, sort_keys=True, newline=False)
 
 
 class ShardedVectorIndex(VectorIndex):
@@ -594,9 +581,8 @@ class ShardedVectorIndex(VectorIndex):
         scores = np.concatenate([p[0] for p in parts], axis=1)
         ids = np.concatenate([np.where(p[1] >= 0, p[1] + off, -1)
                               for p, off in zip(parts, self._offsets)], axis=1)
-        order = np.argsort(-scores, axis=1, kind="stable")[:, :k]
-        return (np.take_along_axis(scores, order, 1).astype(np.float32),
-                np.take_along_axis(ids, order, 1).astype(np.int64))
+        best, pos = top_k(scores, k)  # ties: the earlier shard, then the shard's own order
+        return best.astype(np.float32), np.take_along_axis(ids, pos, 1).astype(np.int64)
 
 
 def exact_topk(queries: np.ndarray, keys: np.ndarray, k: int, max_bytes: int = 1 << 28
@@ -610,8 +596,29 @@ def exact_topk(queries: np.ndarray, keys: np.ndarray, k: int, max_bytes: int = 1
     out = np.empty((len(queries), k), np.int64)
     step = max(1, max_bytes // (4 * max(1, len(keys))))
     for s in range(0, len(queries), step):
-        sims = queries[s:s + step] @ keys.T
-        part = np.argpartition(-sims, k - 1, axis=1)[:, :k]
-        order = np.argsort(-np.take_along_axis(sims, part, 1), axis=1, kind="stable")
-        out[s:s + step] = np.take_along_axis(part, order, 1)
+        out[s:s + step] = top_k(queries[s:s + step] @ keys.T, k)[1]
     return out
+
+
+def top_k(sims: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The one top-k of the project: the `k` best entries of each row of a (Q, N) score
+    matrix by (higher score, lower column id), as ((Q, k) scores, (Q, k) int64 column ids),
+    best first. Equal scores (duplicate captions embed identically) are thus decided by id,
+    in the order and at the k-th place alike. A partial sort (`argpartition`) picks the k, so
+    the cost grows with N, not N log N; `sims` may be a transposed view (it is not copied)."""
+    n = sims.shape[1]
+    k = min(int(k), n)
+    if k < n:
+        part = np.argpartition(sims, n - k, axis=1)[:, n - k:]
+        kth = np.take_along_axis(sims, part, 1).min(axis=1)
+        for r in np.flatnonzero((sims >= kth[:, None]).sum(axis=1) > k):
+            # the k-th score is shared beyond the k: the lower ids among it get the places
+            above = np.flatnonzero(sims[r] > kth[r])
+            part[r] = np.concatenate([above, np.flatnonzero(sims[r] == kth[r])[:k - len(above)]])
+        part.sort(axis=1)  # lower ids first, so that the stable sort breaks ties by id
+    else:
+        part = np.broadcast_to(np.arange(n), sims.shape)
+    scores = np.take_along_axis(sims, part, 1)
+    order = np.argsort(-scores, axis=1, kind="stable")
+    return (np.take_along_axis(scores, order, 1),
+            np.take_along_axis(part, order, 1).astype(np.int64, copy=False))

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from PIL import Image
@@ -26,6 +26,20 @@ from ratouch.world.dataset import world_for
 #: The three query modes: the visual crop's embedding, the tactile frame's, and the
 #: Tactile-Guided Retriever's joint query made from both.
 QUERY_MODES = ("image", "tactile", "joint")
+
+
+
+def mode_query(mode: str, V: np.ndarray, T: np.ndarray,
+               joint_query: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
+    """The one place a query mode becomes its query vectors: (N, D) C-contiguous float32 --
+    the visual embeddings `V` for "image", the tactile ones `T` for "tactile", and
+    ``joint_query(V, T)`` (the Tactile-Guided Retriever's, e.g. `RATouchPipeline.joint_query`)
+    for "joint", computed only for that mode."""
+    if mode not in QUERY_MODES:
+        raise ConfigError(f"mode must be one of {QUERY_MODES}, got {mode!r}")
+    q = V if mode == "image" else T if mode == "tactile" else joint_query(V, T)
+    return np.ascontiguousarray(q, np.float32)
+
 
 #: The paper's five retrieval settings (Table 4): query mode -> key modality.
 SETTINGS: dict[str, tuple[str, str]] = {

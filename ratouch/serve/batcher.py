@@ -1,10 +1,10 @@
-"""Serving many users from one `RATouchPipeline`: concurrent queries gathered into batches.
+"""Serving many users from one model: concurrent requests gathered into batches.
 
 On a CPU, one query's cost is mostly the two generators' greedy decoding, whose per-step
 overhead hardly grows with the batch; concurrent queries answered one by one queue behind
-each other. The pipeline's `query_many` answers several queries at once; `QueryBatcher` only
-gathers concurrent `query` calls from server threads into such batches, so that latency under
-load stays close to a single user's.
+each other. An `Answerer` answers several requests at once; `QueryBatcher` only gathers the
+concurrent `answer` calls of server threads into such batches, so that latency under load
+stays close to a single user's.
 """
 
 from __future__ import annotations
@@ -12,33 +12,37 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Sequence
 from typing import Any
 
 from ratouch.errors import ConfigError
+from ratouch.serve.request import Answerer, QueryRequest, QueryResult
 from ratouch.threads import intra_op_threads
 
 log = logging.getLogger(__name__)
 
+
 class _Pending:
     __slots__ = ("request", "result", "done")
 
-    def __init__(self, request: dict):
+    def __init__(self, request: QueryRequest):
         self.request = request
         self.result: Any = None
         self.done = threading.Event()
 
 
 class QueryBatcher:
-    """`query` like the pipeline's, but concurrent calls are answered together.
+    """An `Answerer` that answers concurrent calls together, by the `Answerer` it wraps.
 
     A worker thread takes what is waiting (up to `max_batch` requests, after waiting at most
-    `max_wait_s` for more to arrive once the first has) and runs `query_many` on it; each
-    caller gets its own result or exception. One batch runs at a time, so the model work of
-    a server is bounded however many threads call `query`.
+    `max_wait_s` for more to arrive once the first has) and has the wrapped answerer answer
+    it; each caller gets its own results. One batch runs at a time, so the model work of a
+    server is bounded however many threads call `answer`. The requests come decoded
+    (`QueryRequest.decode`, in the caller's thread), so that a slow upload (or a bad one)
+    delays only its own caller, never the shared batch.
 
     Args:
-        pipeline: the loaded pipeline (or anything whose attribute access yields one, like
-            the app's `BackgroundPipeline`).
+        answerer: what answers the batches (a `RATouchPipeline`, a `ModelChoice`, ...).
         max_batch: most requests in one batch.
         max_wait_s: how long a batch waits for company; 0 answers what is there at once
             (requests that arrive while a batch runs form the next one anyway).
@@ -48,14 +52,14 @@ class QueryBatcher:
             `ratouch.threads`); None keeps torch's setting.
     """
 
-    def __init__(self, pipeline, max_batch: int = 16, max_wait_s: float = 0.0,
+    def __init__(self, answerer: Answerer, max_batch: int = 16, max_wait_s: float = 0.0,
                  threads: int | None = 1):
         if max_batch < 1:
             raise ConfigError(f"max_batch must be >= 1, got {max_batch}")
         if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int)
                                     or threads < 1):
             raise ConfigError(f"threads must be None or an integer >= 1, got {threads!r}")
-        self.pipeline = pipeline
+        self.answerer = answerer
         self.max_batch = max_batch
         self.max_wait_s = max_wait_s
         self.threads = threads
@@ -64,30 +68,24 @@ class QueryBatcher:
         self._cv = threading.Condition()
         self._worker: threading.Thread | None = None
 
-    def query(self, visual: Any, tactile: Any = None, box=None, k: int = 5,
-              label: str | None = None, background: Any = None,
-              encoder: str | None = None) -> dict:
-        """`RATouchPipeline.query`, answered in a batch with concurrent calls (`encoder`:
-        the model, for a pipeline that offers a choice, `ratouch.serve.models.ModelChoice`).
-
-        The images are decoded and checked here, in the caller's thread, so that a slow
-        upload (or a bad one) delays only its own caller, never the shared batch."""
-        req = {"visual": visual, "tactile": tactile, "box": box, "k": k, "label": label,
-               "background": background}
-        if encoder is not None:
-            req["encoder"] = encoder
-        item = _Pending(self.pipeline.prepare_request(req))
+    def answer(self, requests: Sequence[QueryRequest]) -> list[QueryResult | Exception]:
+        """The wrapped answerer's `answer`, in batches with concurrent calls' requests."""
+        items = [_Pending(r) for r in requests]
         with self._cv:
-            self._queue.append(item)
+            self._queue.extend(items)
             if self._worker is None or not self._worker.is_alive():
                 self._worker = threading.Thread(target=self._run, daemon=True,
                                                 name="query-batcher")
                 self._worker.start()
             self._cv.notify()
-        item.done.wait()
-        if isinstance(item.result, BaseException):
-            raise item.result
-        return item.result
+        for item in items:
+            item.done.wait()
+        return [item.result for item in items]
+
+    def model(self, name: str | None = None):
+        """The loaded model behind the wrapped answerer that answers requests naming `name`
+        (its `model`)."""
+        return self.answerer.model(name)
 
     def _take(self) -> list[_Pending]:
         with self._cv:
@@ -110,7 +108,7 @@ class QueryBatcher:
         while True:
             batch = self._take()
             try:
-                results = self.pipeline.query_many([p.request for p in batch])
+                results = self.answerer.answer([p.request for p in batch])
             except BaseException as e:  # noqa: BLE001 - every caller of the batch gets it
                 log.error("a query batch of %d failed", len(batch), exc_info=e)
                 results = [e] * len(batch)
@@ -118,9 +116,3 @@ class QueryBatcher:
             for p, r in zip(batch, results):
                 p.result = r
                 p.done.set()
-
-    def __getattr__(self, name: str) -> Any:
-        """Everything but `query` is the pipeline's (corpus, encoders, ...)."""
-        if name.startswith("_"):
-            raise AttributeError(name)
-        return getattr(self.pipeline, name)

@@ -14,8 +14,9 @@ renders beyond any training run's pairs, as the trust calibration's), never on t
 `ratouch train cascade` (`ratouch.train.cascade`) writes the calibration, a small JSON file
 shipped beside the weights (`ratouch.paths.cascade_calibration`).
 
-`Cascade` serves like one `RATouchPipeline` (`query`, `query_many`, `regenerate`); every
-result says which encoder answered, with what confidence, and whether it was escalated.
+`Cascade` is an `Answerer` (`ratouch.serve.request`) over its stages' pipelines, and a model
+like one `RATouchPipeline` (`answer`, `regenerate`); every result says which encoder answered,
+with what confidence, and whether it was escalated.
 """
 
 from __future__ import annotations
@@ -24,16 +25,17 @@ import json
 import logging
 import os
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from ratouch import paths
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
-from ratouch.serve.pipeline import Laps, RATouchPipeline, answer_one
+from ratouch.serve.pipeline import RATouchPipeline
+from ratouch.serve.request import Laps, QueryRequest, QueryResult, check_k
 
 log = logging.getLogger(__name__)
 
@@ -131,13 +133,13 @@ class CascadeCalibration:
 
 
 class Cascade:
-    """Encoder sets, smallest first, serving as one pipeline.
+    """Encoder sets, smallest first, answering as one model.
 
-    Each query is decoded once, encoded by the first stage and searched at the calibration's
-    K; when its confidence reaches the stage's threshold the stage answers it from those
-    embeddings, otherwise the next stage encodes and answers it (the last stage always
-    answers). Requests without a tactile image have no joint query: the first stage answers
-    them (image-only retrieval needs no larger model).
+    Each request is encoded by the first stage and searched at the calibration's K; when its
+    confidence reaches the stage's threshold the stage answers it from those embeddings,
+    otherwise the next stage encodes and answers it (the last stage always answers).
+    Requests without a tactile image have no joint query: the first stage answers them
+    (image-only retrieval needs no larger model).
 
     Args:
         pipelines: one loaded pipeline per stage, in the calibration's order, over the same
@@ -156,106 +158,108 @@ class Cascade:
         self.stages = list(pipelines)
         self.calibration = calibration
         self.name = f"{CASCADE} ({' > '.join(names)})"
-        self._classes = np.array([e.class_name for e in pipelines[0].corpus.entries])
+        #: the corpus entries every stage searches (the first stage's index of them)
+        self.corpus = pipelines[0].corpus
+        self._classes = np.array([e.class_name for e in self.corpus.entries])
 
     @classmethod
     def load(cls, path: str | os.PathLike | None = None,
              corpus: str | os.PathLike | None = None, index: str = "flat") -> "Cascade":
         """The calibrated cascade (default: the shipped one) with its stages' pipelines."""
-        from ratouch.paths import cascade_calibration
-
-        cal = CascadeCalibration.load(path or cascade_calibration())
+        cal = CascadeCalibration.load(path or paths.cascade_calibration())
         return cls([RATouchPipeline.load(name, corpus=corpus, index=index)
                     for name in cal.encoders], cal)
 
-    # the first stage stands for the cascade where one pipeline's parts are asked for
-    def __getattr__(self, name: str) -> Any:
-        if name.startswith("__") or name in ("stages", "calibration"):
-            raise AttributeError(name)
-        return getattr(self.stages[0], name)
+    def model(self, name: str | None = None) -> "Cascade":
+        """The loaded model answering requests that name `name`: this one (None or
+        "cascade")."""
+        if name not in (None, CASCADE):
+            raise ConfigError(f"unknown model {name!r}: this server answers with {self.name}")
+        return self
 
-    def confidence(self, stage: int, queries: Sequence[Mapping[str, np.ndarray]]) -> np.ndarray:
-        """Stage `stage`'s confidence in each item's joint query (NaN without one)."""
-        conf = np.full(len(queries), np.nan)
-        rows = [j for j, q in enumerate(queries) if "joint" in q]
+    def confidence(self, stage: int, encoded: Sequence) -> np.ndarray:
+        """Stage `stage`'s confidence in each encoded request's joint query (NaN without
+        one); `encoded` is what that stage's `RATouchPipeline.encode` made."""
+        conf = np.full(len(encoded), np.nan)
+        rows = [j for j, e in enumerate(encoded) if "joint" in e.queries]
         if rows:
-            p = self.stages[stage]
-            scores, ids = p.corpus.search(
-                "text", np.concatenate([queries[j]["joint"] for j in rows]), self.calibration.k)
+            scores, ids = self.stages[stage].corpus.search(
+                "text", np.concatenate([encoded[j].queries["joint"] for j in rows]),
+                self.calibration.k)
             conf[rows] = joint_confidence(scores, ids, self._classes, self.calibration.measure)
         return conf
 
-    def query(self, visual: Any, tactile: Any = None, box=None, k: int = 5,
-              label: str | None = None, background: Any = None) -> dict:
-        """`RATouchPipeline.query`, answered by the smallest confident stage; the result
-        adds "cascade": {"answered_by", "stage", "escalated", "confidence": [per stage
-        tried], "thresholds", "measure"}."""
-        return answer_one(self.query_many, {"visual": visual, "tactile": tactile, "box": box,
-                                            "k": k, "label": label, "background": background})
-
-    def query_many(self, requests: Sequence[Mapping[str, Any]]) -> list[dict | Exception]:
-        """`RATouchPipeline.query_many` through the cascade."""
+    def answer(self, requests: Sequence[QueryRequest]) -> list[QueryResult | Exception]:
+        """`RATouchPipeline.answer` through the cascade: each result adds "cascade":
+        {"answered_by", "stage", "escalated", "confidence": [per stage tried], "thresholds",
+        "measure"}, and an escalated one's timings the "earlier_stages" it went through."""
         clock = Laps()
-        out, items = self.stages[0].prepare_many(requests)
-        confs: dict[int, list[float]] = {it["pos"]: [] for it in items}
-        answered_by: dict[int, int] = {}
+        out: list[QueryResult | Exception | None] = [None] * len(requests)
+        pending: list[int] = []  # positions of the requests no stage has answered yet
+        for pos, req in enumerate(requests):
+            try:
+                check_k(req.k, len(self.corpus.entries))
+                pending.append(pos)
+            except ConfigError as e:
+                out[pos] = e
+        confs: dict[int, list[float]] = {pos: [] for pos in pending}
         earlier_ms = 0.0  # the stages an escalated query went through before its answer
         for s, stage in enumerate(self.stages):
-            if not items:
+            if not pending:
                 break
             if s:
                 earlier_ms += (time.perf_counter() - clock.start) * 1000
                 clock = Laps()
             clock.lap("preprocess")
-            queries, touch = stage.encode_queries(items, clock)
+            batch = [requests[pos] for pos in pending]
+            encoded = stage.encode(batch, clock)
             last = s == len(self.stages) - 1
-            conf = self.confidence(s, queries) if not last else np.full(len(items), np.nan)
+            conf = self.confidence(s, encoded) if not last else np.full(len(batch), np.nan)
             clock.lap("confidence")
-            keep = [j for j in range(len(items))
-                    if last or np.isnan(conf[j]) or conf[j] >= self.calibration.thresholds[s]]
-            for j, it in enumerate(items):
+            for j, pos in enumerate(pending):
                 if not np.isnan(conf[j]):
-                    confs[it["pos"]].append(round(float(conf[j]), 4))
+                    confs[pos].append(round(float(conf[j]), 4))
+            keep = [j for j in range(len(batch))
+                    if last or np.isnan(conf[j]) or conf[j] >= self.calibration.thresholds[s]]
             if keep:
-                stage.answer(out, [items[j] for j in keep], [queries[j] for j in keep],
-                             [r for r, j in enumerate(keep) if j in set(touch)], clock)
-                for j in keep:
-                    answered_by[items[j]["pos"]] = s
-                    if s and isinstance(out[items[j]["pos"]], dict):
-                        t = out[items[j]["pos"]]["timings_ms"]
+                results = stage.respond([batch[j] for j in keep], [encoded[j] for j in keep],
+                                        clock)
+                for j, result in zip(keep, results):
+                    if s:
+                        t = result.timings_ms
                         t["earlier_stages"] = round(earlier_ms, 2)
                         t["total"] = round(t["total"] + earlier_ms, 2)
+                    result.cascade = self._account(s, confs[pending[j]])
+                    out[pending[j]] = result
             kept = set(keep)
-            items = [it for j, it in enumerate(items) if j not in kept]
-        for pos, s in answered_by.items():
-            if isinstance(out[pos], dict):
-                out[pos]["cascade"] = {
-                    "answered_by": self.calibration.encoders[s], "stage": s,
-                    "escalated": s > 0, "confidence": confs[pos],
-                    "thresholds": [None if not np.isfinite(t) else round(float(t), 4)
-                                   for t in self.calibration.thresholds],
-                    "measure": self.calibration.measure}
+            pending = [pos for j, pos in enumerate(pending) if j not in kept]
         return out
 
-    def regenerate(self, visual: Any, tactile: Any, neighbours: Sequence[int], box=None,
+    def _account(self, stage: int, confidence: list[float]) -> dict:
+        """The "cascade" block of a result that stage `stage` answered."""
+        return {"answered_by": self.calibration.encoders[stage], "stage": stage,
+                "escalated": stage > 0, "confidence": confidence,
+                "thresholds": [None if not np.isfinite(t) else round(float(t), 4)
+                               for t in self.calibration.thresholds],
+                "measure": self.calibration.measure}
+
+    def regenerate(self, request: QueryRequest, neighbours: Sequence[int],
                    encoder: str | None = None) -> dict:
         """`RATouchPipeline.regenerate` by the stage named `encoder`, by default the stage
-        the cascade answers this pair with (its confidence is measured again)."""
+        the cascade answers this request with (its confidence is measured again)."""
         names = self.calibration.encoders
         if encoder is not None and encoder not in names:
             raise ConfigError(f"encoder {encoder!r} is not a stage of the cascade {names}")
-        s = names.index(encoder) if encoder else self.stage_for(visual, tactile, box)
-        out = self.stages[s].regenerate(visual, tactile, neighbours, box=box)
+        s = names.index(encoder) if encoder else self.stage_for(request)
+        out = self.stages[s].regenerate(request, neighbours)
         out["encoder"] = names[s]
         return out
 
-    def stage_for(self, visual: Any, tactile: Any, box=None) -> int:
-        """The stage that answers one pair: the first whose confidence reaches its threshold."""
-        item = {**self.stages[0].prepare_request({"visual": visual, "tactile": tactile,
-                                                  "box": box}), "pos": 0}
+    def stage_for(self, request: QueryRequest) -> int:
+        """The stage that answers a request: the first whose confidence reaches its
+        threshold."""
         for s in range(len(self.stages) - 1):
-            queries, _ = self.stages[s].encode_queries([item], Laps())
-            conf = self.confidence(s, queries)[0]
+            conf = self.confidence(s, self.stages[s].encode([request], Laps()))[0]
             if np.isnan(conf) or conf >= self.calibration.thresholds[s]:
                 return s
         return len(self.stages) - 1

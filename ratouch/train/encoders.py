@@ -23,7 +23,8 @@ from tqdm import tqdm
 from ratouch.checkpoint import save_checkpoint
 from ratouch.corpus.imagenet_t import stratified_world_ids, world_lexicon
 from ratouch.corpus.recaption import OfflineRecaptioner
-from ratouch.encoders.default import DefaultEncoders, tactile_tensor
+from ratouch.encoders.default import DefaultEncoders, tactile_input
+from ratouch.encoders.prior import load_prior
 from ratouch.encoders.factory import create_model, model_config
 from ratouch.errors import ConfigError
 from ratouch.paths import cache_dir
@@ -37,6 +38,8 @@ ANTONYM_PROBE = ("soft, fuzzy, deformable", "hard, rigid, smooth", "squishy, plu
 
 # Steps per shipped size, chosen so that the three train in under 15 minutes on 2 cores.
 STEPS = {"default-tiny": 700, "default-s": 900, "default-b": 700, "debug": 20}
+#: Bumped when the rendered touch or the tactile input changes, so cached data is redone.
+TOUCH_VERSION = "touch2"
 
 
 @dataclass(frozen=True)
@@ -53,6 +56,7 @@ class TrainConfig:
     threads: int = 2
     regime: str = "scarce"  # which train pairs: see ratouch.world.scarcity
     draw: int = 0
+    device: str = "cpu"  # where the step loop runs ("cuda" where a GPU is lent)
 
     @property
     def scarcity(self) -> ScarceRegime:
@@ -73,37 +77,48 @@ class TrainConfig:
 
 def _pair_chunk(args):
 
-    wcfg, indices, vsize, tsize = args
+    wcfg, indices, vsize, tsize, psize = args
     world = world_for(wcfg)
-    crops, tacs, labels, mats = [], [], [], []
+    crops, pcrops, tacs, tacs_bg, labels, mats = [], [], [], [], [], []
     for i in indices:
         s = world.sample("train", i)
         x0, y0, x1, y1 = s.box
-        crop = Image.fromarray(s.visual[y0:y1, x0:x1]).resize(vsize[::-1], Image.BILINEAR)
-        crops.append(np.asarray(crop))
-        tacs.append(tactile_tensor([s.tactile], tsize)[0].numpy().astype(np.float16))
+        crop = Image.fromarray(s.visual[y0:y1, x0:x1])
+        crops.append(np.asarray(crop.resize(vsize[::-1], Image.BILINEAR)))
+        if psize:
+            pcrops.append(np.asarray(crop.resize((psize, psize), Image.BILINEAR)))
+        bg = world.background_image(s.sensor)
+        tacs.append(tactile_input(s.tactile, tsize).astype(np.float16))
+        tacs_bg.append(tactile_input(s.tactile, tsize, bg).astype(np.float16))
         labels.append(s.caption)
         mats.append(s.material)
-    return crops, tacs, labels, mats
+    return crops, pcrops, tacs, tacs_bg, labels, mats
 
 
 def _corpus_chunk(args):
 
-    wcfg, ids, vsize = args
+    wcfg, ids, vsize, psize = args
     world = world_for(wcfg)
     out = []
     for c, i in ids:
-        img = Image.fromarray(world.corpus_image(c, i)).resize(vsize[::-1], Image.BILINEAR)
-        out.append((np.asarray(img), world.corpus_record(c, i)))
+        img = Image.fromarray(world.corpus_image(c, i))
+        small = np.asarray(img.resize(vsize[::-1], Image.BILINEAR))
+        big = np.asarray(img.resize((psize, psize), Image.BILINEAR)) if psize else None
+        out.append((small, big, world.corpus_record(c, i)))
     return out
 
 
-def training_data(tc: TrainConfig, vsize, tsize, progress: bool = True) -> dict:
+def training_data(tc: TrainConfig, vsize, tsize, progress: bool = True,
+                  prior: str | None = None, prior_size: int = 128) -> dict:
     """The rendered training data, cached on disk (`$RATOUCH_CACHE/train-data-*.npz`) so that
-    later stages (retriever, generator) and re-runs reuse it instead of re-rendering."""
+    later stages (retriever, generator) and re-runs reuse it instead of re-rendering.
+
+    With a visual `prior`, the crops' and corpus images' pooled prior features (at
+    `prior_size`) are kept instead of their pixels at that size ("prior_crops",
+    "prior_corpus"): the prior is frozen, so they are computed once."""
 
     tag = (f"s{tc.seed}-p{tc.n_pairs}-c{tc.n_corpus}-v{vsize[0]}x{vsize[1]}-t{tsize[0]}x{tsize[1]}"
-           f"-{tc.scarcity.tag}")
+           f"-{tc.scarcity.tag}-{TOUCH_VERSION}" + (f"-{prior}{prior_size}" if prior else ""))
     path = cache_dir() / f"train-data-{tag}.npz"
     if path.is_file():
         with np.load(path, allow_pickle=False) as z:
@@ -111,7 +126,7 @@ def training_data(tc: TrainConfig, vsize, tsize, progress: bool = True) -> dict:
         for k in ("labels", "materials", "corpus_captions"):
             data[k] = [str(x) for x in data[k]]
         return data
-    data = render_training_data(tc, vsize, tsize, progress)
+    data = render_training_data(tc, vsize, tsize, progress, prior, prior_size)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".partial.npz")
     np.savez(tmp, **{k: np.asarray(v) for k, v in data.items()})
@@ -119,33 +134,45 @@ def training_data(tc: TrainConfig, vsize, tsize, progress: bool = True) -> dict:
     return data
 
 
-def render_training_data(tc: TrainConfig, vsize, tsize, progress: bool = True) -> dict:
-    """Render the paired crops / tactile tensors and the corpus images used for training."""
+def render_training_data(tc: TrainConfig, vsize, tsize, progress: bool = True,
+                         prior: str | None = None, prior_size: int = 128) -> dict:
+    """Render the paired crops / tactile inputs (without and with the sensor's background)
+    and the corpus images used for training; with a prior, its features of both."""
 
     wcfg = WorldConfig(seed=tc.seed)
     world_for(wcfg).warm()
+    psize = prior_size if prior else 0
     pairs = tc.scarcity.train_indices(tc.n_pairs)
-    pair_jobs = [(wcfg, pairs[k:k + 250], vsize, tsize) for k in range(0, len(pairs), 250)]
+    pair_jobs = [(wcfg, pairs[k:k + 250], vsize, tsize, psize) for k in range(0, len(pairs), 250)]
     ids = stratified_world_ids(tc.n_corpus, tc.seed)
-    corpus_jobs = [(wcfg, ids[k:k + 250], vsize) for k in range(0, len(ids), 250)]
-    crops, tacs, labels, mats, cimgs, crecs = [], [], [], [], [], []
+    corpus_jobs = [(wcfg, ids[k:k + 250], vsize, psize) for k in range(0, len(ids), 250)]
+    crops, pcrops, tacs, tacs_bg, labels, mats, cimgs, pcimgs, crecs = ([] for _ in range(9))
     with ProcessPoolExecutor(tc.workers, mp_context=_fork_context()) as pool:
         bar = tqdm(total=tc.n_pairs + len(ids), desc="render training data", disable=not progress)
-        for c, t, l, m in pool.map(_pair_chunk, pair_jobs):
+        for c, pc, t, tb, lab, m in pool.map(_pair_chunk, pair_jobs):
             crops += c
+            pcrops += pc
             tacs += t
-            labels += l
+            tacs_bg += tb
+            labels += lab
             mats += m
             bar.update(len(c))
         for part in pool.map(_corpus_chunk, corpus_jobs):
             cimgs += [p[0] for p in part]
-            crecs += [p[1] for p in part]
+            pcimgs += [p[1] for p in part]
+            crecs += [p[2] for p in part]
             bar.update(len(part))
         bar.close()
     recap = OfflineRecaptioner(world_lexicon())
     captions = [", ".join(recap.recaption(r.class_name, r.description)) for r in crecs]
-    return {"crops": np.stack(crops), "tactile": np.stack(tacs), "labels": labels,
-            "materials": mats, "corpus_images": np.stack(cimgs), "corpus_captions": captions}
+    data = {"crops": np.stack(crops), "tactile": np.stack(tacs), "tactile_bg": np.stack(tacs_bg),
+            "labels": labels, "materials": mats, "corpus_images": np.stack(cimgs),
+            "corpus_captions": captions}
+    if prior:
+        model = load_prior(prior)
+        data["prior_crops"] = model.features(pcrops, prior_size).astype(np.float16)
+        data["prior_corpus"] = model.features(pcimgs, prior_size).astype(np.float16)
+    return data
 
 
 # ---------------------------------------------------------------------------------------------
@@ -173,6 +200,26 @@ def _augment(x: torch.Tensor, gen: torch.Generator, vertical: bool) -> torch.Ten
     if vertical and torch.rand(1, generator=gen).item() < 0.5:
         x = x.flip(2)
     return x
+
+
+def _prior(data: dict, key: str, idx: torch.Tensor) -> torch.Tensor | None:
+    """The rows `idx` of the cached prior features (None: no prior)."""
+    if key not in data:
+        return None
+    return torch.from_numpy(data[key][idx.numpy()].astype(np.float32))
+
+
+def tactile_batch(data: dict, idx: torch.Tensor, gen: torch.Generator | None = None,
+                  background_share: float = 0.5) -> torch.Tensor:
+    """Tactile inputs of the cached pairs `idx`: each drawn with its sensor's background
+    (difference from the no-contact frame) with probability `background_share`, else without
+    it, so the encoder reads both kinds of query (`gen` None: without background)."""
+    plain = torch.from_numpy(data["tactile"][idx.numpy()].astype(np.float32))
+    if gen is None or "tactile_bg" not in data:
+        return plain
+    with_bg = torch.from_numpy(data["tactile_bg"][idx.numpy()].astype(np.float32))
+    pick = torch.rand(len(idx), generator=gen) < background_share
+    return torch.where(pick[:, None, None, None], with_bg, plain)
 
 
 def antonym_report(model: DefaultEncoders) -> dict:
@@ -213,16 +260,23 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
     t0 = time.perf_counter()
     model = create_model(tc.model, pretrained=None)
     key = (model.cfg.vision_size, model.cfg.tactile_size, tc.n_pairs, tc.n_corpus, tc.seed,
-           tc.scarcity.tag)
+           tc.scarcity.tag, model.cfg.prior, model.cfg.prior_size)
     cache = {} if cache is None else cache
     if key not in cache:
-        cache[key] = training_data(tc, model.cfg.vision_size, model.cfg.tactile_size, progress)
+        cache[key] = training_data(tc, model.cfg.vision_size, model.cfg.tactile_size, progress,
+                                   model.cfg.prior, model.cfg.prior_size)
     data = cache[key]
     t_data = time.perf_counter() - t0
     texts = sorted(set(data["labels"]) | set(data["corpus_captions"]))
     text_id = {t: i for i, t in enumerate(texts)}
-    minilm = torch.from_numpy(model.minilm_features(texts))  # (T, 384), frozen
     before = antonym_report(model)
+    dev = torch.device(tc.device)
+    minilm = torch.from_numpy(model.minilm_features(texts)).to(dev)  # (T, 384), frozen
+    model.to(dev)
+
+    def on(x: torch.Tensor | None) -> torch.Tensor | None:
+        return None if x is None else x.to(dev, non_blocking=True)
+
     lab = torch.tensor([text_id[t] for t in data["labels"]])
     cap = torch.tensor([text_id[t] for t in data["corpus_captions"]])
     n_pairs, n_corpus = len(lab), len(cap)
@@ -235,16 +289,16 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
     for step in tqdm(range(tc.steps), desc=f"train {tc.model}", disable=not progress):
         ip = torch.randint(n_pairs, (tc.batch,), generator=gen)
         ic = torch.randint(n_corpus, (tc.batch,), generator=gen)
-        v = model.embed_vision(_augment(_norm_images(data["crops"][ip.numpy()]), gen, False))
-        t = model.embed_tactile(_augment(torch.from_numpy(
-            data["tactile"][ip.numpy()].astype(np.float32)), gen, True))
-        lp = model.embed_text_features(minilm[lab[ip]])
-        vc = model.embed_vision(_augment(_norm_images(data["corpus_images"][ic.numpy()]), gen,
-                                         False))
-        lc = model.embed_text_features(minilm[cap[ic]])
-        same_p = (lab[ip][:, None] == lab[ip][None, :]).float()
-        same_c = (cap[ic][:, None] == cap[ic][None, :]).float()
-        eye = torch.eye(tc.batch)
+        v = model.embed_vision(on(_augment(_norm_images(data["crops"][ip.numpy()]), gen, False)),
+                               on(_prior(data, "prior_crops", ip)))
+        t = model.embed_tactile(on(_augment(tactile_batch(data, ip, gen), gen, True)))
+        lp = model.embed_text_features(minilm[lab[ip].to(dev)])
+        vc = model.embed_vision(on(_augment(_norm_images(data["corpus_images"][ic.numpy()]), gen,
+                                            False)), on(_prior(data, "prior_corpus", ic)))
+        lc = model.embed_text_features(minilm[cap[ic].to(dev)])
+        same_p = on((lab[ip][:, None] == lab[ip][None, :]).float())
+        same_c = on((cap[ic][:, None] == cap[ic][None, :]).float())
+        eye = on(torch.eye(tc.batch))
         scale = model.logit_scale.exp().clamp(max=100)
         losses = {
             "tactile_text": soft_info_nce(t, lp, same_p, scale),
@@ -259,7 +313,7 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
         sched.step()
         if step % 50 == 0 or step == tc.steps - 1:
             history.append({"step": step, **{k: round(x.item(), 4) for k, x in losses.items()}})
-    model.eval()
+    model.to("cpu").eval()
     report = {
         "model": tc.model, "steps": tc.steps, "batch": tc.batch, "seed": tc.seed,
         "n_pairs": n_pairs, "n_corpus": n_corpus, "regime": tc.scarcity.tag,

@@ -18,7 +18,7 @@ from ratouch.model.loss import RetrieverLossConfig
 from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
 from ratouch.model.retriever import RetrieverConfig
 from ratouch.paths import cache_dir, generator_weights, retriever_weights
-from ratouch.serve.pipeline import RATouchPipeline, load_tgr
+from ratouch.search.retrieval_side import RetrievalSide, load_tgr
 from ratouch.train.encoders import TrainConfig, training_data
 from ratouch.train.generator import (
     GeneratorTrainConfig,
@@ -40,7 +40,8 @@ log = logging.getLogger(__name__)
 def training_pairs(encoders, seed: int = 0, progress: bool = False) -> dict:
     """V, T and captions of the world's cached paired training split, for frozen encoders."""
     tc = TrainConfig(model=encoders.name, seed=seed)
-    data = training_data(tc, encoders.cfg.vision_size, encoders.cfg.tactile_size, progress)
+    data = training_data(tc, encoders.cfg.vision_size, encoders.cfg.tactile_size, progress,
+                         encoders.cfg.prior, encoders.cfg.prior_size)
     emb = paired_embeddings(encoders, data)
     return {"V": emb["V"], "T": emb["T"], "labels": list(data["labels"]),
             "materials": list(data["materials"])}
@@ -49,7 +50,8 @@ def training_pairs(encoders, seed: int = 0, progress: bool = False) -> dict:
 def _pairs(encoder: str, seed: int, progress: bool, draw: int = 0):
     model = create_model(encoder)
     tc = TrainConfig(model=encoder, seed=seed, draw=draw)
-    data = training_data(tc, model.cfg.vision_size, model.cfg.tactile_size, progress)
+    data = training_data(tc, model.cfg.vision_size, model.cfg.tactile_size, progress,
+                         model.cfg.prior, model.cfg.prior_size)
     return model, data, paired_embeddings(model, data)
 
 
@@ -57,12 +59,12 @@ def _pairs_with_neighbours(encoder: str, world_seed: int, draw: int, k: int, pro
     """The paired training data of a draw, its frozen embeddings, the retrieval side and each
     pair's top-k joint-query neighbours: (model, data, emb, retrieval, Rv, Rl)."""
     model, data, emb = _pairs(encoder, world_seed, progress, draw)
-    retrieval = RATouchPipeline.load(encoder, progress=progress, generators=False)
+    retrieval = RetrievalSide.load(encoder, progress=progress)
     rv, rl = retrieval.neighbour_embeddings(retrieval.joint_neighbours(emb["V"], emb["T"], k))
     return model, data, emb, retrieval, rv, rl
 
 
-def prior_data(retrieval: RATouchPipeline) -> tuple[np.ndarray, list[str]]:
+def prior_data(retrieval: RetrievalSide) -> tuple[np.ndarray, list[str]]:
     """Stage 0's data, from the retrieval corpus alone: text embeddings of each entry's tactile
     caption, its class name and its appearance description, each paired with the caption."""
     captions = [e.caption for e in retrieval.corpus.entries]
@@ -72,14 +74,14 @@ def prior_data(retrieval: RATouchPipeline) -> tuple[np.ndarray, list[str]]:
 
 
 def language_prior(encoder: str = "default-s", seed: int = 0, progress: bool = True,
-                   retrieval: RATouchPipeline | None = None, **train_overrides):
+                   retrieval: RetrievalSide | None = None, **train_overrides):
     """The stage-0 generator shipped beside the two systems (`assets/generator/ENC/prior`),
     trained and saved there when missing. Returns (generator, report)."""
     folder = generator_weights(encoder, "prior")
     if (folder / "manifest.json").is_file():
         return load_generator(folder), {"prior": str(folder), "trained": False}
     t0 = time.perf_counter()
-    retrieval = retrieval or RATouchPipeline.load(encoder, progress=progress, generators=False)
+    retrieval = retrieval or RetrievalSide.load(encoder, progress=progress)
     L, texts = prior_data(retrieval)
     tc = GeneratorTrainConfig(seed=seed, **train_overrides)
     torch.set_num_threads(tc.threads)
@@ -173,3 +175,65 @@ def align_only_tgr(encoder: str, epochs: int = 12, seed: int = 0, progress: bool
         info["trained_s"] = round(time.perf_counter() - t0, 1)
     info["align_folder"] = str(folder)
     return load_tgr(encoder, folder=folder), info
+
+
+#: The encoder sets `train_all` ships a whole chain for (retriever, generators, trust), and
+#: those it ships encoders only for (the paper's ViT-Base row).
+CHAIN_ENCODERS = ("default-tiny", "default-s")
+ENCODER_ONLY = ("default-b",)
+
+
+def train_all(seed: int = 0, progress: bool = True, report=print, encoders: bool = True) -> dict:
+    """Every shipped weight, in dependency order: the encoders, the corpus embeddings, then
+    for each of `CHAIN_ENCODERS` the retriever, the language prior, both generators and the
+    trust calibration, and last the cascade over them. Returns the seconds each part took;
+    `report` gets each part's own report as it finishes; `encoders=False` starts from the
+    encoders already in assets/ (e.g. trained where a GPU was lent)."""
+    import shutil
+
+    from ratouch.encoders.factory import shipped_weights
+    from ratouch.paths import cascade_calibration, trust_calibration
+    from ratouch.serve.pipeline import default_corpus
+    from ratouch.train.encoders import STEPS, train_encoders
+    from ratouch.train.trust import TrustConfig, calibrate
+
+    t0, times = time.perf_counter(), {}
+
+    def lap(name: str) -> None:
+        nonlocal t0
+        times[name] = round(time.perf_counter() - t0, 1)
+        t0 = time.perf_counter()
+
+    shared: dict = {}
+    for name in (*CHAIN_ENCODERS, *ENCODER_ONLY) if encoders else ():
+        tc = TrainConfig(model=name, seed=seed, steps=STEPS.get(name, 300))
+        _, rep = train_encoders(tc, out=str(shipped_weights(name)), cache=shared,
+                                progress=progress)
+        report({"encoders": name, **rep})
+        lap(f"encoders_{name}")
+    shared.clear()
+    for name in (*CHAIN_ENCODERS, *ENCODER_ONLY):
+        default_corpus(name, progress=progress)  # re-embeds: the encoder weights changed
+    lap("corpus_embeddings")
+    for name in CHAIN_ENCODERS:
+        report({"retriever": name, **retriever_recipe(name, seed=seed, progress=progress)})
+        lap(f"retriever_{name}")
+        prior = generator_weights(name, "prior")
+        if prior.is_dir():
+            shutil.rmtree(prior)  # trained on the old encoders' text embeddings
+        report({"generators": name, **generator_recipe(name, seed=seed, progress=progress)})
+        lap(f"generators_{name}")
+        cal = calibrate(create_model(name), TrustConfig(seed=seed), progress=progress)
+        cal.save(trust_calibration(name))
+        report({"trust": name, **cal.meta})
+        lap(f"trust_{name}")
+    from ratouch.serve.pipeline import RATouchPipeline
+    from ratouch.train.cascade import CascadeConfig, calibrate_cascade
+
+    cascade = calibrate_cascade([RATouchPipeline.load(n, progress=progress)
+                                 for n in CHAIN_ENCODERS], CascadeConfig(seed=seed))
+    cascade.save(cascade_calibration("+".join(CHAIN_ENCODERS)))
+    report({"cascade": list(CHAIN_ENCODERS), "measure": cascade.measure,
+            "thresholds": list(cascade.thresholds)})
+    lap("cascade")
+    return {"seconds": times, "total_s": round(sum(times.values()), 1)}

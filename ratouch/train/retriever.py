@@ -20,6 +20,7 @@ import torch
 
 from ratouch.checkpoint import save_checkpoint
 from ratouch.errors import ConfigError
+from ratouch.train.encoders import tactile_batch
 from ratouch.model.loss import RetrieverLossConfig, retriever_loss
 from ratouch.model.retriever import (
     RetrieverConfig,
@@ -50,15 +51,21 @@ class RetrieverTrainConfig:
 
 
 def paired_embeddings(encoders, data: dict, batch: int = 512) -> dict[str, np.ndarray]:
-    """V, T, L of the cached training pairs (see `ratouch.train.encoders.training_data`)."""
+    """V, T, L of the cached training pairs (see `ratouch.train.encoders.training_data`).
+
+    Half of the tactile inputs (a seeded draw) are the difference from the sensor's
+    background and half are not, as queries come with and without one."""
     encoders.eval()
     vs, ts = [], []
+    gen = torch.Generator().manual_seed(0)
     with torch.no_grad():
         for k in range(0, len(data["labels"]), batch):
+            idx = torch.arange(k, min(k + batch, len(data["labels"])))
             crops = torch.from_numpy(data["crops"][k:k + batch]).float().div(255).sub(0.5).div(0.25)
-            vs.append(encoders.embed_vision(crops.permute(0, 3, 1, 2)).numpy())
-            tac = torch.from_numpy(data["tactile"][k:k + batch].astype(np.float32))
-            ts.append(encoders.embed_tactile(tac).numpy())
+            prior = (torch.from_numpy(data["prior_crops"][k:k + batch].astype(np.float32))
+                     if "prior_crops" in data else None)
+            vs.append(encoders.embed_vision(crops.permute(0, 3, 1, 2), prior).numpy())
+            ts.append(encoders.embed_tactile(tactile_batch(data, idx, gen)).numpy())
     return {"V": np.concatenate(vs), "T": np.concatenate(ts),
             "L": encoders.encode_text(list(data["labels"]))}
 

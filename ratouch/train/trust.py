@@ -12,14 +12,22 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
 from ratouch.errors import ConfigError
-from ratouch.serve.trust import Novelty, TrustCalibration, contact_score, threshold_for
+from ratouch.serve.trust import (
+    ContactModel,
+    Novelty,
+    TrustCalibration,
+    contact_features,
+    threshold_for,
+)
 from ratouch.world.config import WorldConfig
 from ratouch.world.generator import TEST_SIZE, World
+from ratouch.world.tactile import FAMILIES, sensor_family
 
 log = logging.getLogger(__name__)
 
@@ -56,20 +64,21 @@ class TrustConfig:
 
 
 def _render(world: World, split: str, indices, progress: bool, what: str) -> dict:
-    """Crops, tactile frames and their sensors' backgrounds of some samples."""
-    crops, frames, bgs = [], [], []
+    """Crops, tactile frames, their sensors' backgrounds and families of some samples."""
+    crops, frames, bgs, families = [], [], [], []
     for i in tqdm(indices, desc=f"render {what}", disable=not progress):
         s = world.sample(split, int(i))
         crops.append(s.crop)
         frames.append(s.tactile)
         bgs.append(world.background_image(s.sensor))
-    return {"crops": crops, "frames": frames, "backgrounds": bgs}
+        families.append(sensor_family(s.sensor))
+    return {"crops": crops, "frames": frames, "backgrounds": bgs, "families": families}
 
 
-def _contact(data: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Contact scores of rendered frames without and with their backgrounds."""
-    plain = np.array([contact_score(f) for f in data["frames"]])
-    with_bg = np.array([contact_score(f, b) for f, b in zip(data["frames"], data["backgrounds"])])
+def _features(data: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Contact features of rendered frames without and with their backgrounds."""
+    plain = np.stack([contact_features(f) for f in data["frames"]])
+    with_bg = np.stack([contact_features(f, b) for f, b in zip(data["frames"], data["backgrounds"])])
     return plain, with_bg
 
 
@@ -77,45 +86,78 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
               ) -> TrustCalibration:
     """Fit and threshold the trust signals for `encoders`, and measure them on the test split.
 
+    The contact models are fitted on reference renders with and without contact (the same
+    samples rendered both ways, every sensor family), their thresholds set on validation
+    presses for `false_alarm` (the share of real presses called "no contact"), and the rates
+    of both errors measured per sensor family on the test split.
+
     Returns:
         The calibration; its `meta` holds the data used and the measured rates.
     """
     world = World(WorldConfig(seed=cfg.seed)).warm()
     nc_world = World(WorldConfig(seed=cfg.seed).with_stress(no_contact=1.0)).warm()
     ref = _render(world, "train", range(cfg.n_reference), progress, "reference")
+    nc_ref = _render(nc_world, "train", range(cfg.n_reference), progress, "reference, no contact")
     val_idx = range(VALIDATION_START, VALIDATION_START + cfg.n_validation)
     val = _render(world, "train", val_idx, progress, "validation")
+    nc_val = _render(nc_world, "train", val_idx, progress, "validation, no contact")
     test = _render(world, "test", range(TEST_SIZE), progress, "test")
     nc_test = _render(nc_world, "test", range(TEST_SIZE), progress, "test, no contact")
-    enc = {name: (encoders.encode_image(d["crops"]), encoders.encode_tactile(d["frames"]))
-           for name, d in (("ref", ref), ("val", val), ("test", test))}
+    enc = {}
+    for name, d in (("ref", ref), ("val", val), ("test", test)):
+        V, P = encoders.encode_image_features(d["crops"]) if hasattr(
+            encoders, "encode_image_features") else (encoders.encode_image(d["crops"]), None)
+        enc[name] = (V, encoders.encode_tactile(d["frames"], d["backgrounds"]), P)
+        if name == "ref":  # the tactile novelty also knows frames without a background
+            enc[name] += (encoders.encode_tactile(d["frames"]),)
     fa = cfg.false_alarm
     novelty = {}
-    for m, col in (("visual", 0), ("tactile", 1)):
-        model = Novelty.fit(enc["ref"][col], cfg.rank)
+    ref_t = np.concatenate([enc["ref"][1], enc["ref"][3]])
+    for m, ref_x, col in (("visual", enc["ref"][0], 0), ("tactile", ref_t, 1),
+                          ("visual_prior", enc["ref"][2], 2)):
+        if ref_x is None:
+            novelty[m] = None
+            continue
+        model = Novelty.fit(ref_x, cfg.rank)
         novelty[m] = model.with_threshold(threshold_for(model.score(enc["val"][col]), fa))
-    val_plain, val_bg = _contact(val)
-    thr, thr_bg = threshold_for(val_plain, fa, above=False), threshold_for(val_bg, fa, False)
-    test_plain, test_bg = _contact(test)
-    nc_plain, nc_bg = _contact(nc_test)
-    measured = {
+    feats = {name: _features(d) for name, d in (("ref", ref), ("nc_ref", nc_ref), ("val", val),
+                                               ("nc_val", nc_val), ("test", test),
+                                               ("nc_test", nc_test))}
+    models, thresholds = [], []
+    for col in (0, 1):  # without, with the background
+        model = ContactModel.fit(feats["ref"][col], feats["nc_ref"][col])
+        models.append(model)
+        thresholds.append(threshold_for(model.score(feats["val"][col]), fa, above=False))
+    measured: dict[str, Any] = {
         "visual_false_alarm_test": _rate(novelty["visual"].score(enc["test"][0])
                                          > novelty["visual"].threshold),
         "tactile_false_alarm_test": _rate(novelty["tactile"].score(enc["test"][1])
                                           > novelty["tactile"].threshold),
-        "no_contact_false_alarm_test": _rate(test_plain < thr),
-        "no_contact_false_alarm_test_bg": _rate(test_bg < thr_bg),
-        "no_contact_detected_test": _rate(nc_plain < thr),
-        "no_contact_detected_test_bg": _rate(nc_bg < thr_bg),
     }
-    meta = {"world_seed": cfg.seed, "reference": f"train[0:{cfg.n_reference}]",
+    if novelty["visual_prior"] is not None:
+        measured["visual_prior_false_alarm_test"] = _rate(
+            novelty["visual_prior"].score(enc["test"][2]) > novelty["visual_prior"].threshold)
+    families = np.asarray(test["families"])
+    for col, suffix in ((0, ""), (1, "_bg")):
+        press = models[col].score(feats["test"][col]) < thresholds[col]  # a press called empty
+        empty = models[col].score(feats["nc_test"][col]) >= thresholds[col]  # empty called a press
+        measured[f"contact_miss_test{suffix}"] = _rate(press)
+        measured[f"contact_false_alarm_test{suffix}"] = _rate(empty)
+        measured[f"validation_no_contact_detected{suffix}"] = _rate(
+            models[col].score(feats["nc_val"][col]) < thresholds[col])
+        for fam in FAMILIES:
+            sel = families == fam
+            measured[f"contact_miss_test{suffix}_{fam}"] = _rate(press[sel])
+            measured[f"contact_false_alarm_test{suffix}_{fam}"] = _rate(empty[sel])
+    meta = {"world_seed": cfg.seed, "reference": f"train[0:{cfg.n_reference}] with and without contact",
             "validation": f"train[{VALIDATION_START}:{VALIDATION_START + cfg.n_validation}]",
             "test": f"test[0:{TEST_SIZE}] (measured only)", "target_false_alarm": fa,
-            "rank": cfg.rank, "measured": measured}
+            "rank": cfg.rank, "families": list(FAMILIES), "measured": measured}
     log.info("trust calibration for %s: %s", encoders.name, measured)
-    return TrustCalibration(encoders.name, novelty["visual"], novelty["tactile"], thr, thr_bg,
+    return TrustCalibration(encoders.name, novelty["visual"], novelty["tactile"], models[0],
+                            models[1], thresholds[0], thresholds[1], novelty["visual_prior"],
                             meta)
 
 
 def _rate(flags: np.ndarray) -> float:
-    return round(float(np.mean(flags)), 4)
+    return round(float(np.mean(flags)), 4) if len(flags) else float("nan")

@@ -9,12 +9,12 @@ world's ground truth, row for row); `read_tvl` reads both it and the real TVL da
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import logging
 import os
 import shutil
-import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
@@ -23,9 +23,10 @@ from typing import Sequence
 
 import numpy as np
 from PIL import Image
-from tqdm import tqdm
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.files import publish, staged
+from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.generator import TEST_SIZE, World
 
@@ -138,22 +139,21 @@ def write_split(cfg: WorldConfig, out: str | os.PathLike, split: str, n: int | N
     out = Path(out)
     check_writable(out)
     created_out = not out.exists()
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".partial-{split}-", dir=out))
-    except OSError as e:
-        raise ConfigError(f"cannot write to output folder {out}: {e.strerror}") from e
-    try:
-        indices = regime.train_indices(n) if regime is not None and split == "train" \
-            else list(range(n))
-        counts = _write_into(cfg, tmp, split, indices, workers, progress)
-        _move_into(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if created_out and not any(out.iterdir()):
-            out.rmdir()
-        raise
-    shutil.rmtree(tmp, ignore_errors=True)
+    with contextlib.ExitStack() as stack:
+        try:
+            tmp = stack.enter_context(staged(out, prefix=f".partial-{split}-"))
+        except OSError as e:
+            raise ConfigError(f"cannot write to output folder {out}: {e.strerror}") from e
+        try:
+            indices = regime.train_indices(n) if regime is not None and split == "train" \
+                else list(range(n))
+            counts = _write_into(cfg, tmp, split, indices, workers, progress)
+            publish(tmp, out)
+        except BaseException:
+            stack.close()  # the staging folder goes first
+            if created_out and not any(out.iterdir()):
+                out.rmdir()
+            raise
     return counts
 
 
@@ -167,7 +167,7 @@ def _write_into(cfg: WorldConfig, root: Path, split: str, indices: list[int], wo
     chunk = max(16, min(256, n // (4 * workers) + 1))
     jobs = [(cfg, split, indices[k:k + chunk], str(root)) for k in range(0, n, chunk)]
     results: list[tuple[str, dict]] = []
-    bar = tqdm(total=n, desc=f"world {split}", unit="pair", disable=not progress)
+    bar = progress_bar(total=n, desc=f"world {split}", unit="pair", progress=progress)
     if workers == 1:
         for job in jobs:
             results.extend(_write_chunk(job))
@@ -196,15 +196,6 @@ def _write_into(cfg: WorldConfig, root: Path, split: str, indices: list[int], wo
             for r in rows:
                 f.write(json.dumps(r["meta"]) + "\n")
     return counts
-
-
-def _move_into(tmp: Path, out: Path) -> None:
-    for src in sorted(tmp.rglob("*")):
-        if src.is_dir():
-            continue
-        dst = out / src.relative_to(tmp)
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(src, dst)
 
 
 # ---------------------------------------------------------------------------------------------

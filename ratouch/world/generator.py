@@ -27,6 +27,7 @@ from ratouch.world.tactile import (
     plan_tactile,
     render_tactile,
     sensor_background,
+    sensor_family,
 )
 from ratouch.world.texture import PatternSpec, make_tile, mip_pyramid
 
@@ -58,13 +59,18 @@ class Sample:
     tactile: np.ndarray  # (H, W, 3) uint8
     object_mask: np.ndarray  # (S, S) bool
     distractor_mask: np.ndarray  # (S, S) bool
-    sensor: int
+    sensor: int  # global sensor unit id, see ratouch.world.tactile (family: `family`)
     contact: bool
     object_scale: float  # longer side of the object's box / frame side
 
     @property
     def caption(self) -> str:
         return ", ".join(self.label)
+
+    @property
+    def family(self) -> str:
+        """The tactile sensor's family: "digit", "gelsight" or "mini"."""
+        return sensor_family(self.sensor)
 
     @property
     def crop(self) -> np.ndarray:
@@ -112,7 +118,7 @@ class World:
         return self
 
     def sensor_background(self, sensor: int) -> np.ndarray:
-        """The float (H, W, 3) no-contact image of a sensor unit."""
+        """The float (H, W, 3) no-contact image of a sensor unit (global id, any family)."""
         if sensor not in self._backgrounds:
             self._backgrounds[sensor] = sensor_background(sensor, self.cfg.tactile_hw)
         return self._backgrounds[sensor]

@@ -53,7 +53,8 @@ class TestSplit:
 def encode_test_split(encoders, world: WorldConfig | None = None,
                       indices: Sequence[int] | None = None, split: str = "test") -> TestSplit:
     """Render and encode the test split (all 402 pairs unless `indices` are given), or the
-    given `indices` of another held-out split (e.g. "probe")."""
+    given `indices` of another held-out split (e.g. "probe"). Tactile frames are encoded with
+    their sensor's background, as every TVL row carries one."""
 
     world = world or WorldConfig()
     gen = world_for(world)
@@ -63,7 +64,9 @@ def encode_test_split(encoders, world: WorldConfig | None = None,
     samples = [gen.sample(split, i) for i in idx]
     crops = [s.crop for s in samples]
     return TestSplit(
-        V=encoders.encode_image(crops), T=encoders.encode_tactile([s.tactile for s in samples]),
+        V=encoders.encode_image(crops),
+        T=encoders.encode_tactile([s.tactile for s in samples],
+                                  [gen.background_image(s.sensor) for s in samples]),
         labels=[s.caption for s in samples], subsets=[s.subset for s in samples],
         materials=[s.material for s in samples], indices=idx,
         object_scale=[float(s.object_scale) for s in samples], world=world)

@@ -1,0 +1,36 @@
+"""`ratouch eval table1 ... fig6`, `ratouch eval all`: the paper's experiments, their markdown
+and figures (`all` regenerates docs/results.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from ratouch.eval.experiments import (
+    EXPERIMENTS,
+    ExperimentConfig,
+    Lab,
+    results_markdown,
+    run_experiments,
+)
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = ExperimentConfig(encoder=args.encoder, steps=args.steps, seed=args.seed,
+                           workers=args.workers)
+    names = list(EXPERIMENTS) if args.eval_cmd == "all" else [args.eval_cmd]
+    t0 = time.perf_counter()
+    lab = Lab(cfg)
+    reports = run_experiments(names, cfg, args.out, lab)
+    out = Path(args.out)
+    doc = out / ("results.md" if args.eval_cmd == "all" else f"{args.eval_cmd}.md")
+    doc.write_text(results_markdown(reports, cfg, time.perf_counter() - t0,
+                                    out=out if args.eval_cmd == "all" else None,
+                                    counts=lab.counts),
+                   encoding="utf-8")
+    for rep in reports:
+        print(f"## {rep.title}  ({rep.seconds:.0f} s)\n\n{rep.markdown}\n")
+    print(f"wrote {doc} and its figures in {out / 'figures'}")
+    return 0

@@ -1,0 +1,442 @@
+"""Every `ratouch` command and its arguments, and which module of `ratouch.cli` runs it (the
+`module` default that `main` dispatches on). Light on purpose: building the parser imports
+nothing of the model side, so `ratouch --help` and usage errors stay fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from ratouch.encoders.factory import CHAIN_SETS, DEFAULT_ENCODER, DEFAULT_SETS, OTHER_SETS
+from ratouch.eval.catalog import EXPERIMENT_HELP, SYSTEMS
+from ratouch.search.kinds import APPROXIMATE_KINDS, BENCH_KINDS, KINDS
+
+DESCRIPTION = "The `ratouch` command line: a thin client of the library."
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (exit code 2), as the CLI promises."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from e
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be >= 0")
+    return v
+
+
+def _pos_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from e
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
+    return v
+
+
+def _add_world(sub) -> None:
+    world = sub.add_parser("world", help="the procedural visuo-tactile world")
+    world.set_defaults(module="world")
+    wsub = world.add_subparsers(dest="world_cmd", required=True)
+
+    b = wsub.add_parser("build", help="write a split in the TVL data set layout")
+    b.add_argument("--out", required=True, help="data set root folder")
+    b.add_argument("--split", choices=("train", "test"), default="train")
+    b.add_argument("--n", type=_pos_int, default=None,
+                   help="number of pairs (train default 20000; test is always 402)")
+    b.add_argument("--seed", type=_nonneg_int, default=0)
+    b.add_argument("--workers", type=_pos_int, default=2)
+    b.add_argument("--regime", choices=("scarce", "full"), default="scarce",
+                   help="train split: the scarce-touch regime's pairs (14 materials keep 8 "
+                        "pairs each; see docs/premise.md) or every pair")
+    b.add_argument("--draw", type=_nonneg_int, default=0,
+                   help="which few pairs of the scarce materials are kept")
+    _add_stress(b)
+
+    p = wsub.add_parser("preview", help="a contact sheet PNG a person can look at")
+    p.add_argument("--out", required=True, help="PNG file to write")
+    p.add_argument("--split", choices=("train", "test"), default="test")
+    p.add_argument("--n", type=_pos_int, default=24)
+    p.add_argument("--start", type=_nonneg_int, default=0, help="first sample index")
+    p.add_argument("--stride", type=_pos_int, default=17, help="index step between samples")
+    p.add_argument("--seed", type=_nonneg_int, default=0)
+    p.add_argument("--columns", type=_pos_int, default=4)
+    _add_stress(p)
+
+    pr = wsub.add_parser("probe", help="material probe: visual vs tactile vs both")
+    pr.add_argument("--n-train", type=_pos_int, default=2400)
+    pr.add_argument("--n-test", type=_pos_int, default=800)
+    pr.add_argument("--seed", type=_nonneg_int, default=0)
+    pr.add_argument("--workers", type=_pos_int, default=2)
+    pr.add_argument("--json", action="store_true", help="print JSON")
+
+
+def _add_stress(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("stress knobs")
+    g.add_argument("--object-scale", type=float, help="object side / frame side, 0.1..1")
+    g.add_argument("--clutter", type=int, help="number of distractors")
+    g.add_argument("--background-dominance", type=float, help="0..1")
+    g.add_argument("--tactile-noise", type=float, help="sensor noise std, 0..0.3")
+    g.add_argument("--tactile-blur", type=float, help="gel blur sigma, pixels")
+    g.add_argument("--tactile-rotation", type=float, help="texture rotation, degrees")
+    g.add_argument("--box-offset", type=float, default=0.0, help="box shift / box side")
+    g.add_argument("--missing", choices=("none", "visual", "tactile"), default="none")
+    g.add_argument("--no-contact", type=float, default=0.0, help="no-contact frame rate")
+
+
+def _add_corpus(sub) -> None:
+    corpus = sub.add_parser("corpus", help="ImageNet-T, the tactile-recaptioned corpus")
+    corpus.set_defaults(module="corpus")
+    csub = corpus.add_subparsers(dest="corpus_cmd", required=True)
+    b = csub.add_parser("build", help="recaption and sample a corpus")
+    b.add_argument("--size", default="10k", help="10k, 50k, 100k, 150k or a count")
+    b.add_argument("--out", required=True, help="corpus folder (must not hold a corpus)")
+    b.add_argument("--seed", type=_nonneg_int, default=0)
+    b.add_argument("--captioner", choices=("offline", "llm"), default="offline")
+    b.add_argument("--endpoint", help="OpenAI-compatible base URL for --captioner llm "
+                                      "(key from $RATOUCH_LLM_API_KEY)")
+    b.add_argument("--model", default="gpt-4o-mini")
+    b.add_argument("--from-list", help="CSV or Parquet of (image path, class, caption) for a "
+                                       "real corpus")
+    b.add_argument("--encoder", default=DEFAULT_ENCODER, help="encoder to embed with")
+    b.add_argument("--index", choices=KINDS, default="flat",
+                   help="with --engine ray, ivfflat/ivfpq are built from the shards on disk")
+    b.add_argument("--no-embed", action="store_true", help="only recaption and sample")
+    b.add_argument("--workers", type=_pos_int, default=2,
+                   help="render processes (local) or embedding actors (ray)")
+    b.add_argument("--engine", choices=("local", "ray"), default="local",
+                   help="local: one process; ray: a Ray Data pipeline, resumable shards")
+    b.add_argument("--address", default=None, help="Ray cluster address (default: "
+                                                   "$RAY_ADDRESS, else a local Ray)")
+    b.add_argument("--num-cpus", type=_pos_int, default=None, help="CPUs of a local Ray")
+    b.add_argument("--batch-size", type=_pos_int, default=250, help="entries per Ray batch")
+    b.add_argument("--shard-size", type=_pos_int, default=1000, help="entries per shard")
+    b.add_argument("--llm-concurrency", type=_pos_int, default=8,
+                   help="LLM requests in flight at once (ray)")
+    b.add_argument("--llm-rate", type=float, default=50.0,
+                   help="LLM requests per second, 0 for no limit (ray)")
+
+
+def _add_train(sub) -> None:
+    train = sub.add_parser("train", help="train the default models")
+    train.set_defaults(module="train")
+    tsub = train.add_subparsers(dest="train_cmd", required=True)
+    e = tsub.add_parser("encoders", help="train the default vision/tactile/text encoders")
+    e.add_argument("--model", action="append", choices=(*DEFAULT_SETS, "debug"),
+                   help="encoder(s) to train (repeatable; default: tiny, s and b)")
+    e.add_argument("--out", default=None, help="folder for the weights (default: assets/encoders)")
+    e.add_argument("--seed", type=_nonneg_int, default=0)
+    e.add_argument("--steps", type=_pos_int, default=None, help="override the step count")
+    e.add_argument("--n-pairs", type=_pos_int, default=12_000)
+    e.add_argument("--n-corpus", type=_pos_int, default=8_000)
+    e.add_argument("--threads", type=_pos_int, default=2, help="torch threads for training")
+    r = tsub.add_parser("retriever", help="train the Tactile-Guided Retriever (then frozen)")
+    r.add_argument("--encoder", default=DEFAULT_ENCODER)
+    r.add_argument("--seed", type=_nonneg_int, default=0)
+    r.add_argument("--strategy", choices=("align", "align_mse", "align_div_nce", "full"),
+                   default="full", help="loss strategy (the paper's Fig. 5 compares them)")
+    r.add_argument("--paper-exact", action="store_true",
+                   help="no residual around the cross-attention (eq. 2 as printed)")
+    r.add_argument("--epochs", type=_pos_int, default=None)
+    g = tsub.add_parser("generator", help="train the baseline and RA-Touch generators")
+    g.add_argument("--encoder", default=DEFAULT_ENCODER)
+    g.add_argument("--seed", type=_nonneg_int, default=0)
+    g.add_argument("--draw", type=_nonneg_int, default=0,
+                   help="which few pairs of the scarce materials the paired split keeps")
+    g.add_argument("--out", default=None,
+                   help="folder for baseline/ and ra/ (default: the shipped assets)")
+    g.add_argument("--stage0-steps", type=_pos_int, default=None,
+                   help="language-prior steps (used only when assets/generator/ENC/prior "
+                        "is missing)")
+    g.add_argument("--stage1-steps", type=_pos_int, default=None)
+    g.add_argument("--stage2-steps", type=_pos_int, default=None)
+    tr = tsub.add_parser("trust", help="calibrate the trust signals (novelty, no contact) on "
+                                       "the world's validation renders")
+    tr.add_argument("--encoder", default=DEFAULT_ENCODER)
+    tr.add_argument("--seed", type=_nonneg_int, default=0)
+    tr.add_argument("--false-alarm", type=float, default=0.02,
+                    help="share of in-distribution validation inputs each signal may flag")
+    tr.add_argument("--out", default=None,
+                    help="calibration JSON (default: assets/trust/ENCODER.json)")
+    cc = tsub.add_parser("cascade", help="calibrate the encoder cascade (smallest confident "
+                                         "encoder answers) on the world's validation renders")
+    cc.add_argument("--encoders", default=",".join(CHAIN_SETS),
+                    help="encoder sets, smallest first (each needs its retriever and generators)")
+    cc.add_argument("--seed", type=_nonneg_int, default=0)
+    cc.add_argument("--n", type=_pos_int, default=1000, help="validation pairs")
+    cc.add_argument("--out", default=None,
+                    help="calibration JSON (default: assets/cascade/ENC1+ENC2.json)")
+    a = tsub.add_parser("all", help="encoders, corpus embeddings, retriever, language prior, "
+                                    "generators and trust calibration, in order")
+    a.add_argument("--seed", type=_nonneg_int, default=0)
+
+
+def _add_eval(sub) -> None:
+    ev = sub.add_parser("eval", help="evaluations that print measured figures")
+    esub = ev.add_subparsers(dest="eval_cmd", required=True)
+    r = esub.add_parser("retrieval", help="material precision@K and adjective overlap@K")
+    r.add_argument("--corpus", default=None, help="corpus folder (default: the cached 10k)")
+    r.add_argument("--encoder", default=DEFAULT_ENCODER)
+    r.add_argument("--index", choices=KINDS, default="flat")
+    r.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
+    r.add_argument("--json", action="store_true")
+    t = esub.add_parser("tvl", help="TVL benchmark protocol on the world's test split: "
+                                    "generate, judge, write a TVL-format results file")
+    t.add_argument("--system", choices=SYSTEMS, required=True)
+    t.add_argument("--out", required=True, help="results JSON to write (TVL format + scores)")
+    t.add_argument("--encoder", default=DEFAULT_ENCODER)
+    t.add_argument("--k", type=_pos_int, default=5, help="neighbours RA-Touch reads")
+    t.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
+    _add_stress(t)
+    _add_judge_options(t)
+    t.add_argument("--json", action="store_true")
+    st = esub.add_parser("stress", help="quality and stability of retrieval and generation "
+                                        "under each stress knob, break points, collapse check")
+    st.add_argument("--encoder", default=DEFAULT_ENCODER)
+    st.add_argument("--k", type=_pos_int, default=5, help="neighbours per query (P@K, overlap@K)")
+    st.add_argument("--n", type=_pos_int, default=None,
+                    help="test samples, stratified over structured/wild (default 200; 402 = all)")
+    st.add_argument("--knobs", default=None,
+                    help="comma-separated knobs (default all: object_scale, clutter, "
+                         "background_dominance, tactile_noise, tactile_blur, tactile_rotation, "
+                         "box_offset, missing, paper_failure)")
+    st.add_argument("--values", action="append", metavar="KNOB=V1,V2",
+                    help="other sweep values for a knob (repeatable)")
+    st.add_argument("--drop", type=float, default=0.8,
+                    help="break point: quality below this fraction of the unperturbed value")
+    st.add_argument("--no-collapse", action="store_true",
+                    help="skip the collapse diagnostic (it trains an align-only retriever once)")
+    st.add_argument("--collapse-epochs", type=_pos_int, default=12,
+                    help="epochs of the align-only retriever (the shipped one had 12)")
+    st.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
+    st.add_argument("--out", default="reports/stress", help="report folder")
+    st.add_argument("--json", action="store_true", help="print the result as JSON")
+
+    for name, about in [*EXPERIMENT_HELP.items(),
+                        ("all", "every paper experiment; regenerates docs/results.md")]:
+        e = esub.add_parser(name, help=about)
+        e.set_defaults(module="experiments")
+        e.add_argument("--out", default="docs" if name == "all" else "reports",
+                       help="folder for the markdown and figures (figures/ inside it)")
+        e.add_argument("--steps", type=_pos_int, default=300,
+                       help="stage-2 training steps of every generator variant")
+        e.add_argument("--workers", type=_pos_int, default=2,
+                       help="variants trained in parallel (one thread each)")
+        e.add_argument("--encoder", default=DEFAULT_ENCODER)
+        e.add_argument("--seed", type=_nonneg_int, default=0)
+    tt = esub.add_parser("ttest", help="paired t-test between two scored results files (B - A)")
+    tt.add_argument("a", help="results file A (e.g. the baseline)")
+    tt.add_argument("b", help="results file B (e.g. RA-Touch)")
+    tt.add_argument("--json", action="store_true")
+    c = esub.add_parser("controls", help="does RA-Touch read its neighbours? shuffled "
+                                         "neighbours, zeroed integrator, copy and oracle ceilings")
+    c.add_argument("--encoder", default=DEFAULT_ENCODER)
+    c.add_argument("--k", type=_pos_int, default=5, help="neighbours RA-Touch reads")
+    c.add_argument("--shuffles", type=_pos_int, default=3, help="neighbour shuffles (seeds)")
+    c.add_argument("--seed", type=_nonneg_int, default=0, help="seed of the shuffles and CIs")
+    c.add_argument("--json", action="store_true")
+    pr = esub.add_parser("premise", help="the paper's premise: baseline against RA-Touch on "
+                                         "seen and scarce materials, over runs, with controls "
+                                         "and the pre-registered verdict (docs/premise.md)")
+    pr.add_argument("--encoder", default=DEFAULT_ENCODER)
+    pr.add_argument("--runs", type=_pos_int, default=3,
+                    help="runs (run r: training seed r, draw r; run 0 is the shipped weights, "
+                         "the others train into the cache on first use, ~8 min each)")
+    pr.add_argument("--n", type=_pos_int, default=500, help="held-out pairs per group")
+    pr.add_argument("--k", type=_pos_int, default=5, help="neighbours RA-Touch reads")
+    pr.add_argument("--why", action="store_true",
+                    help="instead: evidence for why the shipped generator does (not) read its "
+                         "neighbours, on its training pairs (F1 of copying them, the "
+                         "integrator's gradient with own vs shuffled neighbours, losses)")
+    pr.add_argument("--json", action="store_true")
+    ph = esub.add_parser("photos", help="the visible real photos (scikit-image's PD/CC0 ones, "
+                                        "the real DIGIT frames): what the pipeline makes of "
+                                        "each, for looking (no thresholds are set on them)")
+    ph.add_argument("--encoder", default=DEFAULT_ENCODER)
+    ph.add_argument("--k", type=_pos_int, default=5, help="neighbours per photo")
+    ph.add_argument("--json", action="store_true")
+    fa = esub.add_parser("families", help="per tactile sensor family, on validation renders: "
+                                          "material probe, joint P@5 and contact miss / false "
+                                          "alarm, without and with the sensor's background")
+    fa.add_argument("--encoder", default=DEFAULT_ENCODER)
+    fa.add_argument("--n", type=_pos_int, default=600, help="validation renders")
+    fa.add_argument("--seed", type=_nonneg_int, default=0, help="world seed")
+    fa.add_argument("--json", action="store_true")
+    for p in (r, t, st, tt, c, pr, ph, fa):
+        p.set_defaults(module="eval")
+
+
+def _add_judge_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--judge", choices=("offline", "llm"), default="offline")
+    p.add_argument("--endpoint", help="OpenAI-compatible base URL for --judge llm "
+                                      "(default $RATOUCH_JUDGE_ENDPOINT)")
+    p.add_argument("--model", help="model for --judge llm (default $RATOUCH_JUDGE_MODEL or gpt-4)")
+    p.add_argument("--api-key-env", default="RATOUCH_JUDGE_API_KEY",
+                   help="environment variable holding the API key")
+
+
+def _add_judge(sub) -> None:
+    j = sub.add_parser("judge", help="score TVL-format results with the offline or LLM judge")
+    j.set_defaults(module="judge")
+    j.add_argument("file", nargs="*", help="TVL-format JSON list (label, generated response, ...); "
+                                           "one system per file; several with --compare")
+    j.add_argument("--out", help="scored JSON to write (the input plus offline_score/llm_score)")
+    j.add_argument("--explain", action="store_true",
+                   help="print, per answer, the words matched, clashed or ignored and their weights")
+    j.add_argument("--compare", action="store_true",
+                   help="agreement of the offline judge with the LLM judge (--endpoint) on FILE(s)")
+    _add_judge_options(j)
+    j.add_argument("--validate", action="store_true",
+                   help="the offline judge's agreement with GPT-4 on held-out samples, on a "
+                        "held-out system (leave one out) and under style shifts")
+    j.add_argument("--length-effect", action="store_true",
+                   help="a material oracle's score on the world's test split with 2/3/4/5 "
+                        "adjectives (the judge's length effect)")
+    j.add_argument("--fit", action="store_true",
+                   help="refit the offline judge's calibration on the FIT part and write it")
+    j.add_argument("--json", action="store_true", help="print JSON")
+
+
+def _box(text: str) -> tuple[int, int, int, int]:
+    parts = text.split(",")
+    try:
+        box = tuple(int(round(float(v))) for v in parts)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not x0,y0,x1,y1") from e
+    if len(box) != 4:
+        raise argparse.ArgumentTypeError(f"{text!r} must have 4 numbers: x0,y0,x1,y1")
+    return box
+
+
+def _id_list(text: str) -> list[int]:
+    try:
+        return [int(x) for x in text.split(",") if x.strip()]
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of "
+                                         f"corpus ids") from e
+
+
+def _add_query(sub) -> None:
+    q = sub.add_parser("query", help="one RA-Touch query: neighbours, description, PCA, timings")
+    q.set_defaults(module="query")
+    q.add_argument("--vision", required=True, help="visual image file")
+    q.add_argument("--tactile", default=None, help="tactile image file (optional)")
+    q.add_argument("--background", default=None,
+                   help="the tactile sensor's no-contact frame (optional; same size as the "
+                        "tactile image), for the no-contact check")
+    q.add_argument("--box", type=_box, default=None, help="contact box x0,y0,x1,y1 in pixels")
+    q.add_argument("--k", type=_pos_int, default=5)
+    q.add_argument("--label", default=None, help="ground-truth caption, if known (for the PCA)")
+    q.add_argument("--encoder", default=DEFAULT_ENCODER,
+                   help="encoder set (default-tiny, default-s, default-b where trained), or "
+                        "'cascade': the smallest confident one answers")
+    q.add_argument("--corpus", default=None, help="corpus folder (default: the cached 10k)")
+    q.add_argument("--index", choices=KINDS, default="flat",
+                   help="the corpus's index kind to search (a large corpus built with "
+                        "--index ivfflat|ivfpq loads that index memory-mapped)")
+    q.add_argument("--json", action="store_true", help="print JSON (the default output)")
+    q.add_argument("--drop", type=_id_list, default=None, metavar="IDS",
+                   help="comma-separated corpus ids: regenerate the RA-Touch description "
+                        "without these joint neighbours (printed under 'regenerated')")
+    q.add_argument("--neighbours-from", default=None, metavar="FILE",
+                   help="regenerate the RA-Touch description with other neighbours: a JSON "
+                        "file holding another query's output (its joint neighbours are used) "
+                        "or a list of corpus ids")
+
+
+def _add_bench(sub) -> None:
+    bench = sub.add_parser("bench", help="benchmarks that print measured figures")
+    bench.set_defaults(module="bench")
+    bsub = bench.add_subparsers(dest="bench_cmd", required=True)
+    r = bsub.add_parser("retrieval", help="index latency / recall against the upstream method")
+    r.add_argument("--n", type=_pos_int, default=150_000)
+    r.add_argument("--dim", type=_pos_int, default=768)
+    r.add_argument("--queries", type=_pos_int, default=200)
+    r.add_argument("--scale", type=_nonneg_int, default=0,
+                   help="also build/load/query an index of this many vectors (e.g. 1000000)")
+    r.add_argument("--corpus", default=None,
+                   help="instead of synthetic vectors: a built corpus's real embeddings, with "
+                        "--queries of its entries held out as queries")
+    r.add_argument("--encoder", default=DEFAULT_ENCODER, help="with --corpus: whose embeddings")
+    r.add_argument("--key", choices=("image", "text", "both"), default="both",
+                   help="with --corpus: which key's embeddings are indexed")
+    r.add_argument("--kinds", default=",".join(APPROXIMATE_KINDS),
+                   help="with --corpus: index kinds")
+    r.add_argument("--json", action="store_true")
+    to = bsub.add_parser("tradeoff", help="latency against quality over index, corpus size, "
+                                          "K and encoder; one chart with the frontier")
+    to.add_argument("--out", default="docs", help="writes figures/tradeoff.* inside it")
+    to.add_argument("--n", type=_pos_int, default=30, help="timed queries per point")
+    to.add_argument("--sizes", default="1000,2500,10000", help="corpus subset sizes")
+    to.add_argument("--ks", default="1,5,10", help="values of K")
+    to.add_argument("--indexes", default=",".join(BENCH_KINDS))
+    to.add_argument("--encoders", default=",".join(OTHER_SETS),
+                    help="other encoders, retrieval-only points ('' for none)")
+    to.add_argument("--json", action="store_true")
+    qb = bsub.add_parser("query", help="latency of the whole RA-Touch query, cold and warm")
+    qb.add_argument("--encoder", default=DEFAULT_ENCODER)
+    qb.add_argument("--corpus", default=None)
+    qb.add_argument("--n", type=_pos_int, default=60)
+    qb.add_argument("--json", action="store_true")
+    cb = bsub.add_parser("corpus", help="corpus build throughput per stage and peak memory, "
+                                        "single process or on Ray")
+    cb.add_argument("--engine", choices=("local", "ray"), default="ray")
+    cb.add_argument("--n", type=_pos_int, default=2000)
+    cb.add_argument("--workers", type=_pos_int, default=2,
+                    help="render processes (local) or embedding actors (ray)")
+    cb.add_argument("--encoder", default=DEFAULT_ENCODER)
+    cb.add_argument("--json", action="store_true")
+    up = bsub.add_parser("upload", help="a huge tactile upload: its latency, where the time "
+                                        "goes, and the delay of a normal query beside it")
+    up.add_argument("--encoder", default=DEFAULT_ENCODER)
+    up.add_argument("--corpus", default=None)
+    up.add_argument("--side", type=_pos_int, default=6000, help="side of the square PNG")
+    up.add_argument("--repeats", type=_pos_int, default=3)
+    tw = bsub.add_parser("towers", help="vision towers (the render CNN, EfficientNet-Lite0/2 "
+                                        "at several input sizes): material probe and P@5 "
+                                        "against single-crop latency on validation renders; "
+                                        "one chart and the chosen tower")
+    tw.add_argument("--n", type=_pos_int, default=600, help="validation renders")
+    tw.add_argument("--towers", default="cnn,lite0,lite2")
+    tw.add_argument("--sizes", default=None,
+                    help="prior input sizes (default: 96,128,160,224; lite2 also 260)")
+    tw.add_argument("--encoder", default=DEFAULT_ENCODER, help="whose render-trained CNN")
+    tw.add_argument("--gallery", type=_pos_int, default=840,
+                    help="corpus entries searched by the precision@5")
+    tw.add_argument("--threads", type=_pos_int, default=2, help="intra-op threads")
+    tw.add_argument("--reps", type=_pos_int, default=30, help="timed single-crop calls per point")
+    tw.add_argument("--out", default=None,
+                    help="chart PNG (default docs/figures/towers.png); the JSON beside it, "
+                         "and the HTML figure instead where no PNG exporter works")
+    tw.add_argument("--json", action="store_true")
+    w = bsub.add_parser("world", help="corpus + test split generation throughput")
+    w.add_argument("--corpus-size", default="10k")
+    w.add_argument("--workers", type=_pos_int, default=2)
+    w.add_argument("--json", action="store_true")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The `ratouch` parser: every command sets `module`, the `ratouch.cli` module whose
+    `run(args)` runs it."""
+    parser = _Parser(prog="ratouch", description=DESCRIPTION)
+    parser.add_argument("-v", "--verbose", action="store_true", help="log more")
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    _add_world(sub)
+    _add_corpus(sub)
+    _add_train(sub)
+    _add_query(sub)
+    _add_eval(sub)
+    _add_bench(sub)
+    _add_judge(sub)
+    app = sub.add_parser("app", help="launch the Gradio app")
+    app.set_defaults(module="app")
+    app.add_argument("--host", default="127.0.0.1")
+    app.add_argument("--port", type=_pos_int, default=7860)
+    return parser

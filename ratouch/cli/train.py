@@ -1,0 +1,88 @@
+"""`ratouch train`: the default encoders, the retriever, the generators, the trust signals and
+the cascade, or all of them in order.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from ratouch.cli.common import usage
+from ratouch.encoders.factory import DEFAULT_SETS, create_model, shipped_weights
+from ratouch.paths import cascade_calibration, trust_calibration
+from ratouch.serve.pipeline import RATouchPipeline
+from ratouch.threads import intra_op_threads
+from ratouch.train import recipes
+from ratouch.train.cascade import CascadeConfig, calibrate_cascade
+from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
+from ratouch.train.trust import TrustConfig, calibrate
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.train_cmd == "retriever":
+        report = recipes.retriever_recipe(args.encoder, args.seed, args.strategy,
+                                          cross_residual=not args.paper_exact, epochs=args.epochs)
+        print(json.dumps(report))
+        return 0
+    if args.train_cmd == "generator":
+        overrides = {k: v for k, v in (("stage0_steps", args.stage0_steps),
+                                       ("stage1_steps", args.stage1_steps),
+                                       ("stage2_steps", args.stage2_steps)) if v}
+        print(json.dumps(recipes.generator_recipe(args.encoder, args.seed, draw=args.draw,
+                                                  out=args.out, **overrides)))
+        return 0
+    if args.train_cmd == "trust":
+        return _train_trust(args)
+    if args.train_cmd == "cascade":
+        return _train_cascade(args)
+    if args.train_cmd == "all":
+        args.model, args.out, args.steps, args.threads = None, None, None, 2
+        args.n_pairs, args.n_corpus = 12_000, 8_000
+        return _train_all(args)
+    return _train_encoders(args)
+
+
+def _train_all(args: argparse.Namespace) -> int:
+    """Every shipped weight, in dependency order (`recipes.train_all`), with the time each
+    part took."""
+    with intra_op_threads(2):
+        out = recipes.train_all(seed=args.seed, report=lambda r: print(json.dumps(r, default=str)))
+    print(json.dumps(out))
+    return 0
+
+
+def _train_cascade(args: argparse.Namespace) -> int:
+    names = [n.strip() for n in args.encoders.split(",") if n.strip()]
+    if len(names) < 2:
+        raise usage(f"--encoders: a cascade needs two or more encoder sets, got {names}")
+    with intra_op_threads(2):
+        cal = calibrate_cascade([RATouchPipeline.load(n) for n in names],
+                                CascadeConfig(seed=args.seed, n_validation=args.n))
+    out = cal.save(args.out or cascade_calibration("+".join(names)))
+    print(json.dumps({"written": str(out), "measure": cal.measure,
+                      "thresholds": list(cal.thresholds), **cal.meta}, indent=1))
+    return 0
+
+
+def _train_trust(args: argparse.Namespace) -> int:
+    cal = calibrate(create_model(args.encoder),
+                    TrustConfig(seed=args.seed, false_alarm=args.false_alarm))
+    out = cal.save(args.out or trust_calibration(args.encoder))
+    print(json.dumps({"written": str(out), "contact_threshold": cal.contact_threshold,
+                      "contact_threshold_bg": cal.contact_threshold_bg,
+                      "visual_threshold": cal.visual.threshold,
+                      "tactile_threshold": cal.tactile.threshold, **cal.meta}, indent=1))
+    return 0
+
+
+def _train_encoders(args: argparse.Namespace) -> int:
+    models = args.model or list(DEFAULT_SETS)
+    shared: dict = {}  # rendered data, shared by models with the same input sizes
+    for name in models:
+        out = Path(args.out) / name if args.out else shipped_weights(name)
+        tc = TrainConfig(model=name, seed=args.seed, steps=args.steps or STEPS.get(name, 300),
+                         n_pairs=args.n_pairs, n_corpus=args.n_corpus, threads=args.threads)
+        _, report = train_encoders(tc, out=str(out), cache=shared)
+        print(json.dumps({"out": str(out), **report}))
+    return 0

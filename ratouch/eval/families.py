@@ -1,0 +1,111 @@
+"""Per sensor family: how well touch is read on each of the world's tactile sensors
+(`ratouch eval families`).
+
+On validation renders (training-split indices far beyond any training run's, the same
+distribution but unseen; never the test split), for each family (`ratouch.world.tactile.
+FAMILIES`), without and with the sensor's background frame:
+
+* **material probe**: a linear probe's material accuracy on the tactile embeddings (fitted on
+  one half of the renders of every family, scored on the other half, and the other way round);
+* **joint P@5**: material precision@5 of the joint query against the corpus;
+* **contact**: the share of presses called "no contact" (miss) and of the same renders without
+  contact called a press (false alarm), by the shipped trust calibration.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from sklearn.linear_model import LogisticRegression
+from sklearn.preprocessing import StandardScaler
+
+from ratouch.eval.retrieval import entry_materials
+from ratouch.train.trust import VALIDATION_START
+from ratouch.world.config import WorldConfig
+from ratouch.world.generator import World
+from ratouch.world.tactile import FAMILIES, sensor_family
+
+#: First training-split index of these renders (beyond the trust and cascade calibrations').
+FAMILIES_START = VALIDATION_START + 300_000
+
+
+def _render(world: World, n: int) -> dict[str, list]:
+    out: dict[str, list] = {"crops": [], "frames": [], "backgrounds": [], "materials": [],
+                            "families": []}
+    for i in range(FAMILIES_START, FAMILIES_START + n):
+        s = world.sample("train", i)
+        out["crops"].append(s.crop)
+        out["frames"].append(s.tactile)
+        out["backgrounds"].append(world.background_image(s.sensor))
+        out["materials"].append(s.material)
+        out["families"].append(sensor_family(s.sensor))
+    return out
+
+
+def _probe(T: np.ndarray, materials: np.ndarray, seed: int) -> np.ndarray:
+    """Per render, whether a 2-fold linear probe names its material."""
+    rng = np.random.default_rng(seed)
+    fold = rng.permutation(len(T)) % 2
+    right = np.zeros(len(T), bool)
+    for k in (0, 1):
+        fit, score = fold != k, fold == k
+        scaler = StandardScaler().fit(T[fit])
+        probe = LogisticRegression(max_iter=2000, C=1.0).fit(scaler.transform(T[fit]),
+                                                             materials[fit])
+        right[score] = probe.predict(scaler.transform(T[score])) == materials[score]
+    return right
+
+
+def evaluate_families(pipeline, n: int = 600, seed: int = 0, k: int = 5) -> dict[str, Any]:
+    """The per-family figures of the module docstring for one loaded pipeline."""
+    world = World(WorldConfig(seed=seed)).warm()
+    empty = World(WorldConfig(seed=seed).with_stress(no_contact=1.0)).warm()
+    data, nc = _render(world, n), _render(empty, n)
+    enc = pipeline.encoders
+    V = pipeline.encode_images(data["crops"])[0]
+    materials = np.asarray(data["materials"])
+    families = np.asarray(data["families"])
+    corpus_mats = entry_materials(pipeline.corpus)
+    out: dict[str, Any] = {"renders": f"train[{FAMILIES_START}:{FAMILIES_START + n}]",
+                           "families": {}}
+    rows: dict[str, dict[str, np.ndarray]] = {}
+    for kind, bgs in (("plain", None), ("background", data["backgrounds"])):
+        T = enc.encode_tactile(data["frames"], bgs)
+        _, ids = pipeline.corpus.search("text", pipeline.joint_query(V, T), k)
+        rows[kind] = {"probe": _probe(T, materials, seed),
+                      "joint": (corpus_mats[ids] == materials[:, None]).mean(1)}
+        if pipeline.trust is not None:
+            nc_bgs = nc["backgrounds"] if bgs is not None else [None] * n
+            thr = (pipeline.trust.contact_threshold if bgs is None
+                   else pipeline.trust.contact_threshold_bg)
+            press = np.array([pipeline.trust.contact_score(f, b) for f, b in
+                              zip(data["frames"], bgs or [None] * n)])
+            blank = np.array([pipeline.trust.contact_score(f, b) for f, b in
+                              zip(nc["frames"], nc_bgs)])
+            rows[kind]["miss"] = press < thr
+            rows[kind]["false_alarm"] = blank >= thr
+    for fam in FAMILIES:
+        sel = families == fam
+        out["families"][fam] = {"n": int(sel.sum()), **{
+            kind: {name: round(float(v[sel].mean()), 4) for name, v in r.items()}
+            for kind, r in rows.items()}}
+    out["all"] = {kind: {name: round(float(v.mean()), 4) for name, v in r.items()}
+                  for kind, r in rows.items()}
+    return out
+
+
+def format_families(result: dict[str, Any]) -> str:
+    """A markdown table of `evaluate_families`' result."""
+    lines = ["| family | n | material probe (plain / bg) | joint P@5 (plain / bg) | "
+             "contact miss (plain / bg) | contact false alarm (plain / bg) |",
+             "|---|---|---|---|---|---|"]
+    for fam, r in [*result["families"].items(), ("all", {"n": "", **result["all"]})]:
+        p, b = r["plain"], r["background"]
+
+        def pair(key: str) -> str:
+            return f"{p[key]:.3f} / {b[key]:.3f}" if key in p else "–"
+
+        lines.append(f"| {fam} | {r['n']} | {pair('probe')} | {pair('joint')} | {pair('miss')} "
+                     f"| {pair('false_alarm')} |")
+    return "\n".join(lines)

@@ -1,0 +1,111 @@
+"""The photo route: how a visual crop that is not a render is turned into an image query.
+
+The encoders' vision head was trained on the procedural world's renders. A real photo stands
+far from every render in the frozen prior's feature space (the visual novelty), and there a
+head trained on renders alone does not carry over. What does carry over is what the prior
+learnt from ImageNet's real photos: its classifier. The corpus's object classes carry
+ImageNet names (`ratouch.encoders.prior.imagenet_to_world`), so the classifier's probability
+over them says which corpus entries the photo is of, and the image query is the
+probability-weighted mixture of those classes' prototypes (the mean image embedding of each
+class's corpus entries), searched like any image query.
+
+When the corpus's classes hold little of the classifier's probability (the photo shows
+something the corpus does not have), the query is still made, and the note says so.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ratouch.encoders.prior import VisualPrior, imagenet_to_world, world_class_probabilities
+from ratouch.world.objects import OBJECT_CLASSES
+
+#: Below this share of the classifier's probability on the corpus's classes, the note says
+#: that the photo's object is probably not in the corpus.
+LOW_COVERAGE = 0.2
+#: Classes named in the note.
+TOP_CLASSES = 3
+
+
+@dataclass(frozen=True)
+class PhotoQuery:
+    """The photo route's image query for one crop and what it rests on.
+
+    Attributes:
+        query: (D,) unit vector: the mixture of class prototypes.
+        classes: the top corpus classes with their probability (summed over the ImageNet
+            classes mapped to each), most probable first.
+        coverage: the share of the classifier's probability on the corpus's classes.
+        note: a plain sentence for the user.
+    """
+
+    query: np.ndarray
+    classes: list[tuple[str, float]]
+    coverage: float
+    note: str
+
+
+class PhotoRoute:
+    """Class prototypes of a corpus and the prior's classifier, to answer photos.
+
+    Args:
+        prior: the encoders' frozen visual prior.
+        class_names: the corpus entries' class names, in corpus order.
+        image_embeddings: (N, D) the corpus's image embeddings (unit rows).
+    """
+
+    def __init__(self, prior: VisualPrior, class_names: list[str], image_embeddings: np.ndarray):
+        self.prior = prior
+        self._names = class_names
+        self._emb = image_embeddings
+        self._protos: np.ndarray | None = None
+        self._present: np.ndarray | None = None
+        self._lock = threading.Lock()
+
+    def _prototypes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(C, D) mean image embedding per world class (zero where the corpus has none) and
+        which classes the corpus has; computed once, on first use."""
+        with self._lock:
+            if self._protos is None:
+                row = {c.name: i for i, c in enumerate(OBJECT_CLASSES)}
+                ids = np.array([row.get(n, -1) for n in self._names])
+                protos = np.zeros((len(OBJECT_CLASSES), self._emb.shape[1]), np.float64)
+                counts = np.bincount(ids[ids >= 0], minlength=len(OBJECT_CLASSES))
+                np.add.at(protos, ids[ids >= 0], np.asarray(self._emb, np.float64)[ids >= 0])
+                present = counts > 0
+                protos[present] /= np.linalg.norm(protos[present], axis=1, keepdims=True)
+                self._protos, self._present = protos.astype(np.float32), present
+        assert self._protos is not None and self._present is not None
+        return self._protos, self._present
+
+    def query(self, prior_features: np.ndarray) -> PhotoQuery:
+        """The image query of one crop from its (1280,) or (1, 1280) prior features."""
+        protos, present = self._prototypes()
+        feats = np.asarray(prior_features, np.float32).reshape(1, -1)
+        probs = torch.softmax(torch.from_numpy(self.prior.logits_from_features(feats)), -1)
+        world = world_class_probabilities(probs.numpy())[0] * present
+        coverage = float(world.sum())
+        weights = world / coverage if coverage > 0 else present / present.sum()
+        q = weights @ protos
+        q = (q / (np.linalg.norm(q) + 1e-12)).astype(np.float32)
+        top = np.argsort(-world)[:TOP_CLASSES]
+        classes = [(OBJECT_CLASSES[i].name, round(float(world[i]), 4)) for i in top
+                   if world[i] > 0]
+        named = ", ".join(f"{n} {p:.2f}" for n, p in classes) or "none"
+        note = ("the visual crop looks like a real photo, not a render: its image query comes "
+                "from what the visual prior learnt from real photos (its ImageNet classifier "
+                f"over the corpus's classes: {named}), not from the render-trained head")
+        if coverage < LOW_COVERAGE:
+            note += (f"; the corpus's classes hold only {coverage:.0%} of the classifier's "
+                     "probability, so the neighbours are the nearest classes the corpus has, "
+                     "not necessarily the photo's own")
+        return PhotoQuery(q, classes, round(coverage, 4), note)
+
+
+def mapped_world_classes() -> int:
+    """How many of the world's object classes some ImageNet class maps to."""
+    return len(set(imagenet_to_world().values()))

@@ -1,0 +1,233 @@
+"""What travels through serving: a decoded `QueryRequest` in, a `QueryResult` out, and the one
+interface every serving part offers, `Answerer`.
+
+A request is decoded once, where it arrives (`QueryRequest.decode`: in the app's handler, in
+`ratouch query`, in a caller's thread), and handed down as it is. The parts of serving
+(`RATouchPipeline`, `Cascade`, `ModelChoice`, `QueryBatcher`, the app's `BackgroundPipeline`)
+are each an `Answerer`, and the wrapping ones wrap an `Answerer`: none decodes again.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+from PIL import Image
+
+from ratouch.encoders.preprocess import (
+    QUERY_MAX_SIDE,
+    crop_box,
+    oriented_size,
+    to_rgb_array,
+    tvl_contact_box,
+)
+from ratouch.errors import ConfigError, DataError
+
+Box = tuple[int, int, int, int]
+
+
+def check_k(k: Any, largest: int | None = None) -> int:
+    """K, the neighbours per mode, as a whole number from 1 to `largest` (None: no bound).
+
+    Raises:
+        ConfigError: for anything else (a bool, a float, 0, more than `largest`).
+    """
+    whole = not isinstance(k, bool) and isinstance(k, (int, np.integer))
+    if not whole or k < 1 or (largest is not None and k > largest):
+        span = f"from 1 to {largest}" if largest is not None else "of at least 1"
+        raise ConfigError(f"k must be a whole number {span} (K, the neighbours per mode), "
+                          f"got k={k!r}")
+    return int(k)
+
+
+@dataclass(frozen=True, eq=False)
+class QueryRequest:
+    """One query, decoded: what every `Answerer` takes.
+
+    Attributes:
+        crop: the contact crop of the visual image, (h, w, 3) uint8, reduced to
+            `QUERY_MAX_SIDE`.
+        frame: the tactile frame, (h, w, 3) uint8 (reduced), or None: image-only retrieval.
+        background: the tactile sensor's no-contact frame (same size as the frame), or None.
+        box: the contact box used, (x0, y0, x1, y1) in pixels of the visual image.
+        k: neighbours per query mode.
+        label: the ground-truth tactile caption, when known (plotted in the PCA).
+        model: the model that should answer (an encoder set or "cascade"), for a server that
+            offers a choice (`ratouch.serve.models.ModelChoice`); None: its default.
+        warnings: what decoding had to assume (no box, no tactile image, ...).
+        decode_ms: what decoding took.
+    """
+
+    crop: np.ndarray
+    frame: np.ndarray | None
+    background: np.ndarray | None
+    box: Box
+    k: int = 5
+    label: str | None = None
+    model: str | None = None
+    warnings: tuple[str, ...] = ()
+    decode_ms: float = 0.0
+
+    @classmethod
+    def decode(cls, visual: Any, tactile: Any = None, box=None, k: int = 5,
+               label: str | None = None, background: Any = None,
+               model: str | None = None) -> "QueryRequest":
+        """Check and decode one query's inputs.
+
+        The work is bounded whatever the upload's size: the visual crop and the tactile frame
+        (and its background) are reduced to `QUERY_MAX_SIDE` pixels inside PIL before any
+        per-pixel work.
+
+        Args:
+            visual: the visual image (array, PIL image or path).
+            tactile: the tactile image, or None (image-only retrieval, said in `warnings`).
+            box: contact box (x0, y0, x1, y1) in pixels of the visual image; None uses TVL's
+                centred crop and says so in `warnings`.
+            k: neighbours per mode (whether the corpus has that many is the answerer's check).
+            label: the ground-truth tactile caption, when known.
+            background: the tactile sensor's no-contact frame (same size as `tactile`), or
+                None: used by the no-contact check (and by encoders trained on
+                background-subtracted frames).
+            model: the model that should answer, where there is a choice.
+
+        Raises:
+            ConfigError: k is not a whole number >= 1.
+            DataError, DataNotFoundError, OSError: an image or the box cannot be used.
+        """
+        t0 = time.perf_counter()
+        k = check_k(k)
+        width, height = oriented_size(visual, "visual image")
+        warnings: list[str] = []
+        if box is None:
+            box = tvl_contact_box(width, height)
+            warnings.append(f"no contact box given: used TVL's centred crop {list(box)}")
+        crop = crop_box(visual, box, max_side=QUERY_MAX_SIDE, name="visual image")
+        frame, bg = _tactile_inputs(tactile, background, warnings)
+        return cls(crop, frame, bg, box, k, label, model, tuple(warnings),
+                   round((time.perf_counter() - t0) * 1000, 2))
+
+
+def _tactile_inputs(tactile: Any, background: Any, warnings: list[str]
+                    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The tactile frame and sensor background, decoded and reduced."""
+    if tactile is None:
+        warnings.append("no tactile image: image-only retrieval; the tactile and joint "
+                        "queries and the RA-Touch description are not available")
+        if background is not None:
+            warnings.append("a background frame was given without a tactile image: ignored")
+        return None, None
+    size = _source_size(tactile)
+    frame = to_rgb_array(tactile, name="tactile image", max_side=QUERY_MAX_SIDE)
+    if background is None:
+        return frame, None
+    bg_size = _source_size(background)
+    bg = to_rgb_array(background, name="background image", max_side=QUERY_MAX_SIDE)
+    if (bg_size or bg.shape[1::-1]) != (size or frame.shape[1::-1]):
+        w, h = bg_size or bg.shape[1::-1]
+        fw, fh = size or frame.shape[1::-1]
+        raise DataError(f"the background image is {w}x{h} (WxH) but the tactile image is "
+                        f"{fw}x{fh}; the background must be the same sensor's no-contact "
+                        "frame at the same size")
+    return frame, bg
+
+
+def _source_size(image: Any) -> tuple[int, int] | None:
+    """(W, H) of an image before any reduction: PIL images and arrays directly, files from
+    their header (no decoding); None if a file cannot be opened (decoding then says why)."""
+    if isinstance(image, Image.Image):
+        return image.size
+    if isinstance(image, np.ndarray) and image.ndim >= 2:
+        return int(image.shape[1]), int(image.shape[0])
+    try:
+        with Image.open(image) as img:
+            return img.size
+    except Exception:  # noqa: BLE001 - to_rgb_array reports unreadable files properly
+        return None
+
+
+@dataclass
+class QueryResult:
+    """One answered query. `to_dict()` is its JSON form (what `ratouch query` prints, the
+    app's `/query` API returns and the page shows).
+
+    Attributes:
+        neighbours: {"image"|"tactile"|"joint": [{"id", "score", "class_name", "caption",
+            "description", "source"}]}, best first (the modes the request allows).
+        description: {"ra_touch", "baseline"} ("" where not generated).
+        attention: {"image"|"text": [RA-Touch's integrator weight per joint neighbour]}.
+        pca: {"points": [{"role", "x", "y", "id"?}], "explained": [..]}.
+        timings_ms: {stage: ms, ..., "total": ms, "batch_size", "decode": this request's
+            decoding, done before it was answered}; the stages are the batch's, shared by its
+            requests.
+        warnings: what the answer had to assume or found suspicious.
+        box: the contact box used.
+        encoder: the encoder set that answered.
+        visual_route: {"route": "render"}, or the photo route's account (a crop that looks
+            like a real photo: "classes", "coverage", "note").
+        trust: {"visual": {"novelty", "threshold", "novel"}, "tactile": {"novelty",
+            "threshold", "novel", "contact", "contact_threshold", "no_contact",
+            "background"} or None}, or None (no calibration).
+        cascade: where a cascade answered, {"answered_by", "stage", "escalated",
+            "confidence": [per stage tried], "thresholds", "measure"}; else None.
+    """
+
+    neighbours: dict[str, list[dict]]
+    description: dict[str, str]
+    attention: dict[str, list[float]]
+    pca: dict
+    timings_ms: dict[str, float]
+    warnings: list[str]
+    box: list[int]
+    encoder: str
+    visual_route: dict
+    trust: dict | None
+    cascade: dict | None = field(default=None)
+
+    def to_dict(self) -> dict:
+        """The JSON-ready dict, keys in this order ("cascade" only where a cascade answered)."""
+        out = {"neighbours": self.neighbours, "description": self.description,
+               "attention": self.attention, "pca": self.pca, "timings_ms": self.timings_ms,
+               "warnings": self.warnings, "box": self.box, "encoder": self.encoder,
+               "visual_route": self.visual_route, "trust": self.trust}
+        if self.cascade is not None:
+            out["cascade"] = self.cascade
+        return out
+
+
+class Answerer(Protocol):
+    """Answers decoded requests, several at once."""
+
+    def answer(self, requests: Sequence[QueryRequest]) -> list[QueryResult | Exception]:
+        """Per request, in order: its result, or the exception that request raised (a k the
+        corpus cannot give, an unknown model, ...); the other requests are answered all the
+        same."""
+        ...
+
+
+def answer_one(answerer: Answerer, request: QueryRequest) -> QueryResult:
+    """`answerer.answer` of one request: its result, or its exception raised."""
+    out = answerer.answer([request])[0]
+    if isinstance(out, BaseException):
+        raise out
+    return out
+
+
+class Laps:
+    """Stage timings of one `answer` call, in ms."""
+
+    def __init__(self):
+        self.start = self.t = time.perf_counter()
+        self.timings: dict[str, float] = {}
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.timings[stage] = round((now - self.t) * 1000, 2)
+        self.t = now
+
+    def done(self, batch_size: int) -> dict[str, float]:
+        self.timings["total"] = round((time.perf_counter() - self.start) * 1000, 2)
+        self.timings["batch_size"] = batch_size
+        return self.timings

@@ -1,0 +1,93 @@
+"""The base helpers every layer shares: atomic writes (`ratouch.files`), the stopwatch and the
+progress convention (`ratouch.timing`), and the registries of encoder sets, index kinds and
+system names the command line offers."""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import numpy as np
+import pytest
+
+
+def test_atomic_writes_leave_the_old_file_on_failure(tmp_path):
+    from ratouch.files import atomic_path, write_atomic, write_json_atomic, write_npz_atomic
+
+    path = tmp_path / "sub" / "a.json"
+    write_json_atomic(path, {"b": 1, "a": [1, 2]})
+    assert path.read_text() == json.dumps({"b": 1, "a": [1, 2]}, indent=1) + "\n"
+    write_json_atomic(path, {"b": 1, "a": 2}, indent=2, sort_keys=True, newline=False)
+    assert path.read_text() == json.dumps({"a": 2, "b": 1}, indent=2)
+    with pytest.raises(RuntimeError), atomic_path(path) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("interrupted")
+    assert json.loads(path.read_text()) == {"a": 2, "b": 1}
+    assert sorted(p.name for p in path.parent.iterdir()) == ["a.json"]  # no leftovers
+    write_atomic(tmp_path / "t.txt", "text")
+    assert (tmp_path / "t.txt").read_text() == "text"
+    write_npz_atomic(tmp_path / "x.npz", a=np.arange(3))
+    with np.load(tmp_path / "x.npz") as z:
+        assert z["a"].tolist() == [0, 1, 2]
+
+
+def test_staged_files_are_published_in_order_or_not_at_all(tmp_path):
+    from ratouch.files import publish, replace_folder, staged
+
+    out = tmp_path / "out"
+    with staged(out) as tmp:
+        (tmp / "data").write_text("d")
+        (tmp / "deep").mkdir()
+        (tmp / "deep" / "x").write_text("x")
+        publish(tmp, out)
+    assert (out / "data").read_text() == "d" and (out / "deep" / "x").read_text() == "x"
+    with pytest.raises(RuntimeError), staged(out) as tmp:
+        (tmp / "manifest").write_text("m")
+        raise RuntimeError("interrupted")
+    assert sorted(p.name for p in out.iterdir()) == ["data", "deep"]
+    new = tmp_path / "new"
+    new.mkdir()
+    (new / "only").write_text("o")
+    replace_folder(new, out)
+    assert [p.name for p in out.iterdir()] == ["only"] and not new.exists()
+
+
+def test_laps_and_the_progress_convention(caplog):
+    from ratouch.timing import Laps, bars, lines
+
+    clock = Laps()
+    clock.lap("a")
+    clock.lap("b")
+    clock.lap("a")
+    assert list(clock.laps) == ["a", "b"] and all(v >= 0 for v in clock.laps.values())
+    assert clock.elapsed() >= sum(clock.laps.values())
+    assert set(clock.ms()) == set(clock.seconds()) == {"a", "b"}
+    got: list[str] = []
+    lines(got.append)("point %d of %d", 1, 2)
+    lines(got.append)("plain 100%")
+    assert got == ["point 1 of 2", "plain 100%"]
+    log = logging.getLogger("ratouch.test")
+    with caplog.at_level(logging.DEBUG, logger="ratouch.test"):
+        lines(True, log)("shown")
+        lines(None, log)("quiet")
+    assert [(r.levelno, r.getMessage()) for r in caplog.records] == [
+        (logging.INFO, "shown"), (logging.DEBUG, "quiet")]
+    assert bars(True) and not bars(False) and not bars(None) and not bars(print)
+
+
+def test_registries_are_the_command_lines_choices():
+    from ratouch.cli.parser import build_parser
+    from ratouch.encoders.factory import CHAIN_SETS, DEFAULT_SETS, MODEL_CONFIGS
+    from ratouch.eval.catalog import SYSTEMS
+    from ratouch.search.index import KINDS, ONDISK_KINDS
+
+    assert all(MODEL_CONFIGS[n]["backend"] == "default" for n in DEFAULT_SETS)
+    assert set(CHAIN_SETS) <= set(DEFAULT_SETS) and set(ONDISK_KINDS) <= set(KINDS)
+    parser = build_parser()
+    args = parser.parse_args(["eval", "tvl", "--system", SYSTEMS[1], "--out", "x.json"])
+    assert args.system == "ra-touch" and args.encoder == "default-s"
+    for kind in KINDS:
+        assert parser.parse_args(["query", "--vision", "v.png", "--index", kind]).index == kind
+    with pytest.raises(SystemExit):
+        parser.parse_args(["eval", "tvl", "--system", "ra_touch", "--out", "x.json"])
+    assert parser.parse_args(["train", "cascade"]).encoders == ",".join(CHAIN_SETS)

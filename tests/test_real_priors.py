@@ -1,0 +1,97 @@
+"""Real priors, as a user meets them: touch read the same from a crisp and a faint sensor,
+with or without the sensor's background; a real photo answered through the visual prior's
+classifier, with a note saying so; renders still answered by the encoders' own head."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ratouch.encoders.default import (
+    CONTRAST_FLOOR,
+    TACTILE_CHANNELS,
+    DefaultConfig,
+    tactile_input,
+)
+from ratouch.encoders.factory import create_model
+from ratouch.encoders.prior import load_prior
+from ratouch.errors import ConfigError
+from ratouch.serve.photo import PhotoRoute
+from ratouch.world.objects import OBJECT_CLASSES
+
+skimage_data = pytest.importorskip("skimage.data")
+
+
+def test_tactile_input_normalises_contrast_and_keeps_it_as_a_channel(world):
+    s = world.sample("test", 3)
+    bg = world.background_image(s.sensor)
+    x = tactile_input(s.tactile, (48, 64), bg)
+    assert x.shape == (TACTILE_CHANNELS, 48, 64) and x.dtype == np.float32
+    # a faint copy of the same press (a fifth of the contrast) differs only in its level
+    faint = (bg.astype(np.float32) + (s.tactile.astype(np.float32) - bg) / 5).round()
+    y = tactile_input(np.clip(faint, 0, 255).astype(np.uint8), (48, 64), bg)
+    assert np.corrcoef(x[:3].ravel(), y[:3].ravel())[0, 1] > 0.95
+    assert y[3, 0, 0] < x[3, 0, 0] - 1.0  # log contrast: about log(5) lower
+    # the background itself: nothing changed, the contrast sits at its floor
+    z = tactile_input(bg, (48, 64), bg)
+    assert np.allclose(z[:3], 0) and np.isclose(z[3, 0, 0], np.log(CONTRAST_FLOOR / 0.02))
+
+
+def test_unknown_prior_is_a_config_error():
+    with pytest.raises(ConfigError, match="known priors"):
+        DefaultConfig(name="x", prior="resnet")
+
+
+def test_tactile_backgrounds_must_match_the_frames(world):
+    enc = create_model("debug", pretrained=None)
+    s = world.sample("test", 0)
+    with pytest.raises(ConfigError, match="1 backgrounds for 2 tactile frames"):
+        enc.encode_tactile([s.tactile, s.tactile], [world.background_image(s.sensor)])
+
+
+def _centre_crop(image: np.ndarray) -> np.ndarray:
+    h, w = image.shape[:2]
+    side = min(h, w)
+    y, x = (h - side) // 2, (w - side) // 2
+    return image[y:y + side, x:x + side]
+
+
+def test_photo_route_reads_the_classifier_over_the_corpus_classes():
+    """A corpus of two classes whose prototypes are orthogonal: the cat photo's query lies on
+    the tabby prototype, with the classes named in the note."""
+    prior = load_prior("lite0")
+    names = ["tabby"] * 3 + ["teapot"] * 3
+    emb = np.zeros((6, 4), np.float32)
+    emb[:3, 0], emb[3:, 1] = 1, 1
+    route = PhotoRoute(prior, names, emb)
+    cat = prior.features([_centre_crop(skimage_data.chelsea())], 128)
+    photo = route.query(cat[0])
+    assert photo.classes[0][0] == "tabby"
+    assert photo.query[0] > 0.99 and np.isclose(np.linalg.norm(photo.query), 1)
+    assert "real photo" in photo.note and "tabby" in photo.note
+    assert 0 < photo.coverage <= 1
+
+
+def test_real_photo_goes_the_photo_route_and_a_render_does_not(pipeline, world):
+    cat = skimage_data.chelsea()
+    r = pipeline.query(cat, None)
+    assert r["visual_route"]["route"] == "photo"
+    assert r["trust"]["visual"]["space"] == "prior" and r["trust"]["visual"]["novel"]
+    assert any("looks like a real photo" in w for w in r["warnings"])
+    names = {c.name for c in OBJECT_CLASSES}
+    assert {n["class_name"] for n in r["neighbours"]["image"]} <= names
+    json.dumps(r)
+    s = world.sample("test", 5)
+    r = pipeline.query(s.visual, s.tactile, box=s.box, background=world.background_image(s.sensor))
+    assert r["visual_route"] == {"route": "render"}
+    assert not any("looks like a real photo" in w for w in r["warnings"])
+
+
+def test_background_changes_the_tactile_query_but_not_the_render_route(pipeline, world):
+    s = world.sample("test", 7)
+    a = pipeline.query(s.visual, s.tactile, box=s.box)
+    b = pipeline.query(s.visual, s.tactile, box=s.box, background=world.background_image(s.sensor))
+    assert a["trust"]["tactile"]["background"] is False and b["trust"]["tactile"]["background"]
+    assert a["neighbours"]["image"] == b["neighbours"]["image"]

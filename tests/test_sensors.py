@@ -1,0 +1,344 @@
+"""Tactile sensor families: what differs between digit, gelsight and mini frames, the contrast
+of contact on each (mini's matched to real GelSight Mini presses), markers, backgrounds,
+determinism, and that adding the families left every other part of a sample unchanged."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from scipy import ndimage
+
+from ratouch.errors import ConfigError
+from ratouch.world.config import StressConfig, WorldConfig
+from ratouch.world.generator import World
+from ratouch.world.material import MATERIALS, Material, material
+from ratouch.world.tactile import (
+    FAMILIES,
+    N_SENSORS,
+    UNITS_PER_FAMILY,
+    family_sensors,
+    plan_tactile,
+    render_tactile,
+    sensor_family,
+    sensor_unit,
+)
+
+N_FRAMES = 60
+
+
+@pytest.fixture(scope="module")
+def world() -> World:
+    return World(WorldConfig(seed=0))
+
+
+# ------------------------------------------------------------------ the shared plan stream
+
+def _old_plan_tactile(rng: np.random.Generator, cfg: WorldConfig, mat: Material) -> dict:
+    """`plan_tactile` as it was before sensor families (4 DIGIT units), fields it shares."""
+    st = cfg.stress
+    contact = st.missing != "tactile" and not (st.no_contact > 0 and rng.random() < st.no_contact)
+    base_angle = float(rng.uniform(0, 360))
+    rotation = st.tactile_rotation if st.tactile_rotation is not None else 0.0
+    return dict(
+        material=mat.name, sensor=int(rng.integers(4)), contact=contact,
+        centre=tuple(float(v) for v in rng.uniform(0.4, 0.6, 2)),
+        force=float(rng.uniform(0.45, 1.0)),
+        axes=tuple(float(v) for v in rng.uniform(0.8, 1.2, 2)),
+        ellipse_angle=float(rng.uniform(0, 180)),
+        texture_angle=base_angle + rotation,
+        texture_offset=tuple(float(v) for v in rng.uniform(0, 256, 2)),
+        texture_step=float(rng.uniform(0.9, 1.1)) * 96 / cfg.tactile_hw[1],
+        blur=st.tactile_blur if st.tactile_blur is not None else float(rng.uniform(0.5, 1.1)),
+        noise=(st.tactile_noise if st.tactile_noise is not None
+               else float(rng.uniform(0.006, 0.015))),
+        render_seed=int(rng.integers(2**31)),
+    )
+
+
+@pytest.mark.parametrize("knobs", [
+    {}, dict(tactile_noise=0.05, tactile_blur=2.0), dict(no_contact=0.5, tactile_rotation=30.0),
+    dict(missing="tactile", tactile_noise=0.0), dict(tactile_blur=0.0)])
+def test_plan_tactile_draws_the_same_values_from_the_shared_generator(knobs):
+    cfg = WorldConfig(stress=StressConfig(**knobs))
+    shared = ("material", "contact", "centre", "force", "axes", "ellipse_angle",
+              "texture_angle", "texture_offset", "texture_step", "render_seed")
+    for seed in range(40):
+        mat = MATERIALS[seed % len(MATERIALS)]
+        a, b = np.random.default_rng([seed, 1]), np.random.default_rng([seed, 1])
+        old = _old_plan_tactile(a, cfg, mat)
+        new = plan_tactile(b, cfg, mat)
+        assert {k: old[k] for k in shared} == {k: getattr(new, k) for k in shared}
+        assert a.bit_generator.state == b.bit_generator.state  # nothing more, nothing less
+        if "tactile_noise" in knobs:
+            assert new.noise == knobs["tactile_noise"]
+        if "tactile_blur" in knobs:
+            assert new.blur == knobs["tactile_blur"] and new.blur_frame
+
+
+# `_digest` / `_corpus_digest` below of everything but the tactile frames (visual, masks,
+# subset, class, material, label, description, boxes, contact, object scale; corpus images and
+# records), computed on the renderer before sensor families were added.
+_BEFORE = {"train": "28dcc132ade7736f", "test": "bb9cc1c5ddb705cf", "probe": "f72fc081c3221232",
+           "corpus": "dab8f08eeea3c5bd", "stressed_train": "5c292b391cfa6553",
+           "missing_test": "ffa86a1beafaa7c2"}
+
+
+def _digest(world: World, split: str, idx) -> str:
+    h = hashlib.sha256()
+    for i in idx:
+        s = world.sample(split, i)
+        h.update(s.visual.tobytes())
+        h.update(s.object_mask.tobytes())
+        h.update(s.distractor_mask.tobytes())
+        h.update(json.dumps([s.subset, s.class_name, s.material, s.label, s.description,
+                             list(s.box), list(s.box_true), bool(s.contact),
+                             round(s.object_scale, 9)]).encode())
+    return h.hexdigest()[:16]
+
+
+def _corpus_digest(world: World, pairs) -> str:
+    h = hashlib.sha256()
+    for c, i in pairs:
+        h.update(world.corpus_image(c, i).tobytes())
+        h.update(json.dumps(world.corpus_record(c, i).__dict__).encode())
+    return h.hexdigest()[:16]
+
+
+def test_everything_but_the_tactile_frames_is_as_before_sensor_families(world):
+    got = {"train": _digest(world, "train", range(20)), "test": _digest(world, "test", range(10)),
+           "probe": _digest(world, "probe", range(5)),
+           "corpus": _corpus_digest(world, [(c, i) for c in (0, 5, 77, 167) for i in (0, 3)])}
+    stressed = World(WorldConfig(seed=3, stress=StressConfig(
+        tactile_noise=0.05, tactile_blur=1.0, no_contact=0.3)))
+    got["stressed_train"] = _digest(stressed, "train", range(10))
+    missing = World(WorldConfig(stress=StressConfig(tactile_noise=0.0, tactile_blur=0.0,
+                                                    missing="tactile")))
+    got["missing_test"] = _digest(missing, "test", range(5))
+    assert got == _BEFORE, ("a sample's visual, label, description, box, material or contact "
+                            "changed: did the shared plan generator's stream change?")
+
+
+# ------------------------------------------------------------------ families and units
+
+def test_families_units_and_sensor_ids(world):
+    assert FAMILIES == ("digit", "gelsight", "mini")
+    assert N_SENSORS == len(FAMILIES) * UNITS_PER_FAMILY
+    for k, fam in enumerate(FAMILIES):
+        ids = family_sensors(fam)
+        assert list(ids) == list(range(k * UNITS_PER_FAMILY, (k + 1) * UNITS_PER_FAMILY))
+        assert {sensor_family(i) for i in ids} == {fam}
+    for bad in (-1, N_SENSORS):
+        with pytest.raises(ConfigError, match="sensor"):
+            sensor_family(bad)
+    with pytest.raises(ConfigError, match="family"):
+        family_sensors("biotac")
+    samples = [world.sample("train", i) for i in range(60)]
+    assert all(s.family == sensor_family(s.sensor) for s in samples)
+    counts = {f: 0 for f in FAMILIES}
+    for i in range(900):
+        counts[world.plan("train", i)[4].family] += 1
+    assert all(240 <= c <= 360 for c in counts.values()), counts  # ~1/3 each
+    sensors = {world.plan("test", i)[4].sensor for i in range(402)}
+    assert sensors == set(range(N_SENSORS))
+
+
+def test_each_unit_has_its_own_fixed_background(world):
+    bgs = [world.background_image(k) for k in range(N_SENSORS)]
+    assert all(b.dtype == np.uint8 and b.shape == (128, 96, 3) for b in bgs)
+    for i in range(N_SENSORS):
+        for j in range(i + 1, N_SENSORS):
+            assert np.abs(bgs[i].astype(int) - bgs[j]).mean() > 1.0, (i, j)
+    assert np.array_equal(World().background_image(9), bgs[9])  # fixed per unit
+
+
+def _dark_blobs(img: np.ndarray) -> tuple[int, np.ndarray]:
+    g = img.astype(np.float32).mean(-1) / 255
+    hp = g - ndimage.median_filter(g, 7)
+    lab, n = ndimage.label(hp < -0.12)
+    return n, np.array(ndimage.center_of_mass(-hp, lab, range(1, n + 1))).reshape(-1, 2)
+
+
+def test_gelsight_backgrounds_have_a_marker_grid_and_the_others_none(world):
+    for k in range(N_SENSORS):
+        n, _ = _dark_blobs(world.background_image(k))
+        if sensor_family(k) == "gelsight":
+            assert 7 * 9 - 6 <= n <= 9 * 11, (k, n)
+            assert n == len(sensor_unit(k, (128, 96)).markers)
+        else:
+            assert n == 0, (k, n)
+
+
+def _family_colour(img: np.ndarray) -> np.ndarray:
+    return img.reshape(-1, 3).astype(float).mean(0)
+
+
+def test_family_looks(world):
+    for k in family_sensors("gelsight"):  # bright grey-white field
+        r, g, b = _family_colour(world.background_image(k))
+        assert min(r, g, b) > 120 and max(r, g, b) - min(r, g, b) < 30
+    for k in family_sensors("mini"):  # teal on one side, violet on the other, dark corners
+        bg = world.background_image(k).astype(float)
+        h, w = bg.shape[:2]
+        left, right = bg[:, : w // 4].reshape(-1, 3).mean(0), bg[:, -w // 4:].reshape(-1, 3).mean(0)
+        teal, violet = (left, right) if left[1] - left[0] > right[1] - right[0] else (right, left)
+        assert teal[1] > teal[0] + 30 and teal[2] > teal[0] + 30
+        assert violet[2] > violet[1] + 30 and violet[0] > violet[1]
+        corners = np.concatenate([bg[:8, :8], bg[:8, -8:], bg[-8:, :8], bg[-8:, -8:]]).mean()
+        assert corners < 0.75 * bg[h // 2 - 8: h // 2 + 8, w // 2 - 8: w // 2 + 8].mean()
+
+
+# ------------------------------------------------------------------ contact frames
+
+def _frames(world: World, family: str, contact: bool = True, n: int = N_FRAMES):
+    units = list(family_sensors(family))
+    out = []
+    for i in range(n):
+        mat = world.plan("train", i)[2]
+        p = plan_tactile(np.random.default_rng([5, i]), world.cfg, mat,
+                         sensor=units[i % len(units)])
+        p = dataclasses.replace(p, contact=contact)
+        assert p.family == family
+        out.append((p, render_tactile(p, world.pyramid, world.cfg.tactile_hw,
+                                      world.sensor_background(p.sensor))))
+    return out
+
+
+@pytest.fixture(scope="module")
+def contrast(world) -> dict:
+    out = {}
+    for fam in FAMILIES:
+        means, p99s = [], []
+        for p, f in _frames(world, fam):
+            d = np.abs(f.astype(int) - world.background_image(p.sensor))
+            means.append(d.mean())
+            p99s.append(np.percentile(d, 99))
+        out[fam] = (float(np.mean(means)), float(np.mean(p99s)))
+    return out
+
+
+def test_mini_contact_is_as_faint_as_on_a_real_gelsight_mini(contrast):
+    # real GelSight Mini presses: mean |frame - background| 2-5 of 255, p99 of it 12-23
+    mean, p99 = contrast["mini"]
+    assert 1.5 <= mean <= 6, contrast
+    assert 9 <= p99 <= 26, contrast
+
+
+def test_digit_contact_is_strong_and_gelsight_in_between(contrast):
+    assert contrast["digit"][0] > 4.5 and contrast["digit"][1] > 55, contrast
+    assert contrast["mini"][0] < contrast["gelsight"][0] < contrast["digit"][0], contrast
+    assert contrast["mini"][1] + 10 < contrast["gelsight"][1] < contrast["digit"][1] - 10, contrast
+
+
+def _contact_score(frame: np.ndarray, background: np.ndarray) -> float:
+    """RMS of the lightly blurred difference from the background, its global offset (a
+    brightness drift) removed."""
+    d = ndimage.gaussian_filter((frame.astype(np.float32) - background) / 255, (1.5, 1.5, 0))
+    d -= d.mean((0, 1))
+    return float(100 * np.sqrt(np.mean(d * d)))
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_contact_is_visible_against_the_background_on_every_family(world, family):
+    pressed = [_contact_score(f, world.background_image(p.sensor))
+               for p, f in _frames(world, family)]
+    empty = [_contact_score(f, world.background_image(p.sensor))
+             for p, f in _frames(world, family, contact=False)]
+    assert min(pressed) > 1.5 * max(empty), (min(pressed), max(empty))
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_no_contact_frame_is_the_background_plus_small_noise(world, family):
+    for p, f in _frames(world, family, contact=False, n=12):
+        d = f.astype(int) - world.background_image(p.sensor)
+        assert abs(d.mean()) < 3.5  # a small global drift
+        assert (d - d.mean()).std() < 0.02 * 255  # sensor noise
+        clean = dataclasses.replace(p, noise=0.0, drift=0.0)
+        f0 = render_tactile(clean, world.pyramid, world.cfg.tactile_hw,
+                            world.sensor_background(p.sensor))
+        assert np.array_equal(f0, world.background_image(p.sensor))
+
+
+def test_gelsight_markers_move_in_contact_and_stay_put_elsewhere(world):
+    moved = []
+    for p, _ in _frames(world, "gelsight", n=16):
+        p = dataclasses.replace(p, noise=0.0, blur=0.0, drift=0.0)
+        f = render_tactile(p, world.pyramid, world.cfg.tactile_hw,
+                           world.sensor_background(p.sensor))
+        _, b0 = _dark_blobs(world.background_image(p.sensor))
+        _, b1 = _dark_blobs(f)
+        d = np.sqrt(((b0[:, None] - b1[None]) ** 2).sum(-1)).min(1)
+        r = np.hypot(b0[:, 0] - p.centre[1] * 128, b0[:, 1] - p.centre[0] * 96)
+        assert d[r > 50].max() < 0.05
+        moved.append(np.median(d[r < 15]))
+    assert 0.3 < np.median(moved) < 3.0, moved
+
+
+def test_stress_knobs_override_the_per_frame_draws(world):
+    w = World(WorldConfig(stress=StressConfig(tactile_noise=0.0, tactile_blur=0.0, no_contact=1.0)))
+    for i in range(30):  # noise-free frames of no contact are the backgrounds, every family
+        s = w.sample("train", i)
+        assert not s.contact
+        assert np.abs(s.tactile.astype(int) - w.background_image(s.sensor)).max() <= 1
+    noisy = World(WorldConfig(stress=StressConfig(tactile_noise=0.1, no_contact=1.0)))
+    for i in range(9):
+        s = noisy.sample("train", i)
+        d = s.tactile.astype(int) - noisy.background_image(s.sensor)
+        assert 0.07 * 255 < (d - d.mean()).std() < 0.12 * 255, s.family
+    blurred = World(WorldConfig(stress=StressConfig(tactile_blur=4.0, tactile_noise=0.0)))
+    for i in range(30):  # the knob blurs the whole frame, gelsight markers too
+        s = blurred.sample("train", i)
+        if s.family == "gelsight":
+            assert _dark_blobs(s.tactile)[0] < 10
+            break
+    else:
+        pytest.fail("no gelsight sample in train 0..29")
+
+
+_FRAME_DIGEST = """
+import hashlib
+from ratouch.world.generator import World
+from ratouch.world.tactile import FAMILIES
+w = World()
+seen = {}
+for i in range(40):
+    s = w.sample("train", i)
+    seen.setdefault(s.family, hashlib.sha256(s.tactile.tobytes()).hexdigest())
+print(" ".join(seen[f] for f in FAMILIES))
+"""
+
+
+def test_frames_are_deterministic_per_family_across_processes(world):
+    fresh = World()
+    seen = {}
+    for i in range(40):
+        s, t = world.sample("train", i), fresh.sample("train", i)
+        assert np.array_equal(s.tactile, t.tactile)
+        seen.setdefault(s.family, hashlib.sha256(s.tactile.tobytes()).hexdigest())
+    assert set(seen) == set(FAMILIES)
+    out = subprocess.run([sys.executable, "-c", _FRAME_DIGEST], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == [seen[f] for f in FAMILIES]
+
+
+# ------------------------------------------------------------------ the contact sheet
+
+def test_sensor_sheet_script_writes_a_sheet(tmp_path):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    try:
+        import sensor_sheet
+    finally:
+        sys.path.pop(0)
+    out = sensor_sheet.main(["--out", str(tmp_path / "sheet.png"), "--units", "2",
+                             "--materials", "denim,glass", "--scale", "1", "--no-reference"])
+    im = Image.open(out)
+    assert im.size[0] > 2 * 96 and im.size[1] > 6 * 128
+    assert np.asarray(im).std() > 10
+    assert all(material(m) for m in sensor_sheet.MATERIALS)  # the names it shows exist
