@@ -10,8 +10,8 @@ after each stage records the seconds since the previous lap (or the start); ``cl
 * ``True``: progress bars on the terminal (tqdm) and its lines in the info log;
 * a callable taking one line of text (``print``, ``list.append``): its lines go there, no bars.
 
-Inside, ``say = lines(progress, log)`` gives the function that takes each line, and
-``progress_bar(iterable, progress, desc=...)`` the bar (drawn only for a true `progress` that is not a callable);
+Inside, ``say = say_to(progress, log)`` gives the function that takes each line, and
+``progress_bar(iterable, progress, desc=...)`` the bar (drawn only for ``progress=True``);
 `bars(progress)` passes the bar choice on to a callee that takes a plain bool.
 """
 
@@ -57,7 +57,7 @@ class Laps:
         return {k: round(v * 1000, digits) for k, v in self.laps.items()}
 
 
-def lines(progress: Progress, log: logging.Logger | None = None) -> Callable[..., None]:
+def say_to(progress: Progress, log: logging.Logger | None = None) -> Callable[..., None]:
     """Where a function's progress lines go: the callable itself, else `log` (default the
     ``ratouch`` logger) at info level when `progress` is true and at debug level otherwise.
     The returned function takes a line, or a %-format and its arguments (as logging does)."""

@@ -28,7 +28,6 @@ import copy
 import json
 import time
 
-import numpy as np
 import torch
 from scipy import stats
 

@@ -19,8 +19,8 @@ import numpy as np
 import torch
 from scipy import stats
 
-from ratouch.eval.controls import derangement
 from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split
+from ratouch.eval.controls import derangement
 from ratouch.eval.judge import OfflineJudge
 from ratouch.eval.premise import GROUPS, group_split
 from ratouch.model.generator import load_generator

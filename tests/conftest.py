@@ -17,7 +17,6 @@ import pytest
 
 from ratouch.errors import DataError, RATouchError
 from ratouch.paths import generator_weights
-
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import write_split
 from ratouch.world.generator import World
@@ -78,8 +77,8 @@ def debug_checkpoints(tmp_path_factory):
 @pytest.fixture(scope="session")
 def small_corpus(tmp_path_factory, debug_encoders):
     """A 240-entry world corpus embedded with the debug encoders."""
-    from ratouch.corpus.imagenet_t import build_corpus
     from ratouch.corpus.embed import embed_corpus
+    from ratouch.corpus.imagenet_t import build_corpus
 
     folder = tmp_path_factory.mktemp("corpus") / "c"
     build_corpus(folder, 240, seed=0, progress=False)

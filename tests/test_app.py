@@ -13,9 +13,9 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from conftest import HAVE_ASSETS, FakePipeline, free_port
 from PIL import Image
 
+from conftest import HAVE_ASSETS, FakePipeline, free_port
 from ratouch.encoders.preprocess import tvl_contact_box
 from ratouch.errors import DataError
 
@@ -353,13 +353,12 @@ def test_a_case_shows_the_judge_score_of_its_table_row():
     """The failure table judges each system's answers together (with the system's word rates);
     a case opened from the table shows its row's scores, not those of a lone answer, in the
     description and in "take retrieval apart"."""
-    from test_failures import CONDS, INDICES
-    from test_failures import FakePipeline as FailurePipeline
-
     from app import handlers, view
     from ratouch.eval import failures
     from ratouch.eval.judge import OfflineJudge
     from ratouch.world.config import WorldConfig
+    from test_failures import CONDS, INDICES
+    from test_failures import FakePipeline as FailurePipeline
 
     judge = OfflineJudge()
     rows = failures.failure_cases(FailurePipeline(), k=3, conditions=CONDS, indices=INDICES)

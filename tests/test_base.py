@@ -53,7 +53,7 @@ def test_staged_files_are_published_in_order_or_not_at_all(tmp_path):
 
 
 def test_laps_and_the_progress_convention(caplog):
-    from ratouch.timing import Laps, bars, lines
+    from ratouch.timing import Laps, bars, say_to
 
     clock = Laps()
     clock.lap("a")
@@ -63,13 +63,13 @@ def test_laps_and_the_progress_convention(caplog):
     assert clock.elapsed() >= sum(clock.laps.values())
     assert set(clock.ms()) == set(clock.seconds()) == {"a", "b"}
     got: list[str] = []
-    lines(got.append)("point %d of %d", 1, 2)
-    lines(got.append)("plain 100%")
+    say_to(got.append)("point %d of %d", 1, 2)
+    say_to(got.append)("plain 100%")
     assert got == ["point 1 of 2", "plain 100%"]
     log = logging.getLogger("ratouch.test")
     with caplog.at_level(logging.DEBUG, logger="ratouch.test"):
-        lines(True, log)("shown")
-        lines(None, log)("quiet")
+        say_to(True, log)("shown")
+        say_to(None, log)("quiet")
     assert [(r.levelno, r.getMessage()) for r in caplog.records] == [
         (logging.INFO, "shown"), (logging.DEBUG, "quiet")]
     assert bars(True) and not bars(False) and not bars(None) and not bars(print)

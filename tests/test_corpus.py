@@ -9,8 +9,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from ratouch.corpus.imagenet_t import (build_corpus, load_corpus, parse_size, stratified_rows,
-                                       stratified_world_ids, world_lexicon)
+from ratouch.corpus.imagenet_t import (
+    build_corpus,
+    load_corpus,
+    parse_size,
+    stratified_rows,
+    stratified_world_ids,
+    world_lexicon,
+)
 from ratouch.corpus.recaption import OfflineRecaptioner, validate_caption
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.world.config import WorldConfig

@@ -12,9 +12,16 @@ import json
 import pytest
 import torch
 
-from ratouch.model.decoder import (PROMPT, Decoder, DecoderConfig, TactileTokenizer,
-                             build_small_decoder, clean_description, load_hf_decoder)
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.model.decoder import (
+    PROMPT,
+    Decoder,
+    DecoderConfig,
+    TactileTokenizer,
+    build_small_decoder,
+    clean_description,
+    load_hf_decoder,
+)
 from ratouch.vocabulary import TVL_ADJECTIVES
 
 WORDS = TVL_ADJECTIVES[:48]

@@ -8,12 +8,19 @@ import numpy as np
 import pytest
 import torch
 
-from ratouch.errors import ConfigError
-from ratouch.eval.experiments import (BASELINE, RA_TOUCH, ExperimentConfig, Lab, Variant,
-                                      make_integrator, results_markdown, run_experiments)
-from ratouch.search.index import exact_topk
-
 from conftest import HAVE_ASSETS
+from ratouch.errors import ConfigError
+from ratouch.eval.experiments import (
+    BASELINE,
+    RA_TOUCH,
+    ExperimentConfig,
+    Lab,
+    Variant,
+    make_integrator,
+    results_markdown,
+    run_experiments,
+)
+from ratouch.search.index import exact_topk
 
 
 def test_exact_topk_matches_a_full_sort():

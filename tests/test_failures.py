@@ -11,8 +11,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ratouch.eval import failures
 from ratouch.errors import ConfigError, DataError
+from ratouch.eval import failures
 from ratouch.eval.judge import OfflineJudge
 from ratouch.world.config import WorldConfig
 from ratouch.world.material import MATERIALS

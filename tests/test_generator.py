@@ -9,10 +9,16 @@ import pytest
 import torch
 from torch import nn
 
-from ratouch.model.decoder import DecoderConfig, build_small_decoder, load_hf_decoder
 from ratouch.errors import ConfigError, DataError
-from ratouch.model.generator import (BaselinePrompt, PromptConfig, RATouchGenerator, load_generator,
-                               save_generator, trainable_parameters)
+from ratouch.model.decoder import DecoderConfig, build_small_decoder, load_hf_decoder
+from ratouch.model.generator import (
+    BaselinePrompt,
+    PromptConfig,
+    RATouchGenerator,
+    load_generator,
+    save_generator,
+    trainable_parameters,
+)
 from ratouch.vocabulary import TVL_ADJECTIVES
 
 D, DP, K = 16, 32, 3  # encoder width D, decoder width D', neighbours K

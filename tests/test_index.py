@@ -8,9 +8,9 @@ import logging
 import numpy as np
 import pytest
 
+from ratouch.bench.index import clustered_vectors
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.search.index import IndexConfig, VectorIndex
-from ratouch.bench.index import clustered_vectors
 
 N, DIM = 2000, 64
 

@@ -4,7 +4,6 @@ searches several indexes as one."""
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 

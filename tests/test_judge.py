@@ -7,8 +7,8 @@ import json
 
 import numpy as np
 import pytest
-from conftest import serve_fake_llm
 
+from conftest import FakeLLM, serve_fake_llm
 from ratouch.cli import main
 from ratouch.errors import ConfigError, DataError
 from ratouch.eval import judge as J

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+
 from conftest import HAVE_ASSETS, FakePipeline, free_port
 
 REPO = Path(__file__).resolve().parents[1]

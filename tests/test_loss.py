@@ -9,8 +9,14 @@ import torch
 import torch.nn.functional as F
 
 from ratouch.errors import ConfigError, DataError
-from ratouch.model.loss import (STRATEGIES, RetrieverLossConfig, diversity_term, infonce_term,
-                          mse_term, retriever_loss)
+from ratouch.model.loss import (
+    STRATEGIES,
+    RetrieverLossConfig,
+    diversity_term,
+    infonce_term,
+    mse_term,
+    retriever_loss,
+)
 from ratouch.model.retriever import RetrieverConfig, TactileGuidedRetriever
 
 

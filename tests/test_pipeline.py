@@ -18,7 +18,7 @@ def test_query_returns_every_documented_field(pipeline, world):
     s = world.sample("test", 120)
     r = pipeline.query(s.visual, s.tactile, box=s.box, k=5, label=s.caption)
     assert set(r["neighbours"]) == {"image", "tactile", "joint"}
-    for mode, items in r["neighbours"].items():
+    for items in r["neighbours"].values():
         assert len(items) == 5
         assert {"id", "score", "class_name", "caption"} <= set(items[0])
         assert [i["score"] for i in items] == sorted((i["score"] for i in items), reverse=True)

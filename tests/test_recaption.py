@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-
 import pytest
-from conftest import serve_fake_llm
 
+from conftest import FakeLLM, serve_fake_llm
 from ratouch.corpus.recaption import (
     PAPER_PROMPT,
     CaptionRejected,

@@ -7,8 +7,8 @@ import pytest
 
 from ratouch.corpus.embed import embed_corpus, load_embeddings
 from ratouch.errors import ConfigError, DataError
-from ratouch.search.retrieval import CorpusIndex, CorpusSearch
 from ratouch.eval.retrieval import evaluate_retrieval, split_queries
+from ratouch.search.retrieval import CorpusIndex, CorpusSearch
 from ratouch.world.config import WorldConfig
 
 

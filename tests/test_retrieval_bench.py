@@ -8,11 +8,19 @@ import numpy as np
 import pytest
 import torch
 
-from ratouch.errors import ConfigError
-from ratouch.bench.index import (SCALE_EF_SWEEP, bench_corpus_index, bench_retrieval,
-                                 bench_scale, clustered_vectors, format_bench, format_real,
-                                 recall_by_score, upstream_retrieve)
+from ratouch.bench.index import (
+    SCALE_EF_SWEEP,
+    bench_corpus_index,
+    bench_retrieval,
+    bench_scale,
+    clustered_vectors,
+    format_bench,
+    format_real,
+    recall_by_score,
+    upstream_retrieve,
+)
 from ratouch.corpus.embed import load_embeddings
+from ratouch.errors import ConfigError
 from ratouch.search.index import IndexConfig, VectorIndex, exact_topk
 
 

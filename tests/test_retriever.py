@@ -8,8 +8,12 @@ import torch.nn.functional as F
 
 from ratouch.errors import ConfigError, DataError
 from ratouch.model.loss import RetrieverLossConfig, retriever_loss
-from ratouch.model.retriever import (RetrieverConfig, RetrieverOutput, TactileGuidedRetriever,
-                               collapse_stats)
+from ratouch.model.retriever import (
+    RetrieverConfig,
+    RetrieverOutput,
+    TactileGuidedRetriever,
+    collapse_stats,
+)
 
 D = 32
 

@@ -12,9 +12,9 @@ from PIL import Image
 
 from ratouch.encoders.preprocess import QUERY_MAX_SIDE, to_rgb_array
 from ratouch.errors import DataError
+from ratouch.model.trust import ContactModel, Novelty, TrustCalibration, contact_features
 from ratouch.paths import REPO, trust_calibration
 from ratouch.serve.request import QueryRequest
-from ratouch.serve.trust import ContactModel, Novelty, TrustCalibration, contact_features
 from ratouch.world.config import WorldConfig
 from ratouch.world.generator import World
 

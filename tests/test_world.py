@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ratouch.errors import ConfigError
-from ratouch.vocabulary import TVL_ADJECTIVES, TACTILE_WORDS
+from ratouch.vocabulary import TACTILE_WORDS, TVL_ADJECTIVES
 from ratouch.world.config import StressConfig, WorldConfig
 from ratouch.world.generator import TEST_SIZE, World
 from ratouch.world.material import MATERIALS, groups

@@ -32,7 +32,7 @@ from ratouch.search.index import (
     VectorIndex,
     exact_topk,
 )
-from ratouch.timing import Laps, lines
+from ratouch.timing import Laps, say_to
 
 logger = logging.getLogger(__name__)
 
@@ -139,7 +139,7 @@ def _sweep(index, setting: str, values, queries, k: int, recall) -> dict:
     out = {}
     for value in values:
         tuned = index.with_search(**{setting: value})
-        ids, times = _latencies(lambda q: tuned.search(q, max(k, 5))[1], queries)
+        ids, times = _latencies(lambda q, tuned=tuned: tuned.search(q, max(k, 5))[1], queries)
         out[str(value)] = {**_summary(times), "recall_at_5": recall(ids)}
     return out
 
@@ -166,7 +166,7 @@ def bench_retrieval(n: int = 150_000, dim: int = 768, k: int = 5, n_queries: int
         raise ConfigError(f"K={k!r} must lie in [1, n={n}]")
     if n_queries < 1 or batch < 1:
         raise ConfigError(f"n_queries={n_queries!r} and batch={batch!r} must be positive")
-    say = lines(progress, logger)
+    say = say_to(progress, logger)
     data = clustered_vectors(n + n_queries, dim, seed=seed)
     corpus, queries = data[:n], data[n:]
     say("data: %d x %d corpus, %d queries", n, dim, n_queries)
@@ -191,7 +191,7 @@ def bench_retrieval(n: int = 150_000, dim: int = 768, k: int = 5, n_queries: int
         t0 = time.perf_counter()
         index = VectorIndex.build(corpus, cfg, seed=seed)
         build_s = time.perf_counter() - t0
-        ids, times = _latencies(lambda q: index.search(q, max(k, 5))[1], queries)
+        ids, times = _latencies(lambda q, index=index: index.search(q, max(k, 5))[1], queries)
         row = {**_summary(times), "recall_at_5": recall_at(ids, truth, 5),
                "build_s": round(build_s, 2), "config": asdict(cfg)}
         if name == "flat":
@@ -251,7 +251,7 @@ def bench_scale(n: int = 1_000_000, dim: int = 768, kind: str = "ivfpq",
     cfg = _method_config(kind)
     if kind == "hnsw":
         cfg = replace(cfg, ef_construction=ef_construction)
-    say = lines(progress, logger)
+    say = say_to(progress, logger)
     data = clustered_vectors(n + n_queries, dim, seed=seed)
     corpus, queries = data[:n], data[n:]
     truth = exact_topk(queries, corpus, 5)
@@ -327,7 +327,7 @@ def bench_corpus_index(corpus: str | Path, encoder: str = "default-s", key: str 
         raise ConfigError(f"kinds={tuple(kinds)!r} must be a non-empty subset of {KINDS}")
     if key not in ("image", "text"):
         raise ConfigError(f"key={key!r} must be 'image' or 'text'")
-    say = lines(progress, logger)
+    say = say_to(progress, logger)
     image, text, manifest = load_embeddings(corpus, encoder, verify=False)
     rows = image if key == "image" else text
     n_all = len(rows)
@@ -352,7 +352,7 @@ def bench_corpus_index(corpus: str | Path, encoder: str = "default-s", key: str 
         t0 = time.perf_counter()
         index = VectorIndex.build(keys, cfg, seed=seed)
         build_s = time.perf_counter() - t0
-        ids, times = _latencies(lambda q: index.search(q, 5)[1], queries)
+        ids, times = _latencies(lambda q, index=index: index.search(q, 5)[1], queries)
         row = {**_summary(times), "recall_at_5": recall(ids), "build_s": round(build_s, 1),
                "config": asdict(cfg)}
         setting, values = {"hnsw": ("ef_search", SCALE_EF_SWEEP),

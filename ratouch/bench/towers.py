@@ -39,7 +39,7 @@ import os
 import platform
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -138,7 +138,7 @@ class CNNTower(_Tower):
     def __init__(self, encoder: str, weights: str | None = "shipped", partial: bool = True):
         from ratouch.encoders.factory import create_model
 
-        self.note = None
+        self.note: str | None = None  # why only the checkpoint's CNN was loaded
         try:
             model = create_model(encoder, pretrained=weights)
         except DataError as e:
@@ -317,7 +317,8 @@ def bench_towers(n: int = 600, sizes: Sequence[int] | None = None,
     g_images, g_mats = gallery_set(gallery, seed, world)
     say(f"rendered {n} validation crops and {gallery} gallery images")
     values, counts = np.unique(mats, return_counts=True)
-    points, skipped = [], []
+    points: list[dict] = []
+    skipped: list[dict[str, str]] = []
     with intra_op_threads(threads):
         for name in towers:
             for tower in _towers(name, sizes, encoder, cnn_weights, cnn_partial, skipped, say):
@@ -373,21 +374,21 @@ def bench_towers(n: int = 600, sizes: Sequence[int] | None = None,
             "seconds": round(time.perf_counter() - t_start, 1)}}
 
 
-def _towers(name: str, sizes, encoder: str, cnn_weights, cnn_partial: bool, skipped: list,
-            say):
+def _towers(name: str, sizes, encoder: str, cnn_weights, cnn_partial: bool,
+            skipped: list[dict[str, str]], say) -> Iterator[_Tower]:
     """The towers to measure for `name`, one at a time; failures to load become `skipped`."""
     if name == "cnn":
         try:
-            tower = CNNTower(encoder, cnn_weights, cnn_partial)
+            cnn = CNNTower(encoder, cnn_weights, cnn_partial)
         except (RATouchError, OSError, ImportError) as e:
             reason = (f"encoder {encoder!r} with weights {cnn_weights!r} did not load: "
                       f"{type(e).__name__}: {e}")
             skipped.append({"tower": "cnn", "reason": reason})
             say(f"skipped cnn: {reason}")
             return
-        if tower.note:
-            say(f"cnn: {tower.note}")
-        yield tower
+        if cnn.note:
+            say(f"cnn: {cnn.note}")
+        yield cnn
         return
     for size in _sizes_for(name, sizes):
         try:

@@ -30,10 +30,10 @@ from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split
 from ratouch.eval.experiments import Lab
 from ratouch.eval.judge import mean_ci, score_stats
 from ratouch.eval.retrieval import entry_materials, material_precision
-from ratouch.vocabulary import adjective_f1
 from ratouch.search.index import BENCH_KINDS, KINDS, IndexConfig, VectorIndex
 from ratouch.serve.pipeline import default_corpus, open_retriever
-from ratouch.timing import Progress, lines
+from ratouch.timing import Progress, say_to
+from ratouch.vocabulary import adjective_f1
 from ratouch.world.dataset import world_for
 from ratouch.world.splits import encode_test_split
 
@@ -61,7 +61,7 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = BENCH_KINDS,
     """Measure every point; returns {"points": [...], "upstream": {...}, "settings": {...}}.
 
     `progress` is called with one line per measured point (the CLI prints them)."""
-    say = lines(progress, log)
+    say = say_to(progress, log)
     lab = lab or Lab()
     p, test = lab.pipeline, lab.test
     torch.set_num_threads(1)
@@ -82,7 +82,7 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = BENCH_KINDS,
                                           entry_mats)
                 per_sample["precision_at_5"] = prec
                 pt = {"encoder": lab.cfg.encoder, "index": kind, "corpus": len(ids_map), "k": k,
-                      **_latency(p, pairs, lambda q: ids_map[index.search(q, k)[1]]),
+                      **_latency(p, pairs, lambda q, m=ids_map, ix=index, k=k: m[ix.search(q, k)[1]]),
                       **judged, **_ci("precision_at_5", prec), "system": "RA-Touch"}
                 points.append(pt)
                 scores.append(per_sample)

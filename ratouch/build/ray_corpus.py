@@ -28,6 +28,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -390,7 +391,7 @@ def connect(opts: RayOptions) -> bool:
 
 
 def _dataset(table: pa.Table, todo: list[int], seed: int, recaption: RecaptionConfig,
-             encoder: str, opts: RayOptions, is_world: bool):
+             encoder: str, opts: RayOptions, is_world: bool) -> ray.data.Dataset:
     """The Ray Data pipeline over the entries of unfinished shards."""
     ids = table.column("id").to_numpy()
     keep = np.isin(ids // opts.shard_size, todo)
@@ -403,10 +404,13 @@ def _dataset(table: pa.Table, todo: list[int], seed: int, recaption: RecaptionCo
     log.info("Ray: %g CPUs, %d embedding actors at %g CPU each, light tasks at %g CPU%s",
              total, opts.workers, actor_cpus, LIGHT_CPUS,
              f", {llm_actors} LLM actors" if llm else "")
-    ds = ray.data.from_arrow(blocks)
-    light = dict(batch_size=opts.batch_size, batch_format="numpy", num_cpus=LIGHT_CPUS)
+    ds: ray.data.Dataset = ray.data.from_arrow(blocks)
+    light: dict[str, Any] = dict(batch_size=opts.batch_size, batch_format="numpy",
+                                 num_cpus=LIGHT_CPUS)
     if is_world:
-        ds = ds.map_batches(plan_world_batch, fn_kwargs={"seed": seed}, **light)
+        # ray's annotation of `fn` has no room for the arguments that fn_kwargs supplies
+        ds = ds.map_batches(plan_world_batch, fn_kwargs={"seed": seed},  # type: ignore[arg-type]
+                            **light)
     if llm:
         ds = ds.map_batches(LLMRecaptionStage, fn_constructor_kwargs={
             "config": recaption, "threads": math.ceil(opts.llm_concurrency / llm_actors),

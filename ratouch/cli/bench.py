@@ -9,11 +9,16 @@ import json
 from pathlib import Path
 
 from ratouch.bench.corpus import bench_corpus, format_corpus_bench
-from ratouch.bench.index import (bench_corpus_index, bench_retrieval, bench_scale,
-                                 format_bench, format_real)
+from ratouch.bench.index import (
+    bench_corpus_index,
+    bench_retrieval,
+    bench_scale,
+    format_bench,
+    format_real,
+)
 from ratouch.bench.query import bench_query, bench_world
-from ratouch.bench.tradeoff import bench_tradeoff, format_tradeoff, tradeoff_figure
 from ratouch.bench.towers import TOWERS, bench_towers, format_towers, write_towers
+from ratouch.bench.tradeoff import bench_tradeoff, format_tradeoff, tradeoff_figure
 from ratouch.bench.upload import bench_upload
 from ratouch.cli.common import usage
 from ratouch.corpus.imagenet_t import parse_size

@@ -16,8 +16,12 @@ from ratouch.eval import stress as S
 from ratouch.eval.controls import format_controls, run_controls
 from ratouch.eval.families import evaluate_families, format_families
 from ratouch.eval.judge import format_summary, read_records
-from ratouch.eval.photos import (evaluate_photos, evaluate_reference_tactile, format_photos,
-                                 format_reference_tactile)
+from ratouch.eval.photos import (
+    evaluate_photos,
+    evaluate_reference_tactile,
+    format_photos,
+    format_reference_tactile,
+)
 from ratouch.eval.premise import format_premise, run_premise, why_ignored
 from ratouch.eval.retrieval import evaluate_retrieval, format_retrieval_eval
 from ratouch.eval.tvl import format_ttest, paired_ttest, run_tvl

@@ -12,7 +12,7 @@ from ratouch.eval import judge as J
 from ratouch.files import write_json_atomic
 
 
-def make_judge(args: argparse.Namespace):
+def make_judge(args: argparse.Namespace) -> J.OfflineJudge | J.LLMJudge:
     if args.judge == "llm":
         return J.LLMJudge(J.LLMJudgeConfig.from_env(args.endpoint, args.model, args.api_key_env))
     return J.OfflineJudge()
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     if args.fit:
         report["fit"] = str(J.write_offline_config(J.fit_offline_judge()))
     scored = None
-    if args.out:
+    if judge is not None:  # given --out
         scored, report["results"] = J.judge_results(records[args.file[0]], judge)
     if args.explain:
         report["explain"] = {f: J.explain_results(r) for f, r in records.items()}

@@ -10,11 +10,12 @@ from pathlib import Path
 
 from ratouch.cli.common import usage
 from ratouch.encoders.factory import DEFAULT_SETS, create_model, shipped_weights
+from ratouch.eval import retrain
+from ratouch.eval.cascade import CascadeConfig, calibrate_cascade
 from ratouch.paths import cascade_calibration, trust_calibration
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.threads import intra_op_threads
 from ratouch.train import recipes
-from ratouch.train.cascade import CascadeConfig, calibrate_cascade
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
 from ratouch.train.trust import TrustConfig, calibrate
 
@@ -44,10 +45,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _train_all(args: argparse.Namespace) -> int:
-    """Every shipped weight, in dependency order (`recipes.train_all`), with the time each
+    """Every shipped weight, in dependency order (`retrain.train_all`), with the time each
     part took."""
     with intra_op_threads(2):
-        out = recipes.train_all(seed=args.seed, report=lambda r: print(json.dumps(r, default=str)))
+        out = retrain.train_all(seed=args.seed, report=lambda r: print(json.dumps(r, default=str)))
     print(json.dumps(out))
     return 0
 

@@ -18,13 +18,19 @@ from ratouch.world.scarcity import ScarceRegime
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg = world_cfg(args) if args.world_cmd != "probe" else None
+    if args.world_cmd == "probe":
+        result = run_probe(WorldConfig(seed=args.seed),
+                           ProbeConfig(n_train=args.n_train, n_test=args.n_test,
+                                       workers=args.workers), progress=not args.json)
+        print(json.dumps(result, indent=2) if args.json else format_probe(result))
+        return 0
+    cfg = world_cfg(args)
     if args.world_cmd == "build":
         regime = ScarceRegime(regime=args.regime, seed=args.seed, draw=args.draw)
         counts = write_split(cfg, args.out, args.split, args.n, workers=args.workers,
                              regime=regime)
         print(json.dumps({"out": str(args.out), "split": args.split, **counts}))
-    elif args.world_cmd == "preview":
+    else:  # preview
         out = Path(args.out)
         if out.suffix.lower() != ".png":
             raise usage(f"--out {out} must be a .png file")
@@ -38,9 +44,4 @@ def run(args: argparse.Namespace) -> int:
         with atomic_path(out) as tmp:
             sheet.save(tmp, format="PNG")
         print(f"wrote {out} ({len(idx)} samples, {sheet.size[0]}x{sheet.size[1]})")
-    else:
-        result = run_probe(WorldConfig(seed=args.seed),
-                           ProbeConfig(n_train=args.n_train, n_test=args.n_test,
-                                       workers=args.workers), progress=not args.json)
-        print(json.dumps(result, indent=2) if args.json else format_probe(result))
     return 0

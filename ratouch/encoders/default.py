@@ -19,8 +19,8 @@ import torch.nn.functional as F
 from PIL import Image
 from scipy.ndimage import gaussian_filter
 
-from ratouch.encoders.text import MINILM_DIM, MiniLM, TextCache
 from ratouch.encoders.prior import PRIORS, load_prior
+from ratouch.encoders.text import MINILM_DIM, MiniLM, TextCache
 from ratouch.errors import ConfigError
 
 
@@ -96,7 +96,7 @@ class TextProjection(nn.Module):
 def vision_tensor(images: Sequence[np.ndarray], size: tuple[int, int]) -> torch.Tensor:
     """uint8 RGB arrays -> (N, 3, H, W) normalised float tensor."""
     h, w = size
-    arr = np.stack([np.asarray(Image.fromarray(im).resize((w, h), Image.BILINEAR))
+    arr = np.stack([np.asarray(Image.fromarray(im).resize((w, h), Image.Resampling.BILINEAR))
                     for im in images]).astype(np.float32) / 255.0
     return torch.from_numpy((arr - 0.5) / 0.25).permute(0, 3, 1, 2).contiguous()
 
@@ -123,7 +123,7 @@ def tactile_difference(frame: np.ndarray, background: np.ndarray | None = None) 
     if background is not None:
         if background.shape != frame.shape:
             background = np.asarray(Image.fromarray(background).resize(
-                (frame.shape[1], frame.shape[0]), Image.BILINEAR))
+                (frame.shape[1], frame.shape[0]), Image.Resampling.BILINEAR))
         f = f - background.astype(np.float32) / 255.0
     scale = max(frame.shape[:2]) / 128
     sigma = FIELD_SIGMA * scale
@@ -143,7 +143,7 @@ def tactile_input(frame: np.ndarray, size: tuple[int, int],
     d = tactile_difference(frame, background)
     rms = float(np.sqrt(np.mean(d * d)))
     d = d / max(rms, CONTRAST_FLOOR)
-    chans = [np.asarray(Image.fromarray(d[..., c]).resize((w, h), Image.BILINEAR))
+    chans = [np.asarray(Image.fromarray(d[..., c]).resize((w, h), Image.Resampling.BILINEAR))
              for c in range(3)]
     level = np.clip(np.log(max(rms, CONTRAST_FLOOR) / CONTRAST_REF), -3.0, 3.0)
     chans.append(np.full((h, w), level, np.float32))
@@ -183,6 +183,9 @@ class DefaultEncoders(nn.Module):
     #: What identifies the loaded weights (`create_model` sets it; None: random init). Corpus
     #: embeddings record it, so that embeddings made with other weights are not used.
     weights_fingerprint: str | None = None
+    # the frozen MiniLM and its memo, set with object.__setattr__: not registered submodules
+    _minilm: MiniLM | None
+    _text_cache: TextCache | None
 
     def __init__(self, cfg: DefaultConfig, text_encoder: MiniLM | None = None):
         super().__init__()
@@ -218,11 +221,13 @@ class DefaultEncoders(nn.Module):
 
     def minilm_features(self, texts: Sequence[str]) -> np.ndarray:
         """Frozen MiniLM embeddings (memoised), loading MiniLM on first use."""
-        if self._text_cache is None:
+        cache = self._text_cache
+        if cache is None:
             encoder = self._minilm or MiniLM()
+            cache = TextCache(encoder)
             object.__setattr__(self, "_minilm", encoder)
-            object.__setattr__(self, "_text_cache", TextCache(encoder))
-        return self._text_cache(list(texts))
+            object.__setattr__(self, "_text_cache", cache)
+        return cache(list(texts))
 
     # -- the public encoding API shared with the TVL backend --------------------------------
     @property

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -44,6 +44,9 @@ from ratouch.checkpoint import load_into, read_foreign_weights, sha256_file
 from ratouch.encoders.preprocess import to_rgb_array
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.world.objects import CLASS_INDEX, OBJECT_CLASSES
+
+if TYPE_CHECKING:  # timm is imported where a tower is built
+    from timm.models.efficientnet import EfficientNet
 
 
 @dataclass(frozen=True)
@@ -129,7 +132,7 @@ def _digest(path: Path) -> str:
         return _digests[key]
 
 
-def build_model(name: str = "lite0", path: str | os.PathLike | None = None) -> torch.nn.Module:
+def build_model(name: str = "lite0", path: str | os.PathLike | None = None) -> EfficientNet:
     """A tower as an eval-mode, frozen timm model with the package's weights.
 
     Args:
@@ -142,6 +145,7 @@ def build_model(name: str = "lite0", path: str | os.PathLike | None = None) -> t
         DataError: If the file fails its checksum, is unreadable, or does not fit the model.
     """
     import timm
+    from timm.models.efficientnet import EfficientNet
 
     spec = prior_spec(name)
     path = weights_path(name) if path is None else Path(path).expanduser()
@@ -153,6 +157,9 @@ def build_model(name: str = "lite0", path: str | os.PathLike | None = None) -> t
                         f"`{spec.install} --force-reinstall`")
     state = read_foreign_weights(path, f"visual prior weights ({spec.package})")
     model = timm.create_model(spec.arch, pretrained=False)
+    if not isinstance(model, EfficientNet):  # every tower of PRIORS is an EfficientNet-Lite
+        raise ConfigError(f"visual prior {name!r}: timm built a {type(model).__name__} for "
+                          f"{spec.arch}, not an EfficientNet")
     own = model.state_dict()
     if not isinstance(state, dict) or len(state) != len(own):
         held = f"{len(state)} entries" if isinstance(state, dict) else type(state).__name__
@@ -172,7 +179,10 @@ def build_model(name: str = "lite0", path: str | os.PathLike | None = None) -> t
 class _Extractor(torch.nn.Module):
     """uint8 (N, S, S, 3) images -> (N, dim) pooled features, normalisation included."""
 
-    def __init__(self, model: torch.nn.Module, mean: Sequence[float], std: Sequence[float]):
+    scale: torch.Tensor  # buffers: 1 / (255 std) and mean / std, (1, 3, 1, 1)
+    shift: torch.Tensor
+
+    def __init__(self, model: EfficientNet, mean: Sequence[float], std: Sequence[float]):
         super().__init__()
         self.model = model
         std_t = torch.tensor(std, dtype=torch.float32).view(1, 3, 1, 1)
@@ -191,10 +201,12 @@ class VisualPrior:
     """
 
     def __init__(self, name: str = "lite0", path: str | os.PathLike | None = None):
+        from timm.data import resolve_model_data_config
+
         self.name = name
         self.spec = prior_spec(name)
         self.model = build_model(name, path)
-        cfg = self.model.pretrained_cfg
+        cfg = resolve_model_data_config(self.model)  # the normalisation the tower was trained with
         self._extractor = _Extractor(self.model, cfg["mean"], cfg["std"]).eval()
         self._traced: dict[int, torch.jit.ScriptModule] = {}
         self._lock = threading.Lock()
@@ -217,7 +229,8 @@ class VisualPrior:
         for i, image in enumerate(images):
             arr = to_rgb_array(image, name=f"image {i}")
             if arr.shape[:2] != (size, size):
-                arr = np.asarray(Image.fromarray(arr).resize((size, size), Image.BILINEAR))
+                arr = np.asarray(Image.fromarray(arr).resize((size, size),
+                                                             Image.Resampling.BILINEAR))
             out[i] = arr
         return out
 

@@ -38,7 +38,7 @@ import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -162,6 +162,16 @@ class TVLConfig:
 # --------------------------------------------------------------------------- encoders
 
 
+class OpenCLIPModel(Protocol):
+    """What `TVLEncoders` uses of an OpenCLIP model."""
+
+    visual: nn.Module
+
+    def encode_image(self, image: torch.Tensor) -> torch.Tensor: ...
+
+    def encode_text(self, text: torch.Tensor) -> torch.Tensor: ...
+
+
 class TVLEncoders(nn.Module):
     """The TVL encoder set: OpenCLIP for images and text, a timm ViT for touch.
 
@@ -184,7 +194,7 @@ class TVLEncoders(nn.Module):
     backend = "tvl"
     weights_fingerprint: str | None = None
 
-    def __init__(self, clip_model: nn.Module, tactile_model: nn.Module,
+    def __init__(self, clip_model: OpenCLIPModel, tactile_model: nn.Module,
                  tokenizer: Callable[[list[str]], torch.Tensor], cfg: TVLConfig) -> None:
         """Wrap already-loaded models; use :func:`load_tvl` to build one from files.
 
@@ -602,7 +612,7 @@ def _create_tactile(cfg: TVLConfig) -> nn.Module:
     """
     import timm
 
-    kwargs = {"pretrained": False, "num_classes": cfg.dim, "global_pool": "avg"}
+    kwargs: dict[str, Any] = {"pretrained": False, "num_classes": cfg.dim, "global_pool": "avg"}
     try:
         return timm.create_model(cfg.tactile_arch, weight_init="skip", **kwargs)
     except (TypeError, ValueError, AssertionError):  # older timm without weight_init="skip"

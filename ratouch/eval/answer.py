@@ -16,17 +16,17 @@ and counts as failed, so it does not enter those rates.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 
 from ratouch.errors import ConfigError, DataError
-from ratouch.eval.catalog import BASELINE, RA_TOUCH, RESULT_KEY, SYSTEMS
+from ratouch.eval.catalog import BASELINE, RA_TOUCH, SYSTEMS
 from ratouch.eval.judge import RESPONSE_KEY, judge_results
 from ratouch.vocabulary import TVL_QUESTION
 
-__all__ = ["BASELINE", "RA_TOUCH", "RESULT_KEY", "SYSTEMS", "Answers", "answer_split",
+__all__ = ["BASELINE", "RA_TOUCH", "SYSTEMS", "Answers", "answer_split",
            "describe", "judge_answers", "records_for", "retrieve"]
 
 
@@ -43,14 +43,14 @@ def describe(gen, V: np.ndarray, T: np.ndarray, rv: np.ndarray | None = None,
     """Greedy descriptions of a generator over arrays, in batches (neighbours optional)."""
     import torch
 
+    arrays = [V, T]
+    if rv is not None:
+        assert rl is not None, "neighbour image embeddings without their text embeddings"
+        arrays += [rv, rl]
     out: list[str] = []
     for s in range(0, len(V), batch):
-        args = [torch.from_numpy(np.ascontiguousarray(a[s:s + batch], np.float32))
-                for a in (V, T)]
-        if rv is not None:
-            args += [torch.from_numpy(np.ascontiguousarray(a[s:s + batch], np.float32))
-                     for a in (rv, rl)]
-        out += gen.describe(*args)
+        out += gen.describe(*(torch.from_numpy(np.ascontiguousarray(a[s:s + batch], np.float32))
+                              for a in arrays))
     return out
 
 
@@ -89,17 +89,17 @@ class Answers:
         responses: one description per pair.
         ids: (N, K) corpus ids RA-Touch read (None for the baseline, or when neighbour
             embeddings were given instead).
-        scores: (N,) judge scores (None when not judged).
-        records: the judged TVL records (None when not judged).
-        summary: `judge_results`' summary (None when not judged).
+        scores: (N,) judge scores (empty when not judged).
+        records: the judged TVL records (empty when not judged).
+        summary: `judge_results`' summary (empty when not judged).
     """
 
     name: str
     responses: list[str]
     ids: np.ndarray | None = None
-    scores: np.ndarray | None = None
-    records: list[dict] | None = None
-    summary: dict | None = None
+    scores: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    records: list[dict] = field(default_factory=list)
+    summary: dict = field(default_factory=dict)
 
 
 def answer_split(pipeline, split, system: str = RA_TOUCH, *, k: int = 5, mode: str = "joint",
@@ -133,7 +133,8 @@ def answer_split(pipeline, split, system: str = RA_TOUCH, *, k: int = 5, mode: s
             if ids is None:
                 ids = retrieve(pipeline, split.V, split.T, k, mode)
             neighbours = pipeline.neighbour_embeddings(ids)
-        responses = describe(gen, split.V, split.T, *neighbours, batch=batch)
+        rv, rl = neighbours
+        responses = describe(gen, split.V, split.T, rv, rl, batch=batch)
     out = Answers(name, responses, ids)
     if judge is not None:
         out.scores, out.records, out.summary = judge_answers(judge, split, responses, name, ids)

@@ -22,10 +22,8 @@ EXPERIMENT_HELP: dict[str, str] = {
 #: The two systems every evaluation compares, by name: the baseline (no retrieval) and
 #: RA-Touch. The one spelling of a system's name: `ratouch eval tvl --system`, the "system"
 #: of a TVL result record, the stress report's series (`ratouch.eval.answer.answer_split`).
+#: Where RA-Touch's output stands in a JSON result -- a query's ``description.ra_touch``, a
+#: failure table's column, the controls' and the premise's answer sets -- its key is spelled
+#: "ra_touch": a public output name, a role apart from the system's name.
 SYSTEMS = ("baseline", "ra-touch")
 BASELINE, RA_TOUCH = SYSTEMS
-
-#: Where a system's output stands in a JSON result: a query's ``description.ra_touch``, a
-#: failure table's column, the controls' and the premise's answer sets. Public output names,
-#: spelled with an underscore; kept apart from the systems' names above.
-RESULT_KEY = {BASELINE: "baseline", RA_TOUCH: "ra_touch"}

@@ -30,9 +30,9 @@ import numpy as np
 from ratouch.checkpoint import sha256_file
 from ratouch.corpus.embed import EMBED_MANIFEST, embeddings_dir
 from ratouch.errors import ConfigError, DataError
+from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split, retrieve
 from ratouch.eval.judge import OfflineJudge, mean_ci, score_stats
 from ratouch.eval.retrieval import entry_materials, material_precision
-from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split, retrieve
 from ratouch.files import write_json_atomic
 from ratouch.paths import (
     cache_dir,
@@ -187,19 +187,20 @@ def failure_cases(pipeline, world: WorldConfig | None = None, k: int = 5,
         step(f"{cond}: RA-Touch descriptions")
         ra = answer_split(pipeline, split, RA_TOUCH, k=k, judge=judge)
         step(f"{cond}: retrieval quality and judging")
+        assert ra.ids is not None  # RA-Touch read the joint query's neighbours
         prec = {"joint": material_precision(ra.ids, split.materials, entry_mats)}
         for mode in ("image", "tactile"):
             prec[mode] = material_precision(retrieve(pipeline, split.V, split.T, k, mode),
                                             split.materials, entry_mats)
         s_base, s_ra = base.scores, ra.scores
-        base, ra = base.responses, ra.responses
         for j, idx in enumerate(split.indices):
             best = max(float(prec["image"][j]), float(prec["tactile"][j]))
             pj = float(prec["joint"][j])
             rows.append({
                 "condition": cond, "index": int(idx), "subset": split.subsets[j],
                 "material": split.materials[j], "object_scale": round(split.object_scale[j], 3),
-                "label": split.labels[j], "baseline": base[j], "ra_touch": ra[j],
+                "label": split.labels[j], "baseline": base.responses[j],
+                "ra_touch": ra.responses[j],
                 "baseline_score": round(float(s_base[j]), SCORE_DIGITS),
                 "ra_score": round(float(s_ra[j]), SCORE_DIGITS),
                 "ra_delta": round(float(s_ra[j]) - float(s_base[j]), SCORE_DIGITS),
@@ -376,7 +377,7 @@ def summarise(rows: Sequence[dict]) -> list[dict]:
     for (cond, sub), rs in groups.items():
         if sub != "all" and len({r["subset"] for r in rows if r["condition"] == cond}) < 2:
             continue  # one subset only: its row would repeat "all"
-        mean = lambda key: round(float(np.mean([r[key] for r in rs])), 3)  # noqa: E731
+        mean = lambda key, rs=rs: round(float(np.mean([r[key] for r in rs])), 3)  # noqa: E731
         labels = [r["label"] for r in rs]
         stats = {name: score_stats(labels, [r[name] for r in rs], [r[key] for r in rs])
                  for name, key in (("baseline", "baseline_score"), ("ra_touch", "ra_score"))}

@@ -102,10 +102,12 @@ def format_families(result: dict[str, Any]) -> str:
              "|---|---|---|---|---|---|"]
     for fam, r in [*result["families"].items(), ("all", {"n": "", **result["all"]})]:
         p, b = r["plain"], r["background"]
-
-        def pair(key: str) -> str:
-            return f"{p[key]:.3f} / {b[key]:.3f}" if key in p else "–"
-
-        lines.append(f"| {fam} | {r['n']} | {pair('probe')} | {pair('joint')} | {pair('miss')} "
-                     f"| {pair('false_alarm')} |")
+        probe, joint, miss, alarm = (_pair(p, b, key)
+                                     for key in ("probe", "joint", "miss", "false_alarm"))
+        lines.append(f"| {fam} | {r['n']} | {probe} | {joint} | {miss} | {alarm} |")
     return "\n".join(lines)
+
+
+def _pair(plain: dict[str, float], background: dict[str, float], key: str) -> str:
+    """One table cell: the plain and the background-difference value of `key`."""
+    return f"{plain[key]:.3f} / {background[key]:.3f}" if key in plain else "–"

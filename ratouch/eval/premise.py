@@ -28,7 +28,7 @@ from ratouch.eval.judge import OfflineJudge
 from ratouch.model.generator import load_generator
 from ratouch.paths import cache_dir
 from ratouch.serve.pipeline import RATouchPipeline, integrator_factory, load_for_serving
-from ratouch.timing import Progress, bars, lines
+from ratouch.timing import Progress, bars, say_to
 from ratouch.world.config import WorldConfig
 from ratouch.world.scarcity import ScarceRegime, premise_indices
 from ratouch.world.splits import TestSplit, encode_test_split
@@ -113,7 +113,7 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
         raise ConfigError(f"runs={runs} must be >= 1, n={n} >= 10 and k={k} >= 1")
     t0 = time.perf_counter()
     regime = ScarceRegime()
-    say, progress = lines(progress, log), bars(progress)  # lines; the training's bars
+    say, progress = say_to(progress, log), bars(progress)  # lines; the training's bars
     pipe = pipeline or RATouchPipeline.load(encoder, progress=progress)
     splits = {g: group_split(pipe.encoders, g, n, regime) for g in GROUPS}
     say(f"rendered and encoded {n} seen and {n} scarce pairs")

@@ -27,7 +27,7 @@ import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Iterator, Protocol, Sequence
+from typing import Any, Iterable, Iterator, Protocol, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -117,8 +117,11 @@ class DecoderConfig:
 class TextCodec(Protocol):
     """What the decoder needs from a tokenizer."""
 
-    bos_id: int | None
-    eos_id: int
+    @property
+    def bos_id(self) -> int | None: ...
+
+    @property
+    def eos_id(self) -> int: ...
 
     def encode(self, text: str) -> list[int]: ...
 
@@ -247,7 +250,9 @@ class Decoder(nn.Module):
     def __init__(self, cfg: DecoderConfig, model: nn.Module, tokenizer: TextCodec):
         super().__init__()
         self.cfg = cfg
-        self.model = model
+        # transformers' LLaMA, or peft's PeftModel around it while LoRA is on: each is used
+        # through its own methods, so the attribute holds either
+        self.model: Any = model
         self.tokenizer = tokenizer
         prompt = tokenizer.encode(PROMPT)
         head = [tokenizer.bos_id] if tokenizer.bos_id is not None else []
@@ -470,9 +475,11 @@ class Decoder(nn.Module):
             return
         weights = load_peft_weights(str(folder), device="cpu")
         result = set_peft_model_state_dict(self.model, weights)
-        if result.unexpected_keys:
+        # peft annotates the result as bare `namedtuple`; it is torch's (missing, unexpected)
+        unexpected = result.unexpected_keys  # type: ignore[attr-defined]
+        if unexpected:
             raise DataError(f"adapter {folder} does not fit this decoder: unexpected keys "
-                            f"{result.unexpected_keys[:5]}")
+                            f"{unexpected[:5]}")
         for name, p in self.model.named_parameters():
             p.requires_grad_(trainable and "lora_" in name)
 
@@ -558,6 +565,8 @@ def load_hf_decoder(cfg: DecoderConfig) -> Decoder:
 
     if cfg.kind != "hf":
         raise ConfigError(f"load_hf_decoder needs DecoderConfig.kind 'hf', got {cfg.kind!r}")
+    if cfg.path is None:  # DecoderConfig checks it for kind 'hf'; the config is not frozen
+        raise ConfigError("DecoderConfig.path must name a local LLaMA folder for kind 'hf'")
     folder = Path(cfg.path)
     if not folder.is_dir():
         raise DataNotFoundError(f"LLaMA folder {folder} does not exist")

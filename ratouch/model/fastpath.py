@@ -22,11 +22,14 @@ the same descriptions on the whole test split.
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+if TYPE_CHECKING:  # for the annotations only: this module never imports transformers
+    from transformers import LlamaForCausalLM
 
 
 def supports(model: nn.Module) -> bool:
@@ -68,7 +71,7 @@ class GreedyStack:
         ValueError: a model is not supported (see `supports`) or the shapes differ.
     """
 
-    def __init__(self, models: Sequence[nn.Module]):
+    def __init__(self, models: Sequence[LlamaForCausalLM]):
         if not models or not all(supports(m) for m in models):
             raise ValueError("GreedyStack needs plain LLaMA models without LoRA layers")
         cfg = models[0].config
@@ -90,7 +93,7 @@ class GreedyStack:
         # built once: `greedy` only reads the stack, so threads may share it
         self._cos, self._sin = self._rope_table(self.max_positions)
 
-    def _stack_weights(self, models: Sequence[nn.Module]) -> None:
+    def _stack_weights(self, models: Sequence[LlamaForCausalLM]) -> None:
         params = [dict(m.named_parameters()) for m in models]
 
         def w(names: Sequence[str]) -> Tensor:
@@ -119,8 +122,8 @@ class GreedyStack:
         self.norm = norm("model.norm.weight")
         self.lm_head = torch.stack([m.get_output_embeddings().weight.detach().t()
                                     for m in models]).contiguous()                  # (G,D,V)
-        self.embed = torch.stack([m.get_input_embeddings().weight.detach()
-                                  for m in models]).clone()                         # (G,V,D)
+        self.embed = torch.stack([p["model.embed_tokens.weight"].detach()
+                                  for p in params]).clone()                         # (G,V,D)
 
     def step_bytes(self) -> int:
         """Weight bytes one decoding step reads (each shared weight once; the embedding
@@ -234,7 +237,7 @@ class StackCache:
     def __init__(self) -> None:
         self._stack: GreedyStack | None = None
 
-    def get(self, models: Sequence[nn.Module]) -> GreedyStack:
+    def get(self, models: Sequence[LlamaForCausalLM]) -> GreedyStack:
         """The stack of `models`, built on first use and whenever their weights change."""
         stack = self._stack
         if stack is None or stack.version != weights_version(models):

@@ -138,7 +138,7 @@ class RATouchGenerator(nn.Module):
         p = self.prompt(V, T)                                         # (B, n_prefix, D')
         if (Rv is None) != (Rl is None):
             raise ConfigError("Rv and Rl must be given together (or both left out)")
-        if self.integrator is None or Rv is None:
+        if self.integrator is None or Rv is None or Rl is None:  # both None, or both given
             return p
         if Rv.dim() != 3 or Rv.shape != Rl.shape or Rv.shape[0] != V.shape[0]:
             raise ConfigError(f"Rv and Rl must both have shape (B={V.shape[0]}, K, D), got "
@@ -280,7 +280,7 @@ def save_generator(folder: str | os.PathLike, gen: RATouchGenerator,
         "prompt": asdict(gen.prompt.cfg),
         "decoder": asdict(dec.cfg),
         "integrator": None if gen.integrator is None else
-        (asdict(icfg) if dataclasses.is_dataclass(icfg) else {}),
+        (asdict(icfg) if dataclasses.is_dataclass(icfg) and not isinstance(icfg, type) else {}),
         "lora": dec.has_lora,
     }
     folder.mkdir(parents=True, exist_ok=True)

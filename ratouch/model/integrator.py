@@ -92,14 +92,11 @@ class TextureAwareIntegrator(nn.Module):
         self.text_ca = (nn.MultiheadAttention(c.dim, c.heads, dropout=c.dropout,
                                               batch_first=True) if c.use_text else None)
         self.fuse = nn.Linear(c.dim, c.out_dim)
-        self.mlp = nn.Sequential(
-            nn.Linear(c.out_dim, c.ffn_mult * c.out_dim),
-            nn.ReLU(),
-            nn.Dropout(c.dropout),
-            nn.Linear(c.ffn_mult * c.out_dim, c.out_dim),
-        )
+        mlp_in = nn.Linear(c.out_dim, c.ffn_mult * c.out_dim)
+        mlp_out = nn.Linear(c.ffn_mult * c.out_dim, c.out_dim)  # made in this order: seeded inits
+        self.mlp = nn.Sequential(mlp_in, nn.ReLU(), nn.Dropout(c.dropout), mlp_out)
         # Zero-init: δ = 0 at step 0, so p' = p (see the module docstring).
-        for layer in (self.fuse, self.mlp[-1]):
+        for layer in (self.fuse, mlp_out):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
 
@@ -148,12 +145,12 @@ class TextureAwareIntegrator(nn.Module):
             (B, out_dim) delta δ.
         """
         t, padding, empty = self._query(T, mask)
-        fused = 0
+        attended = []  # a^V and a^L, (B, D) each, whichever paths are on (at least one)
         if self.image_ca is not None:
-            fused = fused + self._attend(self.image_ca, t, Rv, "Rv", padding)  # (B, D)  a^V
+            attended.append(self._attend(self.image_ca, t, Rv, "Rv", padding))
         if self.text_ca is not None:
-            fused = fused + self._attend(self.text_ca, t, Rl, "Rl", padding)  # (B, D)  a^L
-        h = self.fuse(fused)  # (B, D')
+            attended.append(self._attend(self.text_ca, t, Rl, "Rl", padding))
+        h = self.fuse(sum(attended[1:], attended[0]))  # (B, D')
         delta = h + self.mlp(h)  # (B, D')  FFN with its residual, eq. 5
         if empty is not None:
             delta = delta.masked_fill(empty.unsqueeze(1), 0.0)  # (B, D')

@@ -11,7 +11,7 @@ retrieves, without labels:
 
 Which measure and which threshold are set on the world's validation renders (training-split
 renders beyond any training run's pairs, as the trust calibration's), never on the test split:
-`ratouch train cascade` (`ratouch.train.cascade`) writes the calibration, a small JSON file
+`ratouch train cascade` (`ratouch.eval.cascade`) writes the calibration, a small JSON file
 shipped beside the weights (`ratouch.paths.cascade_calibration`).
 
 `Cascade` is an `Answerer` (`ratouch.serve.request`) over its stages' pipelines, and a model
@@ -35,7 +35,8 @@ from ratouch import paths
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
 from ratouch.serve.pipeline import RATouchPipeline
-from ratouch.serve.request import Laps, QueryRequest, QueryResult, check_k
+from ratouch.serve.request import QueryRequest, QueryResult, check_k
+from ratouch.timing import Laps
 
 log = logging.getLogger(__name__)
 

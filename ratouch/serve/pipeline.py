@@ -28,6 +28,7 @@ from ratouch.model.generator import describe_together, load_generator
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.model.neighbour_tokens import KIND as NEIGHBOUR_TOKENS
 from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
+from ratouch.model.trust import TrustCalibration
 from ratouch.paths import generator_weights, trust_calibration
 from ratouch.search.pca import PCA2D
 from ratouch.search.retrieval import QUERY_MODES, CorpusSearch
@@ -38,8 +39,8 @@ from ratouch.search.retrieval_side import (
     open_retriever,
 )
 from ratouch.serve.photo import PhotoRoute
-from ratouch.serve.request import Laps, QueryRequest, QueryResult, answer_one, check_k
-from ratouch.serve.trust import TrustCalibration
+from ratouch.serve.request import QueryRequest, QueryResult, answer_one, check_k
+from ratouch.timing import Laps
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +68,12 @@ def load_trust(encoder: str) -> TrustCalibration | None:
                     encoder, path, encoder)
         return None
     return TrustCalibration.load(path)
+
+
+def stage_ms(clock: Laps, batch_size: int) -> dict[str, float]:
+    """A result's "timings_ms": each stage's ms, the "total" since the clock started and the
+    batch's size."""
+    return {**clock.ms(), "total": round(clock.elapsed() * 1000, 2), "batch_size": batch_size}
 
 
 @dataclass
@@ -205,7 +212,7 @@ class RATouchPipeline(RetrievalSide):
         ra, base, attention = self._generate(requests, encoded, found, touch, clock)
         points = self._project(requests, encoded, found)
         clock.lap("pca")
-        timings = clock.done(len(requests))
+        timings = stage_ms(clock, len(requests))
         explained = list(self.pca.explained)
         return [QueryResult(
             neighbours={mode: [self.neighbour_entry(i, s) for s, i in zip(sc[0], ii[0])]
@@ -365,7 +372,7 @@ class RATouchPipeline(RetrievalSide):
         return {"description": {"ra_touch": ra},
                 "neighbours": [self.neighbour_entry(i, s) for i, s in zip(ids, scores)],
                 "attention": {k: [round(float(x), 4) for x in w[0]] for k, w in weights.items()},
-                "timings_ms": clock.done(1), "warnings": list(request.warnings)}
+                "timings_ms": stage_ms(clock, 1), "warnings": list(request.warnings)}
 
     def _neighbour_ids(self, neighbours: Sequence[int]) -> np.ndarray:
         n = len(self.corpus.entries)

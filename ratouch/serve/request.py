@@ -213,21 +213,3 @@ def answer_one(answerer: Answerer, request: QueryRequest) -> QueryResult:
     if isinstance(out, BaseException):
         raise out
     return out
-
-
-class Laps:
-    """Stage timings of one `answer` call, in ms."""
-
-    def __init__(self):
-        self.start = self.t = time.perf_counter()
-        self.timings: dict[str, float] = {}
-
-    def lap(self, stage: str) -> None:
-        now = time.perf_counter()
-        self.timings[stage] = round((now - self.t) * 1000, 2)
-        self.t = now
-
-    def done(self, batch_size: int) -> dict[str, float]:
-        self.timings["total"] = round((time.perf_counter() - self.start) * 1000, 2)
-        self.timings["batch_size"] = batch_size
-        return self.timings

@@ -9,7 +9,6 @@ count as positives of each other (labels repeat), so the targets are soft.
 from __future__ import annotations
 
 import logging
-import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -17,17 +16,18 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 import torch.nn.functional as F
-from PIL import Image
-from tqdm import tqdm
 
 from ratouch.checkpoint import save_checkpoint
 from ratouch.corpus.imagenet_t import stratified_world_ids, world_lexicon
 from ratouch.corpus.recaption import OfflineRecaptioner
 from ratouch.encoders.default import DefaultEncoders, tactile_input
-from ratouch.encoders.prior import load_prior
 from ratouch.encoders.factory import create_model, model_config
+from ratouch.encoders.preprocess import resize_array
+from ratouch.encoders.prior import load_prior
 from ratouch.errors import ConfigError
+from ratouch.files import write_npz_atomic
 from ratouch.paths import cache_dir
+from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import _fork_context, world_for
 from ratouch.world.scarcity import ScarceRegime
@@ -83,10 +83,10 @@ def _pair_chunk(args):
     for i in indices:
         s = world.sample("train", i)
         x0, y0, x1, y1 = s.box
-        crop = Image.fromarray(s.visual[y0:y1, x0:x1])
-        crops.append(np.asarray(crop.resize(vsize[::-1], Image.BILINEAR)))
+        crop = s.visual[y0:y1, x0:x1]
+        crops.append(resize_array(crop, tuple(vsize[::-1])))
         if psize:
-            pcrops.append(np.asarray(crop.resize((psize, psize), Image.BILINEAR)))
+            pcrops.append(resize_array(crop, psize))
         bg = world.background_image(s.sensor)
         tacs.append(tactile_input(s.tactile, tsize).astype(np.float16))
         tacs_bg.append(tactile_input(s.tactile, tsize, bg).astype(np.float16))
@@ -101,9 +101,9 @@ def _corpus_chunk(args):
     world = world_for(wcfg)
     out = []
     for c, i in ids:
-        img = Image.fromarray(world.corpus_image(c, i))
-        small = np.asarray(img.resize(vsize[::-1], Image.BILINEAR))
-        big = np.asarray(img.resize((psize, psize), Image.BILINEAR)) if psize else None
+        img = world.corpus_image(c, i)
+        small = resize_array(img, tuple(vsize[::-1]))
+        big = resize_array(img, psize) if psize else None
         out.append((small, big, world.corpus_record(c, i)))
     return out
 
@@ -127,10 +127,7 @@ def training_data(tc: TrainConfig, vsize, tsize, progress: bool = True,
             data[k] = [str(x) for x in data[k]]
         return data
     data = render_training_data(tc, vsize, tsize, progress, prior, prior_size)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".partial.npz")
-    np.savez(tmp, **{k: np.asarray(v) for k, v in data.items()})
-    os.replace(tmp, path)
+    write_npz_atomic(path, **{k: np.asarray(v) for k, v in data.items()})
     return data
 
 
@@ -148,7 +145,8 @@ def render_training_data(tc: TrainConfig, vsize, tsize, progress: bool = True,
     corpus_jobs = [(wcfg, ids[k:k + 250], vsize, psize) for k in range(0, len(ids), 250)]
     crops, pcrops, tacs, tacs_bg, labels, mats, cimgs, pcimgs, crecs = ([] for _ in range(9))
     with ProcessPoolExecutor(tc.workers, mp_context=_fork_context()) as pool:
-        bar = tqdm(total=tc.n_pairs + len(ids), desc="render training data", disable=not progress)
+        bar = progress_bar(total=tc.n_pairs + len(ids), desc="render training data",
+                           progress=progress)
         for c, pc, t, tb, lab, m in pool.map(_pair_chunk, pair_jobs):
             crops += c
             pcrops += pc
@@ -286,7 +284,7 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
                                                 pct_start=0.1)
     model.train()
     history = []
-    for step in tqdm(range(tc.steps), desc=f"train {tc.model}", disable=not progress):
+    for step in progress_bar(range(tc.steps), desc=f"train {tc.model}", progress=progress):
         ip = torch.randint(n_pairs, (tc.batch,), generator=gen)
         ic = torch.randint(n_corpus, (tc.batch,), generator=gen)
         v = model.embed_vision(on(_augment(_norm_images(data["crops"][ip.numpy()]), gen, False)),

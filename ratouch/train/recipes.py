@@ -1,6 +1,6 @@
-"""The reproducible training recipes behind `ratouch train retriever|generator|all`: they wire
-cached data, frozen encoders, the default corpus and the trainers together, and save the
-weights shipped in `assets/`."""
+"""The reproducible training recipes behind `ratouch train retriever|generator` (and the
+steps of `ratouch train all`, `ratouch.eval.retrain`): they wire cached data, frozen encoders,
+the retrieval side and the trainers together, and save the weights shipped in `assets/`."""
 
 from __future__ import annotations
 
@@ -175,65 +175,3 @@ def align_only_tgr(encoder: str, epochs: int = 12, seed: int = 0, progress: bool
         info["trained_s"] = round(time.perf_counter() - t0, 1)
     info["align_folder"] = str(folder)
     return load_tgr(encoder, folder=folder), info
-
-
-#: The encoder sets `train_all` ships a whole chain for (retriever, generators, trust), and
-#: those it ships encoders only for (the paper's ViT-Base row).
-CHAIN_ENCODERS = ("default-tiny", "default-s")
-ENCODER_ONLY = ("default-b",)
-
-
-def train_all(seed: int = 0, progress: bool = True, report=print, encoders: bool = True) -> dict:
-    """Every shipped weight, in dependency order: the encoders, the corpus embeddings, then
-    for each of `CHAIN_ENCODERS` the retriever, the language prior, both generators and the
-    trust calibration, and last the cascade over them. Returns the seconds each part took;
-    `report` gets each part's own report as it finishes; `encoders=False` starts from the
-    encoders already in assets/ (e.g. trained where a GPU was lent)."""
-    import shutil
-
-    from ratouch.encoders.factory import shipped_weights
-    from ratouch.paths import cascade_calibration, trust_calibration
-    from ratouch.serve.pipeline import default_corpus
-    from ratouch.train.encoders import STEPS, train_encoders
-    from ratouch.train.trust import TrustConfig, calibrate
-
-    t0, times = time.perf_counter(), {}
-
-    def lap(name: str) -> None:
-        nonlocal t0
-        times[name] = round(time.perf_counter() - t0, 1)
-        t0 = time.perf_counter()
-
-    shared: dict = {}
-    for name in (*CHAIN_ENCODERS, *ENCODER_ONLY) if encoders else ():
-        tc = TrainConfig(model=name, seed=seed, steps=STEPS.get(name, 300))
-        _, rep = train_encoders(tc, out=str(shipped_weights(name)), cache=shared,
-                                progress=progress)
-        report({"encoders": name, **rep})
-        lap(f"encoders_{name}")
-    shared.clear()
-    for name in (*CHAIN_ENCODERS, *ENCODER_ONLY):
-        default_corpus(name, progress=progress)  # re-embeds: the encoder weights changed
-    lap("corpus_embeddings")
-    for name in CHAIN_ENCODERS:
-        report({"retriever": name, **retriever_recipe(name, seed=seed, progress=progress)})
-        lap(f"retriever_{name}")
-        prior = generator_weights(name, "prior")
-        if prior.is_dir():
-            shutil.rmtree(prior)  # trained on the old encoders' text embeddings
-        report({"generators": name, **generator_recipe(name, seed=seed, progress=progress)})
-        lap(f"generators_{name}")
-        cal = calibrate(create_model(name), TrustConfig(seed=seed), progress=progress)
-        cal.save(trust_calibration(name))
-        report({"trust": name, **cal.meta})
-        lap(f"trust_{name}")
-    from ratouch.serve.pipeline import RATouchPipeline
-    from ratouch.train.cascade import CascadeConfig, calibrate_cascade
-
-    cascade = calibrate_cascade([RATouchPipeline.load(n, progress=progress)
-                                 for n in CHAIN_ENCODERS], CascadeConfig(seed=seed))
-    cascade.save(cascade_calibration("+".join(CHAIN_ENCODERS)))
-    report({"cascade": list(CHAIN_ENCODERS), "measure": cascade.measure,
-            "thresholds": list(cascade.thresholds)})
-    lap("cascade")
-    return {"seconds": times, "total_s": round(sum(times.values()), 1)}

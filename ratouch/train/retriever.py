@@ -20,13 +20,13 @@ import torch
 
 from ratouch.checkpoint import save_checkpoint
 from ratouch.errors import ConfigError
-from ratouch.train.encoders import tactile_batch
 from ratouch.model.loss import RetrieverLossConfig, retriever_loss
 from ratouch.model.retriever import (
     RetrieverConfig,
     TactileGuidedRetriever,
     collapse_stats,
 )
+from ratouch.train.encoders import tactile_batch
 
 log = logging.getLogger(__name__)
 

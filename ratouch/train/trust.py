@@ -15,16 +15,16 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from ratouch.errors import ConfigError
-from ratouch.serve.trust import (
+from ratouch.model.trust import (
     ContactModel,
     Novelty,
     TrustCalibration,
     contact_features,
     threshold_for,
 )
+from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.generator import TEST_SIZE, World
 from ratouch.world.tactile import FAMILIES, sensor_family
@@ -66,7 +66,7 @@ class TrustConfig:
 def _render(world: World, split: str, indices, progress: bool, what: str) -> dict:
     """Crops, tactile frames, their sensors' backgrounds and families of some samples."""
     crops, frames, bgs, families = [], [], [], []
-    for i in tqdm(indices, desc=f"render {what}", disable=not progress):
+    for i in progress_bar(indices, desc=f"render {what}", progress=progress):
         s = world.sample(split, int(i))
         crops.append(s.crop)
         frames.append(s.tactile)

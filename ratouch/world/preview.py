@@ -35,9 +35,10 @@ def contact_sheet(samples: Sequence[Sample], columns: int = 4, scale: int = 2) -
     draw = ImageDraw.Draw(sheet)
     for i, smp in enumerate(samples):
         x, y = (i % columns) * cell_w, (i // columns) * cell_h
-        vis = draw_box(smp.visual, smp.box).resize((s, s), Image.NEAREST)
+        vis = draw_box(smp.visual, smp.box).resize((s, s), Image.Resampling.NEAREST)
         sheet.paste(vis, (x + 2, y + 2))
-        sheet.paste(Image.fromarray(smp.tactile).resize((tw, th), Image.BILINEAR), (x + s + 6, y + 2))
+        tac = Image.fromarray(smp.tactile).resize((tw, th), Image.Resampling.BILINEAR)
+        sheet.paste(tac, (x + s + 6, y + 2))
         what = smp.class_name or "close-up"
         draw.text((x + 4, y + max(s, th) + 4), f"{what} / {smp.material}", fill=(20, 20, 20))
         draw.text((x + 4, y + max(s, th) + 18), smp.caption, fill=(30, 30, 160))

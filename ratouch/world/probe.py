@@ -70,7 +70,7 @@ def _gradient_stats(gray: np.ndarray, n_bins: int = 8) -> np.ndarray:
 def visual_features(image: np.ndarray, box) -> np.ndarray:
     """Features of the visual crop inside the contact box."""
     x0, y0, x1, y1 = box
-    crop = Image.fromarray(image[y0:y1, x0:x1]).resize((48, 48), Image.BILINEAR)
+    crop = Image.fromarray(image[y0:y1, x0:x1]).resize((48, 48), Image.Resampling.BILINEAR)
     rgb = np.asarray(crop, np.float32) / 255
     gray = rgb.mean(axis=2)
     mx, mn = rgb.max(axis=2), rgb.min(axis=2)

@@ -122,7 +122,8 @@ def premise_indices(group: str, n: int, regime: ScarceRegime) -> list[int]:
 
     world = world_for(WorldConfig(seed=regime.seed))
     scarce = set(regime.scarce_materials())
-    out, i = [], PREMISE_START
+    out: list[int] = []
+    i = PREMISE_START
     while len(out) < n:
         if (world.plan("probe", i)[2].name in scarce) == (group == "scarce"):
             out.append(i)

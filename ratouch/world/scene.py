@@ -13,6 +13,7 @@ from typing import Callable
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
+from ratouch.errors import ConfigError
 from ratouch.world.config import WorldConfig
 from ratouch.world.material import COLOURS, MATERIALS, Material, material
 from ratouch.world.objects import FAMILY_ASPECT, ObjectClass
@@ -71,9 +72,24 @@ class ScenePlan:
 
 def _surface(rng: np.random.Generator, mat: Material, step: float) -> Surface:
     colour = mat.look.palette[rng.integers(len(mat.look.palette))]
-    jitter = tuple(float(v) for v in rng.uniform(0.9, 1.1, 3) * rng.uniform(0.85, 1.15))
-    return Surface(mat.name, colour, jitter, step * float(rng.uniform(0.85, 1.15)),
-                   float(rng.uniform(0, 360)), tuple(float(v) for v in rng.uniform(0, 256, 2)))
+    jr, jg, jb = rng.uniform(0.9, 1.1, 3) * rng.uniform(0.85, 1.15)
+    step *= float(rng.uniform(0.85, 1.15))
+    angle = float(rng.uniform(0, 360))
+    ox, oy = rng.uniform(0, 256, 2)
+    return Surface(mat.name, colour, (float(jr), float(jg), float(jb)), step, angle,
+                   (float(ox), float(oy)))
+
+
+def _variant(rng: np.random.Generator) -> tuple[float, float, float, float]:
+    """A silhouette's shape variant: four draws in [0, 1)."""
+    a, b, c, d = rng.uniform(0, 1, 4)
+    return float(a), float(b), float(c), float(d)
+
+
+def _tint(rng: np.random.Generator) -> tuple[float, float, float]:
+    """The scene light's colour: a factor near 1 per channel."""
+    r, g, b = rng.uniform(0.93, 1.07, 3)
+    return float(r), float(g), float(b)
 
 
 def _bbox(rng: np.random.Generator, size: int, extent: float, aspect: float) -> tuple:
@@ -133,13 +149,14 @@ def plan_scene(rng: np.random.Generator, cfg: WorldConfig, kind: str, cls: Objec
         bbox = (0.0, 0.0, float(size), float(size))
         family, tex_step = "box", float(rng.uniform(0.45, 0.7))
     else:
+        if cls is None:
+            raise ConfigError(f"a {kind!r} scene needs an object class")
         lo, hi = (0.3, 0.85) if kind == "wild" else (0.5, 0.9)
         extent = st.object_scale if st.object_scale is not None else float(rng.uniform(lo, hi))
         family = cls.family
         bbox = _bbox(rng, size, extent, FAMILY_ASPECT[family])
         tex_step = 0.8 / extent * size / 128
-    obj = Thing(family, bbox, tuple(float(v) for v in rng.uniform(0, 1, 4)),
-                bool(rng.integers(2)), _surface(rng, mat, tex_step))
+    obj = Thing(family, bbox, _variant(rng), bool(rng.integers(2)), _surface(rng, mat, tex_step))
     others = [m for m in MATERIALS if m.name != mat.name]
     bg_mat = others[rng.integers(len(others))]
     background = _surface(rng, bg_mat, float(rng.uniform(0.9, 1.6)) * size / 128)
@@ -158,8 +175,7 @@ def plan_scene(rng: np.random.Generator, cfg: WorldConfig, kind: str, cls: Objec
             dm = others[rng.integers(len(others))]
             fam = families[rng.integers(len(families))]
             dbox = _bbox(rng, size, float(rng.uniform(0.1, 0.3)), FAMILY_ASPECT[fam])
-            distractors.append(Thing(fam, dbox, tuple(float(v) for v in rng.uniform(0, 1, 4)),
-                                     bool(rng.integers(2)),
+            distractors.append(Thing(fam, dbox, _variant(rng), bool(rng.integers(2)),
                                      _surface(rng, dm, 0.8 / 0.2 * size / 128)))
     if kind == "corpus":  # ImageNet-like entries have no contact: the box is the object's
         box_true = _window(bbox, size, 0)
@@ -176,7 +192,7 @@ def plan_scene(rng: np.random.Generator, cfg: WorldConfig, kind: str, cls: Objec
         kind=kind, class_name=cls.name if cls is not None else "", obj=obj, background=background,
         dominance=dominance, light_angle=float(rng.uniform(0, 360)),
         ambient=float(rng.uniform(0.55, 0.75)),
-        tint=tuple(float(v) for v in rng.uniform(0.93, 1.07, 3)),
+        tint=_tint(rng),
         box_true=box_true, box=box, render_seed=int(rng.integers(2**31)),
         missing_visual=st.missing == "visual", distractors=tuple(distractors))
 

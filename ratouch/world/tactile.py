@@ -295,11 +295,14 @@ def plan_tactile(rng: np.random.Generator, cfg: WorldConfig, mat: Material,
     base_angle = float(rng.uniform(0, 360))
     rotation = st.tactile_rotation if st.tactile_rotation is not None else 0.0
     rng.integers(_LEGACY_SENSOR_DRAW)  # the former sensor draw, kept for the stream
-    centre = tuple(float(v) for v in rng.uniform(0.4, 0.6, 2))
+    cx, cy = rng.uniform(0.4, 0.6, 2)
+    centre = (float(cx), float(cy))
     force = float(rng.uniform(0.45, 1.0))
-    axes = tuple(float(v) for v in rng.uniform(0.8, 1.2, 2))
+    ax, ay = rng.uniform(0.8, 1.2, 2)
+    axes = (float(ax), float(ay))
     ellipse_angle = float(rng.uniform(0, 180))
-    texture_offset = tuple(float(v) for v in rng.uniform(0, 256, 2))
+    ox, oy = rng.uniform(0, 256, 2)
+    texture_offset = (float(ox), float(oy))
     texture_step = float(rng.uniform(0.9, 1.1)) * 96 / cfg.tactile_hw[1]
     if st.tactile_blur is None:
         rng.uniform(0.5, 1.1)  # the former blur draw
@@ -316,10 +319,12 @@ def plan_tactile(rng: np.random.Generator, cfg: WorldConfig, mat: Material,
     noise = float(frame.uniform(*fam.noise))
     light_gain = float(1 + frame.uniform(-1, 1) * fam.gain_jitter)
     light_turn = float(frame.uniform(-1, 1) * fam.turn_jitter)
-    tint = tuple(float(t) for t in 1 + frame.uniform(-1, 1, 3) * fam.tint_jitter)
+    tr, tg, tb = 1 + frame.uniform(-1, 1, 3) * fam.tint_jitter
+    tint = (float(tr), float(tg), float(tb))
     vignette = float(frame.uniform(*fam.vignette))
     drift_z = float(np.clip(frame.standard_normal(), -2.5, 2.5))
-    shear = tuple(float(v) for v in frame.normal(0, 0.5, 2) * scale)
+    sx, sy = frame.normal(0, 0.5, 2) * scale
+    shear = (float(sx), float(sy))
     marker_jitter = float(frame.uniform(0.05, 0.25) * scale)
     if st.tactile_blur is not None:
         blur = st.tactile_blur

@@ -67,7 +67,7 @@ def diff_chart(title: str, names: Sequence[str], results: Sequence[dict], base: 
 
     subs = np.array(subsets)
     fig = go.Figure()
-    for key, label, sel in (("SSVTP", "SSVTP (structured)", subs == "structured"),
+    for _key, label, sel in (("SSVTP", "SSVTP (structured)", subs == "structured"),
                             ("HCT", "HCT (wild)", subs == "wild"),
                             ("overall", "TVL (overall)", np.ones(len(subs), bool))):
         stats = [paired_difference(np.array(base["scores"])[sel], np.array(r["scores"])[sel])

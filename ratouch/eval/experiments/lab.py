@@ -20,8 +20,8 @@ import numpy as np
 
 from ratouch.checkpoint import sha256_file
 from ratouch.errors import ConfigError
-from ratouch.eval.experiments.variants import INTEGRATIONS, ExperimentConfig, Variant
 from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split, judge_answers
+from ratouch.eval.experiments.variants import INTEGRATIONS, ExperimentConfig, Variant
 from ratouch.eval.judge import OfflineJudge
 from ratouch.files import write_json_atomic
 from ratouch.model.generator import load_generator, save_generator

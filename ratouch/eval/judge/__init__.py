@@ -30,24 +30,20 @@ out), ``explain`` (word-by-word explanations, offline vs LLM agreement).
 
 from __future__ import annotations
 
-from ratouch.eval.judge.records import (
-    EVAL_KEY,
-    LABEL_KEY,
-    MAX_SCORE,
-    MIN_SCORE,
-    RESPONSE_KEY,
-    SUBSETS,
-    check_records,
-    parse_gpt_score,
-    read_records,
-    subset_of,
+from ratouch.eval.judge.calibration import (
+    DATA_DIR_ENV,
+    MODELS,
+    fit_calibration,
+    fit_offline_judge,
+    heldout_split,
+    judge_data_dir,
+    load_tvl_results,
 )
-from ratouch.eval.judge.lexicon import (
-    ANTONYM_GROUPS,
-    NON_TACTILE,
-    SYNONYM,
-    antonymy,
-    similarity,
+from ratouch.eval.judge.explain import (
+    compare_judges,
+    explain_results,
+    format_compare,
+    format_explain,
 )
 from ratouch.eval.judge.features import (
     FEATURES,
@@ -61,11 +57,12 @@ from ratouch.eval.judge.features import (
     label_fit_rates,
     word_table,
 )
-from ratouch.eval.judge.offline import (
-    CONFIG_PATH,
-    OfflineJudge,
-    load_offline_config,
-    write_offline_config,
+from ratouch.eval.judge.lexicon import (
+    ANTONYM_GROUPS,
+    NON_TACTILE,
+    SYNONYM,
+    antonymy,
+    similarity,
 )
 from ratouch.eval.judge.llm import (
     JUDGE_PROMPT,
@@ -74,22 +71,23 @@ from ratouch.eval.judge.llm import (
     LLMJudgeConfig,
     build_judge_prompt,
 )
-from ratouch.eval.judge.stats import (
-    BOOTSTRAP_SAMPLES,
-    format_stats,
-    format_summary,
-    judge_results,
-    mean_ci,
-    score_stats,
+from ratouch.eval.judge.offline import (
+    CONFIG_PATH,
+    OfflineJudge,
+    load_offline_config,
+    write_offline_config,
 )
-from ratouch.eval.judge.calibration import (
-    DATA_DIR_ENV,
-    MODELS,
-    fit_calibration,
-    fit_offline_judge,
-    heldout_split,
-    judge_data_dir,
-    load_tvl_results,
+from ratouch.eval.judge.records import (
+    EVAL_KEY,
+    LABEL_KEY,
+    MAX_SCORE,
+    MIN_SCORE,
+    RESPONSE_KEY,
+    SUBSETS,
+    check_records,
+    parse_gpt_score,
+    read_records,
+    subset_of,
 )
 from ratouch.eval.judge.shifts import (
     CHANCE_TOLERANCE,
@@ -101,18 +99,20 @@ from ratouch.eval.judge.shifts import (
     style_shift,
     style_shifts,
 )
+from ratouch.eval.judge.stats import (
+    BOOTSTRAP_SAMPLES,
+    format_stats,
+    format_summary,
+    judge_results,
+    mean_ci,
+    score_stats,
+)
 from ratouch.eval.judge.validation import (
     GPT4_INTERRUN_SPEARMAN,
     TARGETS,
     format_validation,
     leave_one_system_out,
     validate_judge,
-)
-from ratouch.eval.judge.explain import (
-    compare_judges,
-    explain_results,
-    format_compare,
-    format_explain,
 )
 from ratouch.vocabulary import TVL_QUESTION  # the question the LLM judge asks
 

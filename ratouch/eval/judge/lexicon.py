@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-
 # Synonym groups, "word" or "word:weight" (weight of a looser member, default 1). Two different
 # words are similar when they share a group: similarity SYNONYM * w_a * w_b (exact match: 1).
 _GROUPS_SPEC = {

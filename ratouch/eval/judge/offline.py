@@ -17,7 +17,14 @@ from pathlib import Path
 import numpy as np
 
 from ratouch.errors import ConfigError, DataError
-from ratouch.eval.judge.features import FEATURES, NO_RATES, WordRates, answer_rates, judge_features, word_table
+from ratouch.eval.judge.features import (
+    FEATURES,
+    NO_RATES,
+    WordRates,
+    answer_rates,
+    judge_features,
+    word_table,
+)
 from ratouch.eval.judge.records import MAX_SCORE, MIN_SCORE
 from ratouch.files import write_json_atomic
 from ratouch.paths import CONFIGS

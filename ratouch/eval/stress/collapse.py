@@ -6,8 +6,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from ratouch.eval.stress.scoring import Context, split_retrieval_metrics
 from ratouch.model.retriever import collapse_stats
 from ratouch.train.recipes import align_only_tgr

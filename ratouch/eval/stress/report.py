@@ -10,10 +10,10 @@ import os
 from pathlib import Path
 from typing import Sequence
 
+from ratouch.eval.answer import BASELINE, RA_TOUCH, SYSTEMS
 from ratouch.eval.report import png_bytes, write_plotly_js
 from ratouch.eval.stress.charts import figures
 from ratouch.eval.stress.sweeps import PAIR_FIXED, PAPER_FAILURE, PER_SAMPLE
-from ratouch.eval.answer import BASELINE, RA_TOUCH, SYSTEMS
 from ratouch.files import write_atomic
 from ratouch.search.retrieval import QUERY_MODES
 

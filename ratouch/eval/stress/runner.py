@@ -22,7 +22,7 @@ from ratouch.eval.stress.sweeps import (
     build_sweeps,
     stratified_indices,
 )
-from ratouch.timing import Progress, lines
+from ratouch.timing import Progress, say_to
 from ratouch.world.config import StressConfig, WorldConfig
 from ratouch.world.generator import World
 from ratouch.world.splits import TestSplit
@@ -125,7 +125,7 @@ def run_stress(pipeline, sweeps: dict[str, list[dict]] | None = None, k: int = 5
     world = world or WorldConfig()
     if world.stress != StressConfig():
         raise ConfigError("the base world of a stress sweep must be unstressed")
-    say = lines(progress, log)
+    say = say_to(progress, log)
     run = _Sweep(pipeline, Context(pipeline, k, judge or OfflineJudge()),
                  stratified_indices(n), world, say)
     nat_split, nat_ans = run.reference(())

@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from ratouch.eval.retrieval import entry_materials, retrieval_metrics
 from ratouch.eval.answer import SYSTEMS, answer_split, judge_answers, retrieve
+from ratouch.eval.retrieval import entry_materials, retrieval_metrics
 from ratouch.search.retrieval import QUERY_MODES
 from ratouch.vocabulary import parse_adjectives
 from ratouch.world.splits import TestSplit

@@ -72,7 +72,7 @@ def build_sweeps(knobs: Sequence[str] | None = None,
             sweeps[knob] = [{knob: _knob_value(knob, str(v))} for v in vals]
         else:
             sweeps[knob] = [dict(p) for p in SWEEPS[knob]]
-    for knob, points in sweeps.items():
+    for points in sweeps.values():
         for p in points:
             if p.get("missing") == "none":
                 raise ConfigError("missing=none is the reference; sweep 'tactile' or 'visual'")

@@ -79,6 +79,7 @@ class Prim:
     """
 
     __slots__ = ("ext",)
+    ext: tuple[float, float, float, float]
 
     def render(self, g: Grid, grow: bool) -> Render | None:
         """Rasterise on the grid.

@@ -27,8 +27,8 @@ from typing import Sequence
 import numpy as np
 
 from ratouch.errors import ConfigError
+from ratouch.eval.answer import RA_TOUCH, answer_split
 from ratouch.eval.retrieval import entry_materials, material_precision
-from ratouch.eval.tvl import describe
 from ratouch.serve.cascade import MEASURES, CascadeCalibration, joint_confidence
 from ratouch.train.trust import VALIDATION_START
 from ratouch.vocabulary import adjective_f1
@@ -61,8 +61,7 @@ def stage_outcomes(pipeline, split, k: int) -> dict:
     """What one stage does alone on an encoded split (encoded with its own encoders): the
     joint query's top-k search, its material P@k and the RA-Touch answers' adjective F1."""
     scores, ids = pipeline.corpus.search("text", pipeline.joint_query(split.V, split.T), k)
-    answers = describe(pipeline.generator_ra, split.V, split.T,
-                       *pipeline.neighbour_embeddings(ids))
+    answers = answer_split(pipeline, split, RA_TOUCH, ids=ids).responses
     return {"scores": scores, "ids": ids,
             "precision": material_precision(ids, split.materials,
                                             entry_materials(pipeline.corpus)),

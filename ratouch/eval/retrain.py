@@ -1,0 +1,72 @@
+"""What `ratouch train all` runs: every shipped weight retrained in dependency order (the
+encoders, the corpus embeddings, and per encoder set of the chain the retriever, the trust
+calibration, the language prior and both generators), then the cascade calibrated over the
+chain's pipelines.
+
+It sits above serving and training: the cascade is calibrated by answering validation renders
+with the loaded pipelines (`ratouch.eval.cascade`). Each step is a training recipe
+(`ratouch.train.recipes`) or a calibration that can also run alone (`ratouch train ...`).
+"""
+
+from __future__ import annotations
+
+import shutil
+
+from ratouch.encoders.factory import CHAIN_SETS, ENCODER_ONLY_SETS, create_model, shipped_weights
+from ratouch.eval.cascade import CascadeConfig, calibrate_cascade
+from ratouch.paths import cascade_calibration, generator_weights, trust_calibration
+from ratouch.search.retrieval_side import default_corpus
+from ratouch.serve.pipeline import RATouchPipeline
+from ratouch.timing import Laps
+from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
+from ratouch.train.recipes import generator_recipe, retriever_recipe
+from ratouch.train.trust import TrustConfig, calibrate
+
+#: The encoder sets `train_all` ships a whole chain for (retriever, generators, trust), and
+#: those it ships encoders only for (the paper's ViT-Base row).
+CHAIN_ENCODERS = CHAIN_SETS  # the registry's names (`ratouch.encoders.factory`)
+ENCODER_ONLY = ENCODER_ONLY_SETS
+
+
+def train_all(seed: int = 0, progress: bool = True, report=print, encoders: bool = True) -> dict:
+    """Every shipped weight, in dependency order: the encoders, the corpus embeddings, then
+    for each of `CHAIN_ENCODERS` the retriever, the trust calibration, the language prior
+    and both generators, and last the cascade over them. Returns the seconds each part took;
+    `report` gets each part's own report as it finishes; `encoders=False` starts from the
+    encoders already in assets/ (e.g. trained where a GPU was lent)."""
+    clock = Laps()
+    lap = clock.lap
+
+    shared: dict = {}
+    for name in (*CHAIN_ENCODERS, *ENCODER_ONLY) if encoders else ():
+        tc = TrainConfig(model=name, seed=seed, steps=STEPS.get(name, 300))
+        _, rep = train_encoders(tc, out=str(shipped_weights(name)), cache=shared,
+                                progress=progress)
+        report({"encoders": name, **rep})
+        lap(f"encoders_{name}")
+    shared.clear()
+    for name in (*CHAIN_ENCODERS, *ENCODER_ONLY):
+        default_corpus(name, progress=progress)  # re-embeds: the encoder weights changed
+    lap("corpus_embeddings")
+    for name in CHAIN_ENCODERS:
+        report({"retriever": name, **retriever_recipe(name, seed=seed, progress=progress)})
+        lap(f"retriever_{name}")
+        # the trust calibration needs only the encoders (the pipelines that read it are
+        # loaded for the cascade, last)
+        cal = calibrate(create_model(name), TrustConfig(seed=seed), progress=progress)
+        cal.save(trust_calibration(name))
+        report({"trust": name, **cal.meta})
+        lap(f"trust_{name}")
+        prior = generator_weights(name, "prior")
+        if prior.is_dir():
+            shutil.rmtree(prior)  # trained on the old encoders' text embeddings
+        report({"generators": name, **generator_recipe(name, seed=seed, progress=progress)})
+        lap(f"generators_{name}")
+    cascade = calibrate_cascade([RATouchPipeline.load(n, progress=progress)
+                                 for n in CHAIN_ENCODERS], CascadeConfig(seed=seed))
+    cascade.save(cascade_calibration("+".join(CHAIN_ENCODERS)))
+    report({"cascade": list(CHAIN_ENCODERS), "measure": cascade.measure,
+            "thresholds": list(cascade.thresholds)})
+    lap("cascade")
+    times = clock.seconds(1)
+    return {"seconds": times, "total_s": round(sum(times.values()), 1)}
