@@ -216,6 +216,9 @@ def test_bad_settings_are_refused(fake):
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="a known miss, left open in issue 24: on the retrained "
+                   "weights a single query answers 'smooth, slick, plastic' where the batched "
+                   "failure table has 'smooth, slick, plastic, firm' for the same case")
 def test_real_pipeline_failure_cases(real_pipeline):
     pipe = real_pipeline
     table = failures.load_or_compute(pipe, conditions=("natural", "noisy touch"),
