@@ -21,26 +21,13 @@ from sklearn.linear_model import LogisticRegression
 from sklearn.preprocessing import StandardScaler
 
 from ratouch.eval.retrieval import entry_materials
-from ratouch.train.trust import VALIDATION_START
+from ratouch.train.trust import VALIDATION_START, render_samples
 from ratouch.world.config import WorldConfig
 from ratouch.world.generator import World
-from ratouch.world.tactile import FAMILIES, sensor_family
+from ratouch.world.tactile import FAMILIES
 
 #: First training-split index of these renders (beyond the trust and cascade calibrations').
 FAMILIES_START = VALIDATION_START + 300_000
-
-
-def _render(world: World, n: int) -> dict[str, list]:
-    out: dict[str, list] = {"crops": [], "frames": [], "backgrounds": [], "materials": [],
-                            "families": []}
-    for i in range(FAMILIES_START, FAMILIES_START + n):
-        s = world.sample("train", i)
-        out["crops"].append(s.crop)
-        out["frames"].append(s.tactile)
-        out["backgrounds"].append(world.background_image(s.sensor))
-        out["materials"].append(s.material)
-        out["families"].append(sensor_family(s.sensor))
-    return out
 
 
 def _probe(T: np.ndarray, materials: np.ndarray, seed: int) -> np.ndarray:
@@ -61,7 +48,8 @@ def evaluate_families(pipeline, n: int = 600, seed: int = 0, k: int = 5) -> dict
     """The per-family figures of the module docstring for one loaded pipeline."""
     world = World(WorldConfig(seed=seed)).warm()
     empty = World(WorldConfig(seed=seed).with_stress(no_contact=1.0)).warm()
-    data, nc = _render(world, n), _render(empty, n)
+    idx = range(FAMILIES_START, FAMILIES_START + n)
+    data, nc = render_samples(world, "train", idx), render_samples(empty, "train", idx)
     enc = pipeline.encoders
     V = pipeline.encode_images(data["crops"])[0]
     materials = np.asarray(data["materials"])

@@ -63,16 +63,20 @@ class TrustConfig:
             raise ConfigError(f"rank={self.rank} must lie in [1, n_reference)")
 
 
-def _render(world: World, split: str, indices, progress: bool, what: str) -> dict:
-    """Crops, tactile frames, their sensors' backgrounds and families of some samples."""
-    crops, frames, bgs, families = [], [], [], []
+def render_samples(world: World, split: str, indices, progress: bool = False,
+                   what: str = "samples") -> dict:
+    """Crops, tactile frames, their sensors' backgrounds and families, and the materials of
+    some samples."""
+    out: dict[str, list] = {"crops": [], "frames": [], "backgrounds": [], "families": [],
+                            "materials": []}
     for i in progress_bar(indices, desc=f"render {what}", progress=progress):
         s = world.sample(split, int(i))
-        crops.append(s.crop)
-        frames.append(s.tactile)
-        bgs.append(world.background_image(s.sensor))
-        families.append(sensor_family(s.sensor))
-    return {"crops": crops, "frames": frames, "backgrounds": bgs, "families": families}
+        out["crops"].append(s.crop)
+        out["frames"].append(s.tactile)
+        out["backgrounds"].append(world.background_image(s.sensor))
+        out["families"].append(sensor_family(s.sensor))
+        out["materials"].append(s.material)
+    return out
 
 
 def _features(data: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -96,13 +100,13 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
     """
     world = World(WorldConfig(seed=cfg.seed)).warm()
     nc_world = World(WorldConfig(seed=cfg.seed).with_stress(no_contact=1.0)).warm()
-    ref = _render(world, "train", range(cfg.n_reference), progress, "reference")
-    nc_ref = _render(nc_world, "train", range(cfg.n_reference), progress, "reference, no contact")
+    ref = render_samples(world, "train", range(cfg.n_reference), progress, "reference")
+    nc_ref = render_samples(nc_world, "train", range(cfg.n_reference), progress, "reference, no contact")
     val_idx = range(VALIDATION_START, VALIDATION_START + cfg.n_validation)
-    val = _render(world, "train", val_idx, progress, "validation")
-    nc_val = _render(nc_world, "train", val_idx, progress, "validation, no contact")
-    test = _render(world, "test", range(TEST_SIZE), progress, "test")
-    nc_test = _render(nc_world, "test", range(TEST_SIZE), progress, "test, no contact")
+    val = render_samples(world, "train", val_idx, progress, "validation")
+    nc_val = render_samples(nc_world, "train", val_idx, progress, "validation, no contact")
+    test = render_samples(world, "test", range(TEST_SIZE), progress, "test")
+    nc_test = render_samples(nc_world, "test", range(TEST_SIZE), progress, "test, no contact")
     enc = {}
     for name, d in (("ref", ref), ("val", val), ("test", test)):
         V, P = encoders.encode_image_features(d["crops"]) if hasattr(
