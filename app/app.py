@@ -267,7 +267,7 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
     handler with which inputs reads as one list.
     """
     box_out = [ui.state, ui.visual, *ui.fields, ui.box_note]
-    example_out = [ui.state, ui.visual, ui.tactile, *ui.fields, ui.box_note]
+    example_out = [ui.state, ui.visual, ui.tactile, ui.background, *ui.fields, ui.box_note]
     query_in = [ui.state, ui.tactile, *ui.fields, ui.k, ui.background, ui.model]
     query_out = [ui.status, *ui.galleries, *ui.tables, ui.plot, ui.description, ui.timings,
                  ui.raw]
@@ -296,9 +296,9 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
                                         progress, background=bg, largest_k=largest,
                                         judge=judge, encoder=model if choice else None))
 
-    def regenerate(state, tac, a, b, c, d, kept, result, model):
+    def regenerate(state, tac, a, b, c, d, kept, result, model, bg):
         return handlers.regenerate(pipeline, state, tac, a, b, c, d, kept, result, judge,
-                                   encoder=model if choice else None)
+                                   encoder=model if choice else None, background=bg)
 
     def api_query(visual, tactile, a, b, c, d, k, model=None):
         return handlers.api_query(pipeline, visual, tactile, a, b, c, d, k,
@@ -337,7 +337,8 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
     # a new result (or none) resets the neighbour picker and the regenerated answer
     ui.raw.change(lambda r: (handlers.neighbour_picker(r), ""), ui.raw,
                   [ui.keep, ui.regen_out], **light)
-    ui.regen.click(regenerate, [ui.state, ui.tactile, *ui.fields, ui.keep, ui.raw, ui.model],
+    ui.regen.click(regenerate, [ui.state, ui.tactile, *ui.fields, ui.keep, ui.raw, ui.model,
+                                ui.background],
                    ui.regen_out, **queries, **raw, **private)
     # failure cases: read from the cache when the tab opens, computed only on request
     gr.on([ui.failures_tab.select, ui.subset.change, ui.condition.change, ui.fail_view.change],

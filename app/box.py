@@ -17,6 +17,7 @@ from PIL import Image, ImageDraw
 
 from ratouch.encoders.preprocess import to_rgb_array, tvl_contact_box
 from ratouch.errors import DataError
+from ratouch.images import resize_array
 
 PREVIEW_SIDE = 512
 MARKED = (230, 30, 30)     # a box the user marked or typed
@@ -60,7 +61,7 @@ def load_visual(source: str | np.ndarray, title: str, label: str | None = None) 
     size = (max(1, round(w * scale)), max(1, round(h * scale)))
     # small (world) images are upscaled with NEAREST so their pixels stay visible for clicking
     resample = Image.NEAREST if scale >= 2 else Image.LANCZOS
-    base = np.asarray(Image.fromarray(image).resize(size, resample))
+    base = resize_array(image, size, resample)
     return Visual(source, (w, h), base, size[0] / w, title, label)
 
 

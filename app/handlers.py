@@ -165,10 +165,12 @@ def example_gallery(world, indices: list[int]) -> list[tuple[np.ndarray, str]]:
 
 
 def load_example(world, index: Any) -> tuple:
-    """Load test-split pair `index` (visual, tactile, its contact box and label).
+    """Load test-split pair `index` (visual, tactile, its sensor's background, its contact
+    box and label). The background fills the optional field, as TVL rows carry one: the
+    query reads the frame against it, as the evaluations do.
 
     Returns:
-        (visual state, preview, tactile image, x0, y0, x1, y1, box note)
+        (visual state, preview, tactile image, background image, x0, y0, x1, y1, box note)
     """
     try:
         i = int(index)
@@ -179,9 +181,9 @@ def load_example(world, index: Any) -> tuple:
     except (TypeError, ValueError, IndexError, *USER_ERRORS) as e:
         msg = _fail(e if isinstance(e, USER_ERRORS) else
                     DataError(f"no test example {index!r}: {e}"))
-        return (None, None, None, *NO_BOX, f"⛔ {msg}")
+        return (None, None, None, None, *NO_BOX, f"⛔ {msg}")
     box = tuple(int(v) for v in s.box)
-    return (visual, boxes.draw(visual, box), s.tactile, *box,
+    return (visual, boxes.draw(visual, box), s.tactile, world.background_image(s.sensor), *box,
             f"Ground-truth label: **{s.caption}** · {_box_note(visual, box)}")
 
 
@@ -297,21 +299,23 @@ def neighbour_picker(result: dict | None):
 
 def regenerate(pipe, visual: boxes.Visual | None, tactile: Any, x0, y0, x1, y1,
                kept: list[int] | None, result: dict | None, judge=None,
-               encoder: str | None = None) -> str:
+               encoder: str | None = None, background: Any = None) -> str:
     """RA-Touch's description again, reading only the ticked neighbours (the `regenerate` of
     the model that `encoder` names, `pipe.model(encoder)`), beside the description it
-    answered with."""
-    tactile = upload_path(tactile)
+    answered with; the tactile frame is read against `background` as the query read it."""
+    tactile, background = upload_path(tactile), upload_path(background)
     try:
         if visual is None or not result or not result.get("neighbours", {}).get("joint"):
             raise DataError("run a query with a tactile image first")
         kept = [int(i) for i in (kept or [])]
         box = boxes.fields_to_box(x0, y0, x1, y1)
-        request = QueryRequest.decode(visual.source, tactile, box=box, model=encoder or None)
+        request = QueryRequest.decode(visual.source, tactile, box=box, background=background,
+                                      model=encoder or None)
         again = pipe.model(encoder or None).regenerate(request, kept)
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         return view.error_md(_fail(e, {"visual image": getattr(visual, "source", None),
-                                       "tactile image": tactile}))
+                                       "tactile image": tactile,
+                                       "background image": background}))
     scores = {}
     if judge is not None and visual.label:
         ra = judged_descriptions(visual).get("ra_touch")
@@ -433,7 +437,8 @@ def open_case(world_cfg, row: Any) -> tuple:
     view shows the table's scores.
 
     Returns:
-        load_example's outputs: (visual state, preview, tactile image, x0, y0, x1, y1, note)
+        load_example's outputs: (visual state, preview, tactile image, background image,
+        x0, y0, x1, y1, note)
 
     Raises:
         gr.Error: the row does not name a case (so that a chained query does not run).
@@ -441,6 +446,7 @@ def open_case(world_cfg, row: Any) -> tuple:
     try:
         condition, index = row[0], int(row[1])
         s = failures.case_sample(condition, index, world_cfg)
+        background = failures.case_world(condition, world_cfg).background_image(s.sensor)
         loaded = boxes.load_visual(
             s.visual, f"failure case #{index} under “{condition}” ({s.subset}: "
             f"{s.class_name or 'close-up'}, {s.material.replace('_', ' ')})", label=s.caption)
@@ -451,7 +457,7 @@ def open_case(world_cfg, row: Any) -> tuple:
     visual = CaseVisual(**{f.name: getattr(loaded, f.name) for f in fields(loaded)},
                         judged=_row_judged(row, s.caption))
     box = tuple(int(v) for v in s.box)
-    return (visual, boxes.draw(visual, box), s.tactile, *box,
+    return (visual, boxes.draw(visual, box), s.tactile, background, *box,
             f"Ground-truth label: **{s.caption}** · condition **{condition}** · "
             f"{_box_note(visual, box)}")
 

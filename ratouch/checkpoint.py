@@ -13,8 +13,9 @@ import json
 import os
 import pickle
 import re
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import torch
 from safetensors import SafetensorError
@@ -114,19 +115,71 @@ def read_checkpoint(folder: str | os.PathLike) -> tuple[dict[str, torch.Tensor],
     return state, config, manifest
 
 
-def load_into(module: torch.nn.Module, state: dict[str, torch.Tensor], source: str) -> None:
-    """Strictly load `state` into `module`, casting dtypes, with a clear error on mismatch."""
-    own = module.state_dict()
-    missing = sorted(set(own) - set(state))
-    unexpected = sorted(set(state) - set(own))
+#: How many keys an error message lists before "... (N in all)".
+KEYS_SHOWN = 8
+
+
+def describe_keys(keys: Iterable[Any]) -> str:
+    """The first few of `keys`, for error messages: ``['a', 'b', ... (12 in all)]``."""
+    keys = [str(k) for k in keys]
+    shown = ", ".join(repr(k) for k in keys[:KEYS_SHOWN])
+    more = f", ... ({len(keys)} in all)" if len(keys) > KEYS_SHOWN else ""
+    return f"[{shown}{more}]"
+
+
+def check_state(expected: Mapping[str, torch.Tensor], state: dict[str, torch.Tensor],
+                source: str, key_prefix: str = "", hint: str = "") -> None:
+    """Check a state dict against a model's, with errors that name the offending keys.
+
+    A scalar ``logit_scale`` / ``logit_bias`` saved with shape ``[]`` or ``[1]`` is reshaped
+    in place to the model's shape (as OpenCLIP does).
+
+    Args:
+        expected: the model's state dict (its tensors may be on the meta device).
+        state: the checkpoint's state dict.
+        source: how messages name the checkpoint (its kind and path).
+        key_prefix: the prefix the keys had in the file (for messages).
+        hint: a sentence appended to a shape-mismatch message.
+
+    Raises:
+        DataError: on the first shape mismatch (naming the key and both shapes), or on
+            missing / unexpected keys (listing the first few of each).
+    """
+    for key in ("logit_scale", "logit_bias"):
+        if key in state and key in expected and state[key].numel() == expected[key].numel():
+            state[key] = state[key].reshape(expected[key].shape)
+    for key, ref in expected.items():
+        got = state.get(key)
+        if got is not None and tuple(got.shape) != tuple(ref.shape):
+            raise DataError(f"{source} does not fit the model: key '{key_prefix}{key}' has shape "
+                            f"{tuple(got.shape)} in the checkpoint but {tuple(ref.shape)} in the "
+                            f"model{hint}")
+    missing = [k for k in expected if k not in state]
+    unexpected = [k for k in state if k not in expected]
     if missing or unexpected:
-        raise DataError(f"{source} does not fit the model: missing keys {missing[:5]}, "
-                        f"unexpected keys {unexpected[:5]}")
-    for k, v in state.items():
-        if tuple(v.shape) != tuple(own[k].shape):
-            raise DataError(f"{source} does not fit the model: {k} has shape {tuple(v.shape)}, "
-                            f"the model expects {tuple(own[k].shape)}")
-    module.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()}, strict=True)
+        parts = []
+        if missing:
+            parts.append(f"missing keys {describe_keys(key_prefix + k for k in missing)}")
+        if unexpected:
+            parts.append(f"unexpected keys {describe_keys(key_prefix + k for k in unexpected)}")
+        raise DataError(f"{source} does not fit the model: " + "; ".join(parts))
+
+
+def load_into(module: torch.nn.Module, state: Mapping[str, torch.Tensor], source: str,
+              key_prefix: str = "", hint: str = "") -> None:
+    """The one strict load of weights into a built model: `check_state`, then every tensor
+    cast to the model's dtype and loaded with ``strict=True``.
+
+    Raises:
+        DataError: if the state does not fit `module` exactly (named by `source`).
+    """
+    state = dict(state)
+    own = module.state_dict()
+    check_state(own, state, source, key_prefix, hint)
+    try:
+        module.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()}, strict=True)
+    except RuntimeError as e:  # incompatibilities not caught above
+        raise DataError(f"{source} could not be loaded: {first_line(e)}") from e
 
 
 def load_checkpoint(folder: str | os.PathLike, module: torch.nn.Module, name: str | None = None,

@@ -226,3 +226,22 @@ def test_answer_split_is_what_every_evaluation_answers_with(fake_pipeline):
         answer_split(p, split, "ra_touch")
     with pytest.raises(ConfigError):
         mode_query("both", split.V, split.T, p.joint_query)
+
+
+def test_stress_renders_encode_as_the_test_split_does(fake_pipeline):
+    """The stress sweeps read each tactile frame against its sensor's background, as the test
+    split (and the failure table built on it) does: with no stress they encode the same pairs
+    into the same embeddings, and under a knob the frames change while the background of each
+    frame is its own sensor's."""
+    from ratouch.eval.stress.runner import _Renderer
+    from ratouch.world.config import WorldConfig
+    from ratouch.world.splits import encode_test_split
+
+    enc, idx = fake_pipeline.encoders, [0, 60, 200, 350]
+    stressed = _Renderer(WorldConfig()).split(enc, idx)
+    plain = encode_test_split(enc, indices=idx)
+    assert np.allclose(stressed.V, plain.V) and np.allclose(stressed.T, plain.T)
+    assert stressed.families == plain.families and len(set(plain.families)) >= 2
+    alone = enc.encode_tactile([_Renderer(WorldConfig()).base.sample("test", i).tactile
+                                for i in idx])
+    assert not np.allclose(alone, plain.T)  # the background is read, not ignored

@@ -405,7 +405,7 @@ def test_missing_and_unexpected_keys(files, cfg, tmp_path):
     clip_state = dict(files["clip_state"])
     del clip_state["text_projection"]
     torch.save(clip_state, tmp_path / "clip_missing.bin")
-    with pytest.raises(DataError, match=r"clip_missing\.bin does not match.*'text_projection'"):
+    with pytest.raises(DataError, match=r"clip_missing\.bin does not fit the model.*'text_projection'"):
         load_tvl(tmp_path / "clip_missing.bin", files["tactile"], cfg)
     clip_state = dict(files["clip_state"])
     clip_state["token_embedding.weight"] = torch.zeros(100, 64)

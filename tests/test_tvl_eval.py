@@ -9,7 +9,9 @@ import pytest
 from ratouch.errors import ConfigError, DataError
 from ratouch.eval.judge import subset_of
 from ratouch.eval.tvl import paired_ttest, run_tvl
+from ratouch.world.dataset import world_for
 from ratouch.world.splits import encode_test_split
+from ratouch.world.tactile import sensor_family
 
 
 @pytest.fixture(scope="module")
@@ -26,6 +28,15 @@ def test_results_are_in_the_tvl_format_with_subsets(pipeline, split):
         assert 1.0 <= r["offline_score"] <= 10.0 and len(r["neighbours"]) == 3
     assert [subset_of(r["image_fp"]) for r in records] == ["SSVTP"] * 3 + ["HCT"] * 5
     assert summary["subsets"]["SSVTP"]["n"] == 3 and summary["subsets"]["HCT"]["n"] == 5
+    # each record names its frame's sensor family; the summary has the judge's mean per family
+    world = world_for(split.world)
+    families = [sensor_family(world.sample("test", i).sensor) for i in split.indices]
+    assert [r["sensor_family"] for r in records] == families == split.families
+    fam = summary["families"]
+    assert set(fam) == set(families) and sum(s["n"] for s in fam.values()) == 8
+    for name, s in fam.items():
+        mine = [r["offline_score"] for r in records if r["sensor_family"] == name]
+        assert s["mean"] == pytest.approx(sum(mine) / len(mine))
     base, _ = run_tvl(pipeline, "baseline", split=split)
     assert "neighbours" not in base[0]
     with pytest.raises(ConfigError):

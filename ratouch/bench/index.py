@@ -256,7 +256,7 @@ def bench_scale(n: int = 1_000_000, dim: int = 768, kind: str = "ivfpq",
     corpus, queries = data[:n], data[n:]
     truth = exact_topk(queries, corpus, 5)
     own = folder is None
-    target = Path(tempfile.mkdtemp(prefix="ratouch-index-")) if own else Path(folder)
+    target = Path(tempfile.mkdtemp(prefix="ratouch-index-")) if folder is None else Path(folder)
     try:
         clock = Laps()
         index = VectorIndex.build(corpus, cfg, seed=seed)
@@ -357,7 +357,7 @@ def bench_corpus_index(corpus: str | Path, encoder: str = "default-s", key: str 
                "config": asdict(cfg)}
         setting, values = {"hnsw": ("ef_search", SCALE_EF_SWEEP),
                            "ivfflat": ("nprobe", NPROBE_SWEEP),
-                           "ivfpq": ("refine_factor", IVFPQ_REFINE_SWEEP)}.get(kind, (None, ()))
+                           "ivfpq": ("refine_factor", IVFPQ_REFINE_SWEEP)}.get(kind, ("", ()))
         row["sweep"] = {f"{setting}={value}": r for value, r in
                         _sweep(index, setting, values, queries, 5, recall).items()}
         results[kind] = row

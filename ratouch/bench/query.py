@@ -86,7 +86,9 @@ def bench_query(encoder: str = "default-s", corpus: str | None = None, n: int = 
     world = World(WorldConfig(seed=seed))
     samples = [world.sample("test", 46 + (7 * i) % 356) for i in range(n)]
     _ask(model, samples[0], k)  # warm-up
-    totals, stages, escalated = [], {}, []
+    totals: list[float] = []
+    stages: dict[str, list[float]] = {}
+    escalated: list[bool] = []
     for s in samples:
         r = _ask(model, s, k)
         totals.append(r.timings_ms["total"])

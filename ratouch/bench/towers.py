@@ -45,8 +45,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ratouch.checkpoint import load_into, read_checkpoint
+from ratouch.corpus.imagenet_t import stratified_world_ids
+from ratouch.encoders.default import vision_tensor
+from ratouch.encoders.factory import create_model, shipped_weights
+from ratouch.encoders.prior import load_prior
 from ratouch.errors import ConfigError, DataError, RATouchError, ServiceError
+from ratouch.eval.report import png_bytes, write_plotly_js
+from ratouch.eval.retrieval import material_precision
+from ratouch.files import write_atomic, write_json_atomic
+from ratouch.paths import DOCS
+from ratouch.search.index import top_k
 from ratouch.threads import intra_op_threads
+from ratouch.train.trust import VALIDATION_START
+from ratouch.world.generator import World
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +78,6 @@ FIGURE_NAME = "towers"
 
 
 def _validation_start() -> int:
-    from ratouch.train.trust import VALIDATION_START
 
     return VALIDATION_START + RENDER_OFFSET
 
@@ -76,7 +87,6 @@ def _validation_start() -> int:
 def render_set(n: int, start: int | None = None, world=None) -> tuple[list[np.ndarray], list[str],
                                                                         list[str]]:
     """Contact crops, materials and class names of train-split renders start .. start+n-1."""
-    from ratouch.world.generator import World
 
     world = world or World()
     start = _validation_start() if start is None else start
@@ -91,8 +101,6 @@ def render_set(n: int, start: int | None = None, world=None) -> tuple[list[np.nd
 
 def gallery_set(size: int, seed: int, world=None) -> tuple[list[np.ndarray], list[str]]:
     """Images and materials of a class-stratified sample of the world's corpus."""
-    from ratouch.corpus.imagenet_t import stratified_world_ids
-    from ratouch.world.generator import World
 
     world = world or World()
     ids = stratified_world_ids(size, seed)
@@ -115,7 +123,6 @@ class _Tower:
 
 class PriorTower(_Tower):
     def __init__(self, name: str, size: int):
-        from ratouch.encoders.prior import load_prior
 
         self.name, self.size = name, int(size)
         self.prior = load_prior(name)
@@ -136,7 +143,6 @@ class CNNTower(_Tower):
     """
 
     def __init__(self, encoder: str, weights: str | None = "shipped", partial: bool = True):
-        from ratouch.encoders.factory import create_model
 
         self.note: str | None = None  # why only the checkpoint's CNN was loaded
         try:
@@ -157,8 +163,6 @@ class CNNTower(_Tower):
                                    " (vision.* only)" if self.note else "")
 
     def _vision_only(self, encoder: str, weights: str, error: Exception):
-        from ratouch.checkpoint import load_into, read_checkpoint
-        from ratouch.encoders.factory import create_model, shipped_weights
 
         folder = shipped_weights(encoder) if weights == "shipped" else Path(weights)
         state, saved, _ = read_checkpoint(folder)
@@ -175,7 +179,6 @@ class CNNTower(_Tower):
         return model
 
     def features(self, images: Sequence[np.ndarray]) -> np.ndarray:
-        from ratouch.encoders.default import vision_tensor
 
         out = []
         with torch.inference_mode():
@@ -213,10 +216,8 @@ def precision_at_k(query: np.ndarray, query_labels: Sequence[str], gallery: np.n
     """Mean share of each query's k nearest gallery rows (cosine) that share its label."""
     q = query / (np.linalg.norm(query, axis=1, keepdims=True) + 1e-12)
     g = gallery / (np.linalg.norm(gallery, axis=1, keepdims=True) + 1e-12)
-    k = min(k, len(g))
-    top = np.argpartition(-(q @ g.T), k - 1, axis=1)[:, :k]
-    glab = np.asarray(gallery_labels)
-    return float((glab[top] == np.asarray(query_labels)[:, None]).mean())
+    return float(material_precision(top_k(q @ g.T, k)[1], query_labels,
+                                    np.asarray(gallery_labels)).mean())
 
 
 def single_latency(tower: _Tower, crops: Sequence[np.ndarray], reps: int = 30, warm: int = 5
@@ -307,7 +308,6 @@ def bench_towers(n: int = 600, sizes: Sequence[int] | None = None,
         raise ConfigError(f"n={n}: the 2-fold probe needs at least 4 renders")
     if sizes is not None and any(not 32 <= int(s) <= 1024 for s in sizes):
         raise ConfigError(f"sizes={list(sizes)}: each must lie in [32, 1024]")
-    from ratouch.world.generator import World
 
     load_before = [round(x, 2) for x in os.getloadavg()]
     t_start = time.perf_counter()
@@ -472,7 +472,6 @@ def tower_chart(result: dict) -> bytes:
         ServiceError: If no static exporter works here (kaleido needs a Chrome/Chromium);
             :func:`write_towers` then writes the HTML figure instead.
     """
-    from ratouch.eval.report import png_bytes
 
     data, why = png_bytes(tower_figure(result))
     if data is None:
@@ -491,9 +490,6 @@ def write_towers(result: dict, png: str | os.PathLike | None = None) -> dict[str
     Returns:
         {"json": path, "png" or "html": path, "note"?: why there is no PNG}.
     """
-    from ratouch.eval.report import write_plotly_js
-    from ratouch.files import write_atomic, write_json_atomic
-    from ratouch.paths import DOCS
 
     path = Path(png) if png is not None else DOCS / "figures" / f"{FIGURE_NAME}.png"
     path.parent.mkdir(parents=True, exist_ok=True)

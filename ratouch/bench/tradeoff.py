@@ -30,8 +30,11 @@ from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split
 from ratouch.eval.experiments import Lab
 from ratouch.eval.judge import mean_ci, score_stats
 from ratouch.eval.retrieval import entry_materials, material_precision
+from ratouch.paths import cascade_calibration
 from ratouch.search.index import BENCH_KINDS, KINDS, IndexConfig, VectorIndex
-from ratouch.serve.pipeline import default_corpus, open_retriever
+from ratouch.serve.cascade import CascadeCalibration, joint_confidence
+from ratouch.serve.models import available_models
+from ratouch.serve.pipeline import RATouchPipeline, default_corpus, open_retriever
 from ratouch.timing import Progress, say_to
 from ratouch.vocabulary import adjective_f1
 from ratouch.world.dataset import world_for
@@ -129,7 +132,7 @@ def _ci(key: str, values: np.ndarray) -> dict:
     return {key: round(mean, 4), f"{key}_ci": [round(lo, 4), round(hi, 4)]}
 
 
-def _mark_noise(points: list[dict], scores: list[dict[str, np.ndarray] | np.ndarray],
+def _mark_noise(points: list[dict], scores: Sequence[dict[str, np.ndarray] | np.ndarray],
                 full: int) -> dict | None:
     """Each point's differences to the reference point (flat index over the whole corpus,
     K=5: what the app serves) in the judge score (and in F1 and material P@5 where per-sample
@@ -141,9 +144,9 @@ def _mark_noise(points: list[dict], scores: list[dict[str, np.ndarray] | np.ndar
                 and q["corpus"] == full and q["k"] == 5), None)
     if ref is None:
         return None
-    scores = [sc if isinstance(sc, dict) else {"judge": sc} for sc in scores]
-    for q, sc in zip(points, scores):
-        q.update(_vs_reference(sc, scores[ref]))
+    per_point = [sc if isinstance(sc, dict) else {"judge": sc} for sc in scores]
+    for q, sc in zip(points, per_point):
+        q.update(_vs_reference(sc, per_point[ref]))
     return {"index": "flat", "corpus": full, "k": 5}
 
 
@@ -218,8 +221,6 @@ def _encoder_points(encoders: Sequence[str], lab, alone: dict, pairs: tuple[list
     """A point per other encoder set: the whole RA-Touch answer where its retriever and
     generators are shipped (judge, F1 and P@5 with CIs and their differences to the
     reference), retrieval only (tactile->text P@5) otherwise."""
-    from ratouch.serve.models import available_models
-    from ratouch.serve.pipeline import RATouchPipeline
 
     out, test = [], lab.test
     full = set(available_models())
@@ -273,8 +274,6 @@ def _cascade_point(lab, alone: dict, pairs: tuple[list, list],
     """The shipped cascade on the test split, when its calibration is shipped and every stage
     was measured alone: each pair answered by the stage the cascade picks (the stages' own
     answers, judged per sample), its latency on the answer path, and its escalation share."""
-    from ratouch.paths import cascade_calibration
-    from ratouch.serve.cascade import CascadeCalibration, joint_confidence
 
     path = cascade_calibration()
     if not path.is_file():
@@ -317,10 +316,9 @@ def _cascade_point(lab, alone: dict, pairs: tuple[list, list],
 
 
 def _cascade_latency(stages: Sequence, cal, classes: np.ndarray, pairs: tuple[list, list]
-                     ) -> dict[str, float]:
+                     ) -> dict[str, float | None]:
     """p50 / p95 of the cascade's answer path per pair: each stage in turn encodes, runs its
     retriever and searches until one is confident; that stage generates."""
-    from ratouch.serve.cascade import joint_confidence
 
     times = []
     for j, (crop, frame) in enumerate(zip(*pairs)):
@@ -428,9 +426,9 @@ def _short(q: dict) -> str:
 
 def _error_bars(points: Sequence[dict], key: str) -> dict | None:
     """Plotly error bars from each point's 95 % CI of `key` (None where none was measured)."""
-    cis = [q.get(f"{key}_ci") for q in points]
-    if any(ci is None for ci in cis):
+    if any(q.get(f"{key}_ci") is None for q in points):
         return None
+    cis = [q[f"{key}_ci"] for q in points]
     return {"type": "data", "symmetric": False, "thickness": 1,
             "array": [ci[1] - q[key] for q, ci in zip(points, cis)],
             "arrayminus": [q[key] - ci[0] for q, ci in zip(points, cis)]}

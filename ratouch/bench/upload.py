@@ -14,6 +14,7 @@ import numpy as np
 from PIL import Image
 
 from ratouch.encoders.preprocess import QUERY_MAX_SIDE, to_rgb_array
+from ratouch.images import resize_array
 from ratouch.serve.batcher import QueryBatcher
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.serve.request import QueryRequest, answer_one
@@ -24,7 +25,7 @@ def write_big_frame(path: str, side: int, seed: int = 0) -> str:
     """A world tactile frame scaled up to `side` x `side` with pixel noise (so PNG cannot
     compress it away), written as PNG."""
     s = World().sample("test", 60)
-    big = np.asarray(Image.fromarray(s.tactile).resize((side, side), Image.BILINEAR))
+    big = resize_array(s.tactile, side)
     noise = np.random.default_rng(seed).integers(0, 4, big.shape, dtype=np.uint8)
     Image.fromarray(big + noise).save(path, compress_level=1)
     return path
@@ -103,6 +104,7 @@ def bench_upload(encoder: str = "default-s", corpus=None, side: int = 6000, repe
             runs["beside_huge"].append(_pair(server, huge, normal, gap_s)["second_ms"])
             runs["beside_normal"].append(_pair(server, normal, normal, gap_s)["second_ms"])
     med = {k: statistics.median(v) for k, v in runs.items()}
+    assert last is not None  # the medians above need at least one repeat
     return {"side": side, "file_mb": file_mb, "repeats": repeats, "max_side": QUERY_MAX_SIDE,
             "cpu_count": os.cpu_count(), "load_average_1m": round(os.getloadavg()[0], 2),
             "median_ms": med, "runs_ms": runs, "huge_decode": stages,

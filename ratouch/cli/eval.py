@@ -15,7 +15,7 @@ from ratouch.cli.judge import make_judge
 from ratouch.eval import stress as S
 from ratouch.eval.controls import format_controls, run_controls
 from ratouch.eval.families import evaluate_families, format_families
-from ratouch.eval.judge import format_summary, read_records
+from ratouch.eval.judge import format_stats, format_summary, read_records
 from ratouch.eval.photos import (
     evaluate_photos,
     evaluate_reference_tactile,
@@ -105,6 +105,10 @@ def _eval_tvl(args: argparse.Namespace) -> int:
         return 0
     print(f"{args.system} on the world's test split (seed {args.seed}, K={args.k}):")
     print(format_summary(summary))
+    if summary["families"]:
+        print("per sensor family:")
+    for family, stats in summary["families"].items():
+        print(f"  {family:<9}{stats['n']:>5}  {format_stats(stats)}")
     print(f"wrote {args.out}")
     return 0
 

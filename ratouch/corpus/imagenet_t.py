@@ -24,9 +24,9 @@ from typing import Sequence
 import numpy as np
 
 from ratouch.corpus.recaption import RecaptionConfig, create_recaptioner
-from ratouch.encoders.preprocess import resize_array
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import json_text, publish, staged
+from ratouch.images import resize_array
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import _fork_context, check_writable, world_for
@@ -119,7 +119,7 @@ def stratified_world_ids(size: int, seed: int, n_classes: int = len(OBJECT_CLASS
     quota = np.full(n_classes, size // n_classes)
     quota[rng.permutation(n_classes)[: size % n_classes]] += 1
     beyond = np.arange(CORPUS_POOL_PER_CLASS, max(CORPUS_POOL_PER_CLASS, int(quota.max())))
-    ids = []
+    ids: list[tuple[int, int]] = []
     for c in range(n_classes):
         order = np.random.default_rng([seed, 4242, c]).permutation(CORPUS_POOL_PER_CLASS)
         ids.extend((c, int(i)) for i in np.concatenate([order, beyond])[: quota[c]])

@@ -17,6 +17,7 @@ from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from types import MappingProxyType
+from typing import Protocol
 
 from ratouch.errors import ConfigError, DataError
 from ratouch.llm_http import (
@@ -412,6 +413,12 @@ class OfflineRecaptioner:
         return [self.recaption(class_name, description) for class_name, description in items]
 
 
+class Recaptioner(Protocol):
+    """What gives an object's tactile adjectives from its class name and description."""
+
+    def recaption(self, class_name: str, description: str) -> list[str]: ...
+
+
 class LLMRecaptioner:
     """Recaptioner that asks an OpenAI-compatible chat-completions endpoint the paper's prompt.
 
@@ -424,7 +431,7 @@ class LLMRecaptioner:
         fallback: Recaptioner used when every attempt fails.
     """
 
-    def __init__(self, config: RecaptionConfig, fallback: OfflineRecaptioner) -> None:
+    def __init__(self, config: RecaptionConfig, fallback: Recaptioner) -> None:
         if config.endpoint is None:
             raise ConfigError("RecaptionConfig.endpoint is required for LLMRecaptioner, got None")
         self.config = config

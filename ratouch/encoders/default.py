@@ -16,12 +16,12 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
-from PIL import Image
 from scipy.ndimage import gaussian_filter
 
 from ratouch.encoders.prior import PRIORS, load_prior
 from ratouch.encoders.text import MINILM_DIM, MiniLM, TextCache
 from ratouch.errors import ConfigError
+from ratouch.images import resize_array
 
 
 @dataclass(frozen=True)
@@ -96,8 +96,7 @@ class TextProjection(nn.Module):
 def vision_tensor(images: Sequence[np.ndarray], size: tuple[int, int]) -> torch.Tensor:
     """uint8 RGB arrays -> (N, 3, H, W) normalised float tensor."""
     h, w = size
-    arr = np.stack([np.asarray(Image.fromarray(im).resize((w, h), Image.Resampling.BILINEAR))
-                    for im in images]).astype(np.float32) / 255.0
+    arr = np.stack([resize_array(im, (w, h)) for im in images]).astype(np.float32) / 255.0
     return torch.from_numpy((arr - 0.5) / 0.25).permute(0, 3, 1, 2).contiguous()
 
 
@@ -122,8 +121,7 @@ def tactile_difference(frame: np.ndarray, background: np.ndarray | None = None) 
     f = frame.astype(np.float32) / 255.0
     if background is not None:
         if background.shape != frame.shape:
-            background = np.asarray(Image.fromarray(background).resize(
-                (frame.shape[1], frame.shape[0]), Image.Resampling.BILINEAR))
+            background = resize_array(background, (frame.shape[1], frame.shape[0]))
         f = f - background.astype(np.float32) / 255.0
     scale = max(frame.shape[:2]) / 128
     sigma = FIELD_SIGMA * scale
@@ -143,8 +141,7 @@ def tactile_input(frame: np.ndarray, size: tuple[int, int],
     d = tactile_difference(frame, background)
     rms = float(np.sqrt(np.mean(d * d)))
     d = d / max(rms, CONTRAST_FLOOR)
-    chans = [np.asarray(Image.fromarray(d[..., c]).resize((w, h), Image.Resampling.BILINEAR))
-             for c in range(3)]
+    chans = [resize_array(np.ascontiguousarray(d[..., c]), (w, h)) for c in range(3)]
     level = np.clip(np.log(max(rms, CONTRAST_FLOOR) / CONTRAST_REF), -3.0, 3.0)
     chans.append(np.full((h, w), level, np.float32))
     return np.stack(chans).astype(np.float32)

@@ -101,6 +101,9 @@ def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | di
         model = DefaultEncoders(default_config(cfg))
         if pretrained is None:
             return model
+        if isinstance(pretrained, dict):  # what Path(pretrained) would raise
+            raise TypeError(f"encoder {name!r} takes \"shipped\", None or a checkpoint folder, "
+                            "not a dict of files (that is the TVL backend's)")
         folder = shipped_weights(name) if pretrained == "shipped" else Path(pretrained)
         if not folder.exists():
             raise DataNotFoundError(f"no weights for encoder {name!r} at {folder}; train them "
@@ -111,11 +114,11 @@ def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | di
     from ratouch.encoders.tvl import TVLConfig, load_tvl
 
     clip, tactile = _tvl_files(cfg, pretrained)
-    model = load_tvl(str(clip), str(tactile),
-                     TVLConfig(clip_arch=cfg["clip_arch"], tactile_arch=cfg["tactile_arch"],
-                               dim=cfg["dim"]))
-    model.weights_fingerprint = files_fingerprint([clip, tactile])
-    return model
+    tvl = load_tvl(str(clip), str(tactile),
+                   TVLConfig(clip_arch=cfg["clip_arch"], tactile_arch=cfg["tactile_arch"],
+                             dim=cfg["dim"]))
+    tvl.weights_fingerprint = files_fingerprint([clip, tactile])
+    return tvl
 
 
 def shipped_fingerprint(name: str) -> str:

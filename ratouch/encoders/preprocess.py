@@ -36,6 +36,7 @@ import torch.nn.functional as F
 from PIL import Image, ImageOps, UnidentifiedImageError
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.images import resize_array
 
 log = logging.getLogger(__name__)
 
@@ -495,20 +496,6 @@ def tvl_contact_box(width: int, height: int, version: str = "v1",
 
 
 # --------------------------------------------------------------------------- tensors
-
-
-def resize_array(arr: np.ndarray, size: int | tuple[int, int],
-                 resample: Image.Resampling = Image.Resampling.BILINEAR) -> np.ndarray:
-    """The project's resize of a ``uint8`` image array (``(H, W)`` or ``(H, W, C)``) to `size`
-    (``(width, height)``, or a square side): PIL's antialiased bilinear filter by default (as
-    TVL's ``Resize``), another PIL filter where `resample` says so. An array already of that
-    size is returned as it is. (Uploads are reduced by `fit_within`, which keeps the aspect
-    ratio and shrinks in integer steps first.)"""
-    width, height = (size, size) if isinstance(size, int) else size
-    if arr.shape[1] == width and arr.shape[0] == height:
-        return arr
-    img = Image.fromarray(np.ascontiguousarray(arr))
-    return np.asarray(img.resize((width, height), resample), dtype=np.uint8)
 
 
 def _shorter_side_size(width: int, height: int, size: int) -> tuple[int, int]:

@@ -38,11 +38,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
-from PIL import Image
 
 from ratouch.checkpoint import load_into, read_foreign_weights, sha256_file
 from ratouch.encoders.preprocess import to_rgb_array
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.images import resize_array
 from ratouch.world.objects import CLASS_INDEX, OBJECT_CLASSES
 
 if TYPE_CHECKING:  # timm is imported where a tower is built
@@ -228,10 +228,7 @@ class VisualPrior:
         out = np.empty((len(images), size, size, 3), np.uint8)
         for i, image in enumerate(images):
             arr = to_rgb_array(image, name=f"image {i}")
-            if arr.shape[:2] != (size, size):
-                arr = np.asarray(Image.fromarray(arr).resize((size, size),
-                                                             Image.Resampling.BILINEAR))
-            out[i] = arr
+            out[i] = resize_array(arr, size)
         return out
 
     def features(self, images: Sequence[Any], size: int = 128) -> np.ndarray:

@@ -45,7 +45,13 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from ratouch.checkpoint import first_line, read_foreign_weights
+from ratouch.checkpoint import (
+    KEYS_SHOWN,
+    check_state,
+    describe_keys,
+    load_into,
+    read_foreign_weights,
+)
 from ratouch.encoders.preprocess import (
     CLIP_MEAN,
     CLIP_STD,
@@ -79,7 +85,6 @@ for _arch, _names in {
 
 TACTILE_PREFIX = "tactile_encoder."
 DEFAULT_BATCH_SIZE = 32
-_KEYS_SHOWN = 8
 
 
 # --------------------------------------------------------------------------- config
@@ -351,7 +356,7 @@ def _expand_backgrounds(backgrounds: Any, n: int) -> list[Any]:
                         "background for all frames or exactly one per frame")
     missing = [i for i, bg in enumerate(items) if bg is None]
     if missing:
-        raise DataError(f"background missing for tactile frames {missing[:_KEYS_SHOWN]}; this "
+        raise DataError(f"background missing for tactile frames {missing[:KEYS_SHOWN]}; this "
                         "TVL encoder subtracts the sensor background (subtract_background=True)")
     return items
 
@@ -369,14 +374,6 @@ def _check_file(path: str | os.PathLike[str], what: str) -> Path:
     if not p.is_file():
         raise DataError(f"{what} must be a file, got a directory: {p}")
     return p
-
-
-def _describe_keys(keys: Any) -> str:
-    """The first few keys of a mapping, for error messages."""
-    keys = [str(k) for k in keys]
-    shown = ", ".join(repr(k) for k in keys[:_KEYS_SHOWN])
-    more = f", ... ({len(keys)} in all)" if len(keys) > _KEYS_SHOWN else ""
-    return f"[{shown}{more}]"
 
 
 def _tensor_dict(obj: Any, path: Path, what: str) -> dict[str, torch.Tensor]:
@@ -409,7 +406,7 @@ def read_clip_state(path: Path) -> dict[str, torch.Tensor]:
         swapped = any(k.startswith(TACTILE_PREFIX) for k in inner)
         raise DataError(
             f"{what} {path} is a {{'model': ...}} training checkpoint (keys "
-            f"{_describe_keys(obj.keys())}), not an OpenCLIP state dict"
+            f"{describe_keys(obj.keys())}), not an OpenCLIP state dict"
             + ("; it looks like a TVL tactile checkpoint - were clip_weights and "
                "tactile_weights swapped?" if swapped else "")
         )
@@ -444,7 +441,7 @@ def read_tvl_tactile_state(path: Path) -> dict[str, torch.Tensor]:
         if "model" not in obj:
             raise DataError(f"{what} {path} has no 'model' entry (TVL layout: "
                             f"{{'model': state_dict, 'epoch': ...}}); found keys "
-                            f"{_describe_keys(obj.keys())}")
+                            f"{describe_keys(obj.keys())}")
         model_state = obj["model"]
         if not isinstance(model_state, Mapping):
             raise DataError(f"{what} {path}: 'model' is a {type(model_state).__name__}, "
@@ -460,10 +457,10 @@ def read_tvl_tactile_state(path: Path) -> dict[str, torch.Tensor]:
                if str(k).startswith(TACTILE_PREFIX)}
     if not tactile:
         raise DataError(f"{what} {path} has no '{TACTILE_PREFIX}*' keys in its 'model' state "
-                        f"dict; found keys {_describe_keys(keys)}")
+                        f"dict; found keys {describe_keys(keys)}")
     ignored = [k for k in keys if not k.startswith(TACTILE_PREFIX)]
     if ignored:
-        log.debug("%s: ignoring non-tactile keys %s", path, ignored[:_KEYS_SHOWN])
+        log.debug("%s: ignoring non-tactile keys %s", path, ignored[:KEYS_SHOWN])
     return _tensor_dict(tactile, path, what)
 
 
@@ -500,61 +497,6 @@ def _check_tactile_head(state: Mapping[str, torch.Tensor], cfg: TVLConfig, path:
             f"CLIP model {cfg.clip_arch} embeds into {cfg.dim}; the tactile encoder must have "
             "been trained against this CLIP model"
         )
-
-
-def check_state(expected: Mapping[str, torch.Tensor], state: dict[str, torch.Tensor],
-                path: Path, what: str, key_prefix: str = "", hint: str = "") -> None:
-    """Check a state dict against a model's, with errors that name the offending keys.
-
-    A scalar ``logit_scale``/``logit_bias`` saved with shape ``[]`` or ``[1]`` is reshaped in
-    place to the model's shape (as OpenCLIP does).
-
-    Args:
-        expected: The model's state dict (tensors may be on the meta device).
-        state: The checkpoint's state dict.
-        path: The checkpoint file (for messages).
-        what: How to name the checkpoint in messages.
-        key_prefix: Prefix the keys had in the file (for messages).
-        hint: Extra sentence appended to a shape-mismatch message.
-
-    Raises:
-        DataError: On the first shape mismatch (naming the key and both shapes), or on
-            missing / unexpected keys (listing the first few of each).
-    """
-    for key in ("logit_scale", "logit_bias"):
-        if key in state and key in expected and state[key].numel() == expected[key].numel():
-            state[key] = state[key].reshape(expected[key].shape)
-    for key, ref in expected.items():
-        got = state.get(key)
-        if got is not None and tuple(got.shape) != tuple(ref.shape):
-            raise DataError(
-                f"{what} {path} does not fit the model: key '{key_prefix}{key}' has shape "
-                f"{tuple(got.shape)} in the checkpoint but {tuple(ref.shape)} in the model{hint}"
-            )
-    missing = [k for k in expected if k not in state]
-    unexpected = [k for k in state if k not in expected]
-    if missing or unexpected:
-        parts = []
-        if missing:
-            parts.append(f"missing keys {_describe_keys(key_prefix + k for k in missing)}")
-        if unexpected:
-            parts.append(f"unexpected keys {_describe_keys(key_prefix + k for k in unexpected)}")
-        raise DataError(f"{what} {path} does not match the model: " + "; ".join(parts))
-
-
-def load_state_strict(model: nn.Module, state: Mapping[str, torch.Tensor], path: Path,
-                      what: str, key_prefix: str = "", hint: str = "") -> None:
-    """Load ``state`` into ``model`` strictly (see :func:`check_state` for the checks).
-
-    Raises:
-        DataError: If the state dict does not fit the model exactly.
-    """
-    state = dict(state)
-    check_state(model.state_dict(), state, path, what, key_prefix, hint)
-    try:
-        model.load_state_dict(state, strict=True)
-    except RuntimeError as e:  # incompatibilities not caught above
-        raise DataError(f"{what} {path} could not be loaded: {first_line(e)}") from e
 
 
 # --------------------------------------------------------------------------- loading
@@ -659,16 +601,15 @@ def load_tvl(clip_weights: str | os.PathLike[str], tactile_weights: str | os.Pat
     clip_what = f"OpenCLIP checkpoint (arch {cfg.clip_arch})"
     skeleton = _clip_skeleton(cfg.clip_arch)
     if skeleton is not None:
-        check_state(skeleton.state_dict(), clip_state, clip_path, clip_what)
+        check_state(skeleton.state_dict(), clip_state, f"{clip_what} {clip_path}")
         del skeleton
 
     tactile = _create_tactile(cfg)
-    load_state_strict(tactile, tactile_state, tactile_path, "TVL tactile checkpoint",
-                      key_prefix=TACTILE_PREFIX,
-                      hint=_arch_hint(tactile_state, cfg.tactile_arch))
+    load_into(tactile, tactile_state, f"TVL tactile checkpoint {tactile_path}",
+              key_prefix=TACTILE_PREFIX, hint=_arch_hint(tactile_state, cfg.tactile_arch))
     del tactile_state
     clip_model = open_clip.create_model(cfg.clip_arch, pretrained=None, device="cpu")
-    load_state_strict(clip_model, clip_state, clip_path, clip_what)
+    load_into(clip_model, clip_state, f"{clip_what} {clip_path}")
     del clip_state
     tokenizer = open_clip.get_tokenizer(cfg.clip_arch)
 

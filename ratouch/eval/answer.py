@@ -56,8 +56,9 @@ def describe(gen, V: np.ndarray, T: np.ndarray, rv: np.ndarray | None = None,
 
 def records_for(split, responses: Sequence[str | None], system: str,
                 ids: np.ndarray | None = None) -> list[dict]:
-    """TVL-format result records (plus the world's ground truth, for failure analysis, and
-    the corpus ids of the neighbours read, "neighbours", when `ids` are given)."""
+    """TVL-format result records (plus the world's ground truth and sensor family, for
+    failure analysis, and the corpus ids of the neighbours read, "neighbours", when `ids` are
+    given)."""
     if len(responses) != len(split.labels):
         raise DataError(f"{len(responses)} responses for {len(split.labels)} test samples")
     out = [{"image_fp": split.image_fp(i), "tactile_fp": split.tactile_fp(i),
@@ -65,6 +66,8 @@ def records_for(split, responses: Sequence[str | None], system: str,
             "system": system, "index": split.indices[i], "subset": split.subsets[i],
             "material": split.materials[i], "object_scale": round(split.object_scale[i], 4)}
            for i in range(len(responses))]
+    for rec, family in zip(out, getattr(split, "families", None) or ()):
+        rec["sensor_family"] = family
     if ids is not None:
         for rec, row in zip(out, ids):
             rec["neighbours"] = [int(i) for i in row]

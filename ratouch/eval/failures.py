@@ -43,7 +43,7 @@ from ratouch.paths import (
 from ratouch.search.retrieval import QUERY_MODES
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
-from ratouch.world.generator import TEST_SIZE
+from ratouch.world.generator import TEST_SIZE, World
 from ratouch.world.splits import encode_test_split
 
 log = logging.getLogger(__name__)
@@ -80,24 +80,33 @@ def condition_world(world: WorldConfig | None, condition: str) -> WorldConfig:
     return (world or WorldConfig()).with_stress(**CONDITIONS[condition])
 
 
+def case_world(condition: str, world: WorldConfig | None = None) -> World:
+    """The world a condition renders its cases in (the base world with its stress knobs)."""
+    return world_for(condition_world(world, condition))
+
+
 def case_sample(condition: str, index: int, world: WorldConfig | None = None):
     """The test sample `index` of a condition's world (a `ratouch.world.generator.Sample`):
-    its `.visual`, `.tactile`, `.box` and `.caption` are one failure case's query inputs."""
-
+    its `.visual`, `.tactile`, `.box` and `.caption` are one failure case's query inputs,
+    with its sensor's background (`case_world(...).background_image(sample.sensor)`)."""
     try:
         i = int(index)
     except (TypeError, ValueError) as e:
         raise DataError(f"test index must be an integer, got {index!r}") from e
     if not 0 <= i < TEST_SIZE:
         raise DataError(f"test index {i} is out of range 0..{TEST_SIZE - 1}")
-    return world_for(condition_world(world, condition)).sample("test", i)
+    return case_world(condition, world).sample("test", i)
 
 
 def case_inputs(condition: str, index: int, world: WorldConfig | None = None
-                ) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int, int], str]:
-    """(visual image, tactile image, contact box, ground-truth label) of one case."""
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int, int, int], str]:
+    """(visual image, tactile image, the sensor's background, contact box, ground-truth
+    label) of one case: the inputs the failure table encoded it from (`encode_test_split`
+    reads each tactile frame against its sensor's background, as TVL rows carry one)."""
     s = case_sample(condition, index, world)
-    return s.visual, s.tactile, tuple(int(v) for v in s.box), s.caption
+    background = case_world(condition, world).background_image(s.sensor)
+    x0, y0, x1, y1 = (int(v) for v in s.box)
+    return s.visual, s.tactile, background, (x0, y0, x1, y1), s.caption
 
 
 # --------------------------------------------------------------------------- judging
@@ -373,7 +382,7 @@ def summarise(rows: Sequence[dict]) -> list[dict]:
     for r in rows:
         for sub in (r["subset"], "all"):
             groups.setdefault((r["condition"], sub), []).append(r)
-    out = []
+    out: list[dict[str, Any]] = []
     for (cond, sub), rs in groups.items():
         if sub != "all" and len({r["subset"] for r in rows if r["condition"] == cond}) < 2:
             continue  # one subset only: its row would repeat "all"

@@ -20,7 +20,11 @@ from typing import Any
 
 import numpy as np
 
+from ratouch.encoders.preprocess import QUERY_MAX_SIDE, crop_box, tvl_contact_box
+from ratouch.encoders.prior import imagenet_names, load_prior
 from ratouch.errors import ConfigError, DataNotFoundError
+from ratouch.paths import REPO
+from ratouch.search.index import top_k
 
 #: Each bundled scikit-image photo's terms, as `skimage.data`'s docstrings state them. Only
 #: public-domain and CC0 photos are in the set.
@@ -59,7 +63,6 @@ DEFAULT_VISUAL = "chelsea"
 
 def reference_dir() -> Path:
     """The real DIGIT frames' folder: ``../shared/data/reference_tactile`` beside the checkout."""
-    from ratouch.paths import REPO
 
     return REPO.parent / "shared" / "data" / "reference_tactile"
 
@@ -126,7 +129,6 @@ def _prior_and_size(pipeline, prior=None, size: int | None = None):
     if prior is None:
         prior = getattr(enc, "visual_prior", None)
     if prior is None:
-        from ratouch.encoders.prior import load_prior
 
         prior = load_prior("lite0")
     if size is None:
@@ -137,7 +139,6 @@ def _prior_and_size(pipeline, prior=None, size: int | None = None):
 
 
 def _crop(image: np.ndarray, box) -> tuple[np.ndarray, list[int]]:
-    from ratouch.encoders.preprocess import QUERY_MAX_SIDE, crop_box, tvl_contact_box
 
     if box is None:
         box = tvl_contact_box(image.shape[1], image.shape[0])
@@ -145,11 +146,10 @@ def _crop(image: np.ndarray, box) -> tuple[np.ndarray, list[int]]:
 
 
 def _top_imagenet(prior, crop: np.ndarray, size: int, top: int = 3) -> list[list]:
-    from ratouch.encoders.prior import imagenet_names
 
     probs = prior.classify([crop], size)[0]
     names = imagenet_names()
-    return [[names[j], round(float(probs[j]), 4)] for j in np.argsort(-probs)[:top]]
+    return [[names[j], round(float(probs[j]), 4)] for j in top_k(probs[None], top)[1][0]]
 
 
 def _neighbours(result: dict, mode: str, k: int) -> list[dict]:

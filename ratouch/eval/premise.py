@@ -22,13 +22,16 @@ from scipy import stats
 
 from ratouch.errors import ConfigError
 from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split
-from ratouch.eval.controls import derangement, run_controls
+from ratouch.eval.controls import derangement, run_controls, vote
 from ratouch.eval.experiments import source_sha256
 from ratouch.eval.judge import OfflineJudge
 from ratouch.model.generator import load_generator
-from ratouch.paths import cache_dir
+from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
+from ratouch.paths import cache_dir, generator_weights
 from ratouch.serve.pipeline import RATouchPipeline, integrator_factory, load_for_serving
 from ratouch.timing import Progress, bars, say_to
+from ratouch.train.recipes import generator_recipe, token_arm_recipe, training_pairs
+from ratouch.vocabulary import adjective_f1, parse_adjectives
 from ratouch.world.config import WorldConfig
 from ratouch.world.scarcity import ScarceRegime, premise_indices
 from ratouch.world.splits import TestSplit, encode_test_split
@@ -54,8 +57,6 @@ def run_folder(encoder: str, run: int) -> Path:
 
 def run_generators(encoder: str, run: int, progress: bool = False):
     """(RA-Touch, baseline) of a run, LoRA merged; run 0 is the shipped pair."""
-    from ratouch.paths import generator_weights
-    from ratouch.train.recipes import generator_recipe
 
     if run == 0:
         folders = {k: generator_weights(encoder, k) for k in ("ra", "baseline")}
@@ -72,8 +73,6 @@ def run_generators(encoder: str, run: int, progress: bool = False):
 def token_arm(encoder: str, run: int, progress: bool = False):
     """The run's neighbour-token arm (second arm), trained into the cache on first use from the
     run's stage-1 model with RA-Touch's stage-2 budget; LoRA merged."""
-    from ratouch.paths import generator_weights
-    from ratouch.train.recipes import token_arm_recipe
 
     root = run_folder(encoder, run)
     ra = generator_weights(encoder, "ra") if run == 0 else root / "ra"
@@ -292,12 +291,6 @@ def why_ignored(encoder: str = "default-s", n: int = 3000, seed: int = 0,
 
     import torch
 
-    from ratouch.eval.controls import vote
-    from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
-    from ratouch.paths import generator_weights
-    from ratouch.train.recipes import training_pairs
-    from ratouch.vocabulary import adjective_f1, parse_adjectives
-
     pipe = pipeline or RATouchPipeline.load(encoder)
     data = training_pairs(pipe.encoders, seed=0)
     scarce = set(ScarceRegime().scarce_materials())
@@ -337,7 +330,9 @@ def why_ignored(encoder: str = "default-s", n: int = 3000, seed: int = 0,
     grads = {}
     for name, gen in (("start", start), ("end", end)):
         gen.train()
-        params = [p for p in gen.integrator.parameters()]
+        integrator = gen.integrator
+        assert integrator is not None  # both carry one: set on `start`, loaded with `end`
+        params = [p for p in integrator.parameters()]
         for p in params:
             p.requires_grad_(True)
         g = []
@@ -352,12 +347,13 @@ def why_ignored(encoder: str = "default-s", n: int = 3000, seed: int = 0,
     out["integrator_gradient"] = grads
     losses = {}
     with torch.no_grad():
-        for g, m in (("head", ~sc), ("scarce", sc)):
+        for group, m in (("head", ~sc), ("scarce", sc)):
             b = torch.from_numpy(np.flatnonzero(m)[:512])
             lab = [labels[i] for i in b.tolist()]
-            losses[g] = {"own": round(end.loss(Vt[b], Tt[b], lab, rvt[b], rlt[b]).item(), 4),
-                         "shuffled": round(end.loss(Vt[b], Tt[b], lab, rvt[shuf[b]],
-                                                    rlt[shuf[b]]).item(), 4),
-                         "none": round(end.loss(Vt[b], Tt[b], lab).item(), 4)}
+            losses[group] = {
+                "own": round(end.loss(Vt[b], Tt[b], lab, rvt[b], rlt[b]).item(), 4),
+                "shuffled": round(end.loss(Vt[b], Tt[b], lab, rvt[shuf[b]],
+                                           rlt[shuf[b]]).item(), 4),
+                "none": round(end.loss(Vt[b], Tt[b], lab).item(), 4)}
     out["training_loss"] = losses
     return out

@@ -48,7 +48,7 @@ def retrieval_metrics(ids: np.ndarray, mats: Sequence[str], labels: Sequence[set
              entry_words: list[set], k: int, sel: np.ndarray) -> dict:
     top = ids[sel, :k]
     prec = float(material_precision(top, np.asarray(mats)[sel], entry_mats).mean())
-    lab = [labels[i] for i in np.nonzero(sel)[0]]
+    lab = [labels[int(i)] for i in np.nonzero(sel)[0]]
     overlap = float(np.mean([np.mean([len(words & entry_words[j]) / len(words) for j in row])
                              for words, row in zip(lab, top)]))
     return {"material_precision": round(prec, 4), "adjective_overlap": round(overlap, 4)}

@@ -39,11 +39,28 @@ from ratouch.world.splits import TestSplit, encode_test_split
 
 def run_tvl(pipeline, system: str, k: int = 5, judge=None, world: WorldConfig | None = None,
             split: TestSplit | None = None) -> tuple[list[dict], dict]:
-    """Generate, judge and summarise one system on the world's test split."""
+    """Generate, judge and summarise one system on the world's test split (the summary also
+    holds the judge's mean per sensor family, "families")."""
     split = split or encode_test_split(pipeline.encoders, world)
     ans = answer_split(pipeline, split, system, k=k, judge=judge or OfflineJudge())
-    ans.summary.update({"system": system, "k": k, "world_seed": split.world.seed})
+    ans.summary.update({"system": system, "k": k, "world_seed": split.world.seed,
+                        "families": family_stats(ans.records)})
     return ans.records, ans.summary
+
+
+def family_stats(records: Sequence[dict]) -> dict[str, dict]:
+    """`score_stats` of judged world records per sensor family (their "sensor_family"), in
+    the order the families first appear; {} when the records name none."""
+    if not records:
+        return {}
+    key = score_key(records)
+    groups: dict[str, list[dict]] = {}
+    for rec in records:
+        if rec.get("sensor_family"):
+            groups.setdefault(rec["sensor_family"], []).append(rec)
+    return {name: score_stats([r[LABEL_KEY] for r in recs], [r[RESPONSE_KEY] for r in recs],
+                              [float(r[key]) for r in recs])
+            for name, recs in groups.items()}
 
 
 def score_key(records: Sequence[dict]) -> str:
@@ -82,8 +99,9 @@ def paired_ttest(a: Sequence[dict], b: Sequence[dict], key: str | None = None) -
         sub = subset_of(p[0])
         if sub:
             groups[sub].append(p)
+    subsets: dict[str, dict] = {}
     out = {"key": key, "n_shared": len(common), "only_first": len(ra) - len(common),
-           "only_second": len(rb) - len(common), "subsets": {}}
+           "only_second": len(rb) - len(common), "subsets": subsets}
     for name, pairs in groups.items():
         if not pairs:
             continue
@@ -97,7 +115,7 @@ def paired_ttest(a: Sequence[dict], b: Sequence[dict], key: str | None = None) -
             row.update({"t": round(float(t.statistic), 3), "p": float(t.pvalue)})
         else:
             row.update({"t": 0.0, "p": 1.0})
-        out["subsets"][name] = row
+        subsets[name] = row
     return out
 
 

@@ -34,11 +34,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
 from scipy.ndimage import gaussian_filter
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
+from ratouch.images import resize_array
 
 log = logging.getLogger(__name__)
 
@@ -122,10 +122,7 @@ def _working(frame: np.ndarray, size: tuple[int, int] | None = None) -> np.ndarr
     if size is None:
         scale = CONTACT_SIDE / max(h, w)
         size = (max(8, round(w * scale)), max(8, round(h * scale)))
-    img = Image.fromarray(np.ascontiguousarray(frame))
-    if img.size != size:
-        img = img.resize(size, Image.Resampling.BILINEAR, reducing_gap=2.0)
-    return np.asarray(img, np.float32) / 255.0
+    return resize_array(frame, size, reducing_gap=2.0).astype(np.float32) / 255.0
 
 
 #: Blocks (rows, columns) the band energies are pooled over: contact is local (a patch), a
@@ -365,7 +362,7 @@ def _novelty_block(model: Novelty, X: np.ndarray) -> dict:
             "novel": bool(score > model.threshold)}
 
 
-def threshold_for(scores: Sequence[float], false_alarm: float, above: bool = True) -> float:
+def threshold_for(scores: Sequence[float] | np.ndarray, false_alarm: float, above: bool = True) -> float:
     """The threshold flagging a `false_alarm` share of in-distribution `scores`: the
     (1 - false_alarm) quantile when large scores are flagged (`above`), else the
     false_alarm quantile."""

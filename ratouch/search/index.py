@@ -22,7 +22,7 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence, cast
 
 import faiss
 import numpy as np
@@ -201,14 +201,21 @@ class VectorIndex:
         self._params: faiss.SearchParameters | None = None
         self._ivf_params: faiss.SearchParameters | None = None
         if cfg.kind == "hnsw":
-            self._params = faiss.SearchParametersHNSW(efSearch=cfg.ef_search)
+            # faiss's stubs lack SearchParametersHNSW (faiss 1.15.1 defines it)
+            self._params = faiss.SearchParametersHNSW(  # type: ignore[attr-defined]
+                efSearch=cfg.ef_search)
         elif cfg.kind in ONDISK_KINDS:
-            nprobe = min(cfg.nprobe, faiss.extract_index_ivf(index).nlist)
-            self._params = faiss.SearchParametersIVF(nprobe=nprobe)
+            # set field by field: faiss's stubs do not know its keyword constructors (which
+            # set the same attributes)
+            ivf = faiss.SearchParametersIVF()
+            ivf.nprobe = min(cfg.nprobe, faiss.extract_index_ivf(index).nlist)
+            self._params = ivf
             if cfg.refine_factor:
-                self._ivf_params = self._params  # the refine parameters only point at it
-                self._params = faiss.IndexRefineSearchParameters(
-                    k_factor=float(cfg.refine_factor), base_index_params=self._ivf_params)
+                self._ivf_params = ivf  # the refine parameters only point at it
+                refine = faiss.IndexRefineSearchParameters()
+                refine.k_factor = float(cfg.refine_factor)
+                refine.base_index_params = ivf
+                self._params = refine
 
     @property
     def dim(self) -> int:
@@ -248,7 +255,8 @@ class VectorIndex:
         if (refine == 0) != (self._cfg.refine_factor == 0):
             raise ConfigError(f"refine_factor={refine!r}: refinement is switched on or off "
                               "only when building")
-        view = VectorIndex(self._index, replace(self._cfg, **changes))
+        fields: dict[str, Any] = dict(changes)  # IndexConfig checks their values
+        view = VectorIndex(self._index, replace(self._cfg, **fields))
         view._xb = self._xb
         return view
 
@@ -270,12 +278,14 @@ class VectorIndex:
         cfg = cfg or IndexConfig()
         x = _normalised(_as_matrix(vectors, "index vectors"), "index vectors", warn=True)
         n, dim = x.shape
+        index: faiss.Index
         if cfg.kind == "flat":
             index = faiss.IndexFlatIP(dim)
         elif cfg.kind == "hnsw":
-            index = faiss.IndexHNSWFlat(dim, cfg.hnsw_m, faiss.METRIC_INNER_PRODUCT)
-            index.hnsw.efConstruction = cfg.ef_construction
-            index.hnsw.efSearch = cfg.ef_search
+            hnsw = faiss.IndexHNSWFlat(dim, cfg.hnsw_m, faiss.METRIC_INNER_PRODUCT)
+            hnsw.hnsw.efConstruction = cfg.ef_construction
+            hnsw.hnsw.efSearch = cfg.ef_search
+            index = hnsw
         else:
             index = cls._trained_ivfpq(x, cfg, seed, n)
         t0 = time.perf_counter()
@@ -301,20 +311,22 @@ class VectorIndex:
             raise ConfigError(f"nlist={nlist!r} is larger than the corpus of {len(x)} entries "
                               "(training vectors)")
         quantizer = faiss.IndexFlatIP(dim)
+        ivf: faiss.IndexIVF
         if cfg.kind == "ivfflat":
-            index = faiss.IndexIVFFlat(quantizer, dim, nlist, faiss.METRIC_INNER_PRODUCT)
+            ivf = faiss.IndexIVFFlat(quantizer, dim, nlist, faiss.METRIC_INNER_PRODUCT)
         else:
-            index = faiss.IndexIVFPQ(quantizer, dim, nlist, pq_m, 8, faiss.METRIC_INNER_PRODUCT)
-            index.pq.cp.seed = seed
-        index.cp.seed = seed
-        index.cp.niter = 10  # a good-enough partition; training dominates build time
+            ivfpq = faiss.IndexIVFPQ(quantizer, dim, nlist, pq_m, 8, faiss.METRIC_INNER_PRODUCT)
+            ivfpq.pq.cp.seed = seed
+            ivf = ivfpq
+        ivf.cp.seed = seed
+        ivf.cp.niter = 10  # a good-enough partition; training dominates build time
         n = len(x)
         rng = np.random.default_rng(seed)
         train = x if n <= MAX_TRAIN else x[np.sort(rng.choice(n, MAX_TRAIN, replace=False))]
-        index.train(train)
+        ivf.train(train)
         if cfg.refine_factor:
-            index = faiss.IndexRefineFlat(index)
-        return index
+            return faiss.IndexRefineFlat(ivf)
+        return ivf
 
     @classmethod
     def build_ondisk(cls, shards: Sequence[np.ndarray], folder: str | os.PathLike,
@@ -442,7 +454,8 @@ class VectorIndex:
         was measured about 2x slower than the memory-bandwidth bound; this runs near it."""
         if self._xb is None:
             n, d = self.count, self.dim
-            self._xb = faiss.rev_swig_ptr(self._index.get_xb(), n * d).reshape(n, d)
+            flat = cast(faiss.IndexFlat, self._index)  # only a flat index is scanned here
+            self._xb = faiss.rev_swig_ptr(flat.get_xb(), n * d).reshape(n, d)
         sims = self._xb @ q.T if len(q) > 1 else (self._xb @ q[0])[:, None]
         scores, ids = top_k(sims.T, k)
         return scores.astype(np.float32), ids

@@ -13,13 +13,15 @@ import logging
 import threading
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 from ratouch.errors import ConfigError
-from ratouch.serve.request import Answerer, QueryRequest, QueryResult
+from ratouch.serve.request import ModelAnswerer, QueryRequest, QueryResult
 from ratouch.threads import intra_op_threads
 
 log = logging.getLogger(__name__)
+
+M = TypeVar("M")
 
 
 class _Pending:
@@ -31,7 +33,7 @@ class _Pending:
         self.done = threading.Event()
 
 
-class QueryBatcher:
+class QueryBatcher(Generic[M]):
     """An `Answerer` that answers concurrent calls together, by the `Answerer` it wraps.
 
     A worker thread takes what is waiting (up to `max_batch` requests, after waiting at most
@@ -52,7 +54,7 @@ class QueryBatcher:
             `ratouch.threads`); None keeps torch's setting.
     """
 
-    def __init__(self, answerer: Answerer, max_batch: int = 16, max_wait_s: float = 0.0,
+    def __init__(self, answerer: ModelAnswerer[M], max_batch: int = 16, max_wait_s: float = 0.0,
                  threads: int | None = 1):
         if max_batch < 1:
             raise ConfigError(f"max_batch must be >= 1, got {max_batch}")
@@ -82,7 +84,7 @@ class QueryBatcher:
             item.done.wait()
         return [item.result for item in items]
 
-    def model(self, name: str | None = None):
+    def model(self, name: str | None = None) -> M:
         """The loaded model behind the wrapped answerer that answers requests naming `name`
         (its `model`)."""
         return self.answerer.model(name)
@@ -107,6 +109,7 @@ class QueryBatcher:
     def _loop(self) -> None:
         while True:
             batch = self._take()
+            results: Sequence[QueryResult | BaseException]
             try:
                 results = self.answerer.answer([p.request for p in batch])
             except BaseException as e:  # noqa: BLE001 - every caller of the batch gets it

@@ -35,7 +35,7 @@ from ratouch import paths
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
 from ratouch.serve.pipeline import RATouchPipeline
-from ratouch.serve.request import QueryRequest, QueryResult, check_k
+from ratouch.serve.request import QueryRequest, QueryResult, all_answered, slots_for
 from ratouch.timing import Laps
 
 log = logging.getLogger(__name__)
@@ -195,14 +195,8 @@ class Cascade:
         {"answered_by", "stage", "escalated", "confidence": [per stage tried], "thresholds",
         "measure"}, and an escalated one's timings the "earlier_stages" it went through."""
         clock = Laps()
-        out: list[QueryResult | Exception | None] = [None] * len(requests)
-        pending: list[int] = []  # positions of the requests no stage has answered yet
-        for pos, req in enumerate(requests):
-            try:
-                check_k(req.k, len(self.corpus.entries))
-                pending.append(pos)
-            except ConfigError as e:
-                out[pos] = e
+        # pending: the positions of the requests no stage has answered yet
+        out, pending = slots_for(requests, len(self.corpus.entries))
         confs: dict[int, list[float]] = {pos: [] for pos in pending}
         earlier_ms = 0.0  # the stages an escalated query went through before its answer
         for s, stage in enumerate(self.stages):
@@ -234,7 +228,7 @@ class Cascade:
                     out[pending[j]] = result
             kept = set(keep)
             pending = [pos for j, pos in enumerate(pending) if j not in kept]
-        return out
+        return all_answered(out)
 
     def _account(self, stage: int, confidence: list[float]) -> dict:
         """The "cascade" block of a result that stage `stage` answered."""

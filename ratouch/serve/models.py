@@ -15,10 +15,11 @@ from collections.abc import Sequence
 from typing import Callable
 
 from ratouch import paths
+from ratouch.encoders.factory import DEFAULT_SETS
 from ratouch.errors import ConfigError, RATouchError
 from ratouch.serve.cascade import CASCADE, Cascade, CascadeCalibration
 from ratouch.serve.pipeline import RATouchPipeline
-from ratouch.serve.request import QueryRequest, QueryResult
+from ratouch.serve.request import QueryRequest, QueryResult, all_answered
 
 #: A loaded model: it answers requests (`answer`), regenerates a description (`regenerate`)
 #: and names its corpus (`corpus`) and itself (`name`).
@@ -26,14 +27,10 @@ Model = RATouchPipeline | Cascade
 
 log = logging.getLogger(__name__)
 
-#: The default encoder sets, smallest first.
-SIZES = ("default-tiny", "default-s", "default-b")
-
-
 def available_models() -> list[str]:
     """What can answer queries here, smallest first: the default encoder sets with a shipped
     retriever and generators, then the cascade when its calibration is shipped."""
-    names = [n for n in SIZES if paths.retriever_weights(n).is_dir()
+    names = [n for n in DEFAULT_SETS if paths.retriever_weights(n).is_dir()
              and all(paths.generator_weights(n, kind).is_dir() for kind in ("ra", "baseline"))]
     return names + ([CASCADE] if paths.cascade_calibration().is_file() else [])
 
@@ -84,8 +81,13 @@ class ModelChoice:
         if name != CASCADE:
             return load_model(name, corpus=self._corpus, progress=True)
         cal = CascadeCalibration.load(paths.cascade_calibration())
-        return Cascade([self.model(n) if n in self.names else
-                        load_model(n, corpus=self._corpus) for n in cal.encoders], cal)
+        stages = [self.model(n) if n in self.names else load_model(n, corpus=self._corpus)
+                  for n in cal.encoders]
+        pipelines = [s for s in stages if isinstance(s, RATouchPipeline)]
+        if len(pipelines) != len(stages):
+            raise ConfigError(f"the cascade's stages {cal.encoders} must be encoder sets, "
+                              "not cascades")
+        return Cascade(pipelines, cal)
 
     def answer(self, requests: Sequence[QueryRequest]) -> list[QueryResult | Exception]:
         """Each request answered by its own model (one batch per model); an unknown model,
@@ -101,6 +103,6 @@ class ModelChoice:
                 for pos in rows:
                     out[pos] = e
                 continue
-            for pos, res in zip(rows, model.answer([requests[r] for r in rows])):
+            for pos, res in zip(rows, model.answer([requests[r] for r in rows]), strict=True):
                 out[pos] = res
-        return out
+        return all_answered(out)

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from ratouch.encoders.prior import VisualPrior, imagenet_to_world, world_class_probabilities
+from ratouch.search.index import top_k
 from ratouch.world.objects import OBJECT_CLASSES
 
 #: Below this share of the classifier's probability on the corpus's classes, the note says
@@ -92,7 +93,7 @@ class PhotoRoute:
         weights = world / coverage if coverage > 0 else present / present.sum()
         q = weights @ protos
         q = (q / (np.linalg.norm(q) + 1e-12)).astype(np.float32)
-        top = np.argsort(-world)[:TOP_CLASSES]
+        top = top_k(world[None], TOP_CLASSES)[1][0]
         classes = [(OBJECT_CLASSES[i].name, round(float(world[i]), 4)) for i in top
                    if world[i] > 0]
         named = ", ".join(f"{n} {p:.2f}" for n, p in classes) or "none"

@@ -39,7 +39,13 @@ from ratouch.search.retrieval_side import (
     open_retriever,
 )
 from ratouch.serve.photo import PhotoRoute
-from ratouch.serve.request import QueryRequest, QueryResult, answer_one, check_k
+from ratouch.serve.request import (
+    QueryRequest,
+    QueryResult,
+    all_answered,
+    answer_one,
+    slots_for,
+)
 from ratouch.timing import Laps
 
 log = logging.getLogger(__name__)
@@ -163,29 +169,24 @@ class RATouchPipeline(RetrievalSide):
         it raised (a K larger than the corpus); `timings_ms` are the batch's stages, shared
         by its requests, plus "batch_size" and the request's own "decode"."""
         clock = Laps()
-        out: list[QueryResult | Exception | None] = [None] * len(requests)
-        todo = []
-        for pos, req in enumerate(requests):
-            try:
-                check_k(req.k, len(self.corpus.entries))
-                todo.append(pos)
-            except ConfigError as e:
-                out[pos] = e
+        out, todo = slots_for(requests, len(self.corpus.entries))
         if todo:
             clock.lap("preprocess")
             batch = [requests[pos] for pos in todo]
             for pos, result in zip(todo, self.respond(batch, self.encode(batch, clock), clock)):
                 out[pos] = result
-        return out
+        return all_answered(out)
 
     def encode(self, requests: Sequence[QueryRequest], clock: Laps) -> list[Encoded]:
         """Step 1: the image queries of the crops, the tactile queries of the frames and the
         Tactile-Guided Retriever's joint queries."""
         V, P, routes = self.encode_images([r.crop for r in requests])
-        encoded = [Encoded({"image": V[j:j + 1]}, None if P is None else P[j:j + 1],
-                           routes[j] or {"route": "render"},
-                           [routes[j]["note"]] if routes[j] else [])
-                   for j in range(len(requests))]
+        encoded = []
+        for j in range(len(requests)):
+            route = routes[j]
+            encoded.append(Encoded({"image": V[j:j + 1]}, None if P is None else P[j:j + 1],
+                                   route or {"route": "render"},
+                                   [route["note"]] if route else []))
         clock.lap("encode_image")
         touch = [j for j, r in enumerate(requests) if r.frame is not None]
         if touch:
@@ -207,8 +208,8 @@ class RATouchPipeline(RetrievalSide):
         found = self._search(requests, encoded)
         clock.lap("search")
         # a frame without contact has no material to describe: no generation for it
-        touch = [j for j, e in enumerate(encoded) if "tactile" in e.queries
-                 and not (trust[j] and (trust[j]["tactile"] or {}).get("no_contact"))]
+        touch = [j for j, (e, t) in enumerate(zip(encoded, trust)) if "tactile" in e.queries
+                 and not (t and (t["tactile"] or {}).get("no_contact"))]
         ra, base, attention = self._generate(requests, encoded, found, touch, clock)
         points = self._project(requests, encoded, found)
         clock.lap("pca")
@@ -221,12 +222,12 @@ class RATouchPipeline(RetrievalSide):
             attention=attention.get(j, {}),
             pca={"points": points[j], "explained": explained},
             timings_ms={**timings, "decode": req.decode_ms},
-            warnings=[*req.warnings, *encoded[j].warnings, *self._trust_warnings(trust[j])],
+            warnings=[*req.warnings, *encoded[j].warnings, *self._trust_warnings(t)],
             box=[int(v) for v in req.box],
             encoder=self.encoders.name,
             visual_route=encoded[j].route,
-            trust=None if trust[j] is None else {m: trust[j][m] for m in ("visual", "tactile")})
-            for j, req in enumerate(requests)]
+            trust=None if t is None else {m: t[m] for m in ("visual", "tactile")})
+            for j, (req, t) in enumerate(zip(requests, trust))]
 
     def _assess(self, request: QueryRequest, encoded: Encoded) -> dict | None:
         """Step 2: the trust block of one request (None: no calibration)."""

@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 from PIL import Image
@@ -197,6 +197,9 @@ class QueryResult:
         return out
 
 
+M_co = TypeVar("M_co", covariant=True)
+
+
 class Answerer(Protocol):
     """Answers decoded requests, several at once."""
 
@@ -205,6 +208,44 @@ class Answerer(Protocol):
         corpus cannot give, an unknown model, ...); the other requests are answered all the
         same."""
         ...
+
+
+class ModelAnswerer(Answerer, Protocol[M_co]):
+    """An `Answerer` that also gives the loaded model answering requests that name `name`
+    (a `RATouchPipeline`, a `Cascade`, a `ModelChoice`, ...)."""
+
+    def model(self, name: str | None = None) -> M_co:
+        ...
+
+
+def slots_for(requests: Sequence[QueryRequest], largest_k: int
+              ) -> tuple[list[QueryResult | Exception | None], list[int]]:
+    """An answerer's start: one empty slot per request, the error already in the slot of a
+    request whose K is not from 1 to `largest_k` (the corpus's size), and the positions of
+    the requests left to answer."""
+    out: list[QueryResult | Exception | None] = [None] * len(requests)
+    todo: list[int] = []
+    for pos, req in enumerate(requests):
+        try:
+            check_k(req.k, largest_k)
+            todo.append(pos)
+        except ConfigError as e:
+            out[pos] = e
+    return out, todo
+
+
+def all_answered(out: Sequence[QueryResult | Exception | None]
+                 ) -> list[QueryResult | Exception]:
+    """An answerer's per-request slots (filled in any order) once every one holds its result
+    or its exception, as `Answerer.answer` returns them.
+
+    Raises:
+        RuntimeError: a slot is still empty (a bug of the answerer).
+    """
+    done = [r for r in out if r is not None]
+    if len(done) != len(out):
+        raise RuntimeError(f"{len(out) - len(done)} of {len(out)} requests were not answered")
+    return done
 
 
 def answer_one(answerer: Answerer, request: QueryRequest) -> QueryResult:

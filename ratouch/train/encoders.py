@@ -12,6 +12,7 @@ import logging
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from typing import cast, overload
 
 import numpy as np
 import torch
@@ -22,10 +23,10 @@ from ratouch.corpus.imagenet_t import stratified_world_ids, world_lexicon
 from ratouch.corpus.recaption import OfflineRecaptioner
 from ratouch.encoders.default import DefaultEncoders, tactile_input
 from ratouch.encoders.factory import create_model, model_config
-from ratouch.encoders.preprocess import resize_array
 from ratouch.encoders.prior import load_prior
 from ratouch.errors import ConfigError
 from ratouch.files import write_npz_atomic
+from ratouch.images import resize_array
 from ratouch.paths import cache_dir
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
@@ -272,6 +273,10 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
     minilm = torch.from_numpy(model.minilm_features(texts)).to(dev)  # (T, 384), frozen
     model.to(dev)
 
+    @overload
+    def on(x: torch.Tensor) -> torch.Tensor: ...
+    @overload
+    def on(x: None) -> None: ...
     def on(x: torch.Tensor | None) -> torch.Tensor | None:
         return None if x is None else x.to(dev, non_blocking=True)
 
@@ -304,7 +309,7 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
             "tactile_vision": soft_info_nce(t, v, eye, scale),
             "corpus_vision_text": soft_info_nce(vc, lc, same_c, scale),
         }
-        loss = sum(losses.values())
+        loss = cast(torch.Tensor, sum(losses.values()))  # a sum of (four) tensors
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()

@@ -218,7 +218,7 @@ def evaluate_generators(base, ra, V: np.ndarray, T: np.ndarray, Rv: np.ndarray,
     """Label-adjective F1 of both systems on held-out pairs, with a paired comparison."""
     from scipy.stats import ttest_rel
 
-    outs = {"baseline": [], "ra_touch": []}
+    outs: dict[str, list[str]] = {"baseline": [], "ra_touch": []}
     with torch.no_grad():
         for s in range(0, len(V), batch):
             v, t = torch.from_numpy(V[s:s + batch]), torch.from_numpy(T[s:s + batch])

@@ -107,40 +107,48 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
     nc_val = render_samples(nc_world, "train", val_idx, progress, "validation, no contact")
     test = render_samples(world, "test", range(TEST_SIZE), progress, "test")
     nc_test = render_samples(nc_world, "test", range(TEST_SIZE), progress, "test, no contact")
-    enc = {}
+    # per split: (image embeddings, tactile embeddings, the prior's features or None)
+    enc: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray | None]] = {}
+    ref_plain_t: np.ndarray | None = None
     for name, d in (("ref", ref), ("val", val), ("test", test)):
         V, P = encoders.encode_image_features(d["crops"]) if hasattr(
             encoders, "encode_image_features") else (encoders.encode_image(d["crops"]), None)
         enc[name] = (V, encoders.encode_tactile(d["frames"], d["backgrounds"]), P)
         if name == "ref":  # the tactile novelty also knows frames without a background
-            enc[name] += (encoders.encode_tactile(d["frames"]),)
+            ref_plain_t = encoders.encode_tactile(d["frames"])
+    assert ref_plain_t is not None  # encoded with the reference split, the loop's first
     fa = cfg.false_alarm
-    novelty = {}
-    ref_t = np.concatenate([enc["ref"][1], enc["ref"][3]])
-    for m, ref_x, col in (("visual", enc["ref"][0], 0), ("tactile", ref_t, 1),
-                          ("visual_prior", enc["ref"][2], 2)):
+    novelty: dict[str, Novelty | None] = {}
+    ref_t = np.concatenate([enc["ref"][1], ref_plain_t])
+    for m, ref_x, val_x in (("visual", enc["ref"][0], enc["val"][0]),
+                            ("tactile", ref_t, enc["val"][1]),
+                            ("visual_prior", enc["ref"][2], enc["val"][2])):
         if ref_x is None:
             novelty[m] = None
             continue
+        assert val_x is not None  # the same encoders give every split the same features
         model = Novelty.fit(ref_x, cfg.rank)
-        novelty[m] = model.with_threshold(threshold_for(model.score(enc["val"][col]), fa))
+        novelty[m] = model.with_threshold(threshold_for(model.score(val_x), fa))
+    visual, tactile, prior = novelty["visual"], novelty["tactile"], novelty["visual_prior"]
+    assert visual is not None and tactile is not None  # image and tactile embeddings always exist
     feats = {name: _features(d) for name, d in (("ref", ref), ("nc_ref", nc_ref), ("val", val),
                                                ("nc_val", nc_val), ("test", test),
                                                ("nc_test", nc_test))}
-    models, thresholds = [], []
+    models: list[ContactModel] = []
+    thresholds: list[float] = []
     for col in (0, 1):  # without, with the background
-        model = ContactModel.fit(feats["ref"][col], feats["nc_ref"][col])
-        models.append(model)
-        thresholds.append(threshold_for(model.score(feats["val"][col]), fa, above=False))
+        contact = ContactModel.fit(feats["ref"][col], feats["nc_ref"][col])
+        models.append(contact)
+        thresholds.append(threshold_for(contact.score(feats["val"][col]), fa, above=False))
     measured: dict[str, Any] = {
-        "visual_false_alarm_test": _rate(novelty["visual"].score(enc["test"][0])
-                                         > novelty["visual"].threshold),
-        "tactile_false_alarm_test": _rate(novelty["tactile"].score(enc["test"][1])
-                                          > novelty["tactile"].threshold),
+        "visual_false_alarm_test": _rate(visual.score(enc["test"][0]) > visual.threshold),
+        "tactile_false_alarm_test": _rate(tactile.score(enc["test"][1]) > tactile.threshold),
     }
-    if novelty["visual_prior"] is not None:
+    if prior is not None:
+        test_prior = enc["test"][2]
+        assert test_prior is not None  # the same encoders give every split the same features
         measured["visual_prior_false_alarm_test"] = _rate(
-            novelty["visual_prior"].score(enc["test"][2]) > novelty["visual_prior"].threshold)
+            prior.score(test_prior) > prior.threshold)
     families = np.asarray(test["families"])
     for col, suffix in ((0, ""), (1, "_bg")):
         press = models[col].score(feats["test"][col]) < thresholds[col]  # a press called empty
@@ -158,9 +166,8 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
             "test": f"test[0:{TEST_SIZE}] (measured only)", "target_false_alarm": fa,
             "rank": cfg.rank, "families": list(FAMILIES), "measured": measured}
     log.info("trust calibration for %s: %s", encoders.name, measured)
-    return TrustCalibration(encoders.name, novelty["visual"], novelty["tactile"], models[0],
-                            models[1], thresholds[0], thresholds[1], novelty["visual_prior"],
-                            meta)
+    return TrustCalibration(encoders.name, visual, tactile, models[0], models[1], thresholds[0],
+                            thresholds[1], prior, meta)
 
 
 def _rate(flags: np.ndarray) -> float:

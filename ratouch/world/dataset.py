@@ -180,20 +180,20 @@ def _write_into(cfg: WorldConfig, root: Path, split: str, indices: list[int], wo
     bar.close()
     counts = {}
     for subset, sub in SUBSET_DIRS.items():
-        rows = [r for s, r in results if s == subset]
-        counts[subset] = len(rows)
-        if not rows:
+        subset_rows = [r for s, r in results if s == subset]
+        counts[subset] = len(subset_rows)
+        if not subset_rows:
             shutil.rmtree(root / sub)
             continue
-        used = sorted({r["meta"]["sensor"] for r in rows})
+        used = sorted({r["meta"]["sensor"] for r in subset_rows})
         for k in used:
             _save_png(root / sub / "backgrounds" / f"sensor_{k}.png", world.background_image(k))
         with open(root / sub / f"{split}.csv", "w", newline="") as f:
             w = csv.writer(f)
             w.writerow(CSV_HEADER)
-            w.writerows(r["row"] for r in rows)
+            w.writerows(r["row"] for r in subset_rows)
         with open(root / sub / f"meta_{split}.jsonl", "w") as f:
-            for r in rows:
+            for r in subset_rows:
                 f.write(json.dumps(r["meta"]) + "\n")
     return counts
 

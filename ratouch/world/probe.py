@@ -19,6 +19,7 @@ from sklearn.preprocessing import StandardScaler
 from tqdm import tqdm
 
 from ratouch.errors import ConfigError
+from ratouch.images import resize_array
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import _fork_context, world_for
 from ratouch.world.material import MATERIAL_INDEX, MATERIALS, groups
@@ -70,12 +71,12 @@ def _gradient_stats(gray: np.ndarray, n_bins: int = 8) -> np.ndarray:
 def visual_features(image: np.ndarray, box) -> np.ndarray:
     """Features of the visual crop inside the contact box."""
     x0, y0, x1, y1 = box
-    crop = Image.fromarray(image[y0:y1, x0:x1]).resize((48, 48), Image.Resampling.BILINEAR)
-    rgb = np.asarray(crop, np.float32) / 255
+    crop = resize_array(image[y0:y1, x0:x1], 48)
+    rgb = crop.astype(np.float32) / 255
     gray = rgb.mean(axis=2)
     mx, mn = rgb.max(axis=2), rgb.min(axis=2)
     sat = (mx - mn) / (mx + 1e-3)
-    hsv = np.asarray(crop.convert("HSV"), np.float32) / 255
+    hsv = np.asarray(Image.fromarray(crop).convert("HSV"), np.float32) / 255
     hue_hist, _ = np.histogram(hsv[..., 0], bins=12, range=(0, 1), weights=sat + 1e-3)
     hue_hist = hue_hist / hue_hist.sum()
     bright = (gray > np.percentile(gray, 50) + 0.25).mean()  # specular highlight share

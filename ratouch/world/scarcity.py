@@ -26,6 +26,7 @@ import numpy as np
 
 from ratouch.errors import ConfigError
 from ratouch.world.config import WorldConfig
+from ratouch.world.dataset import world_for
 from ratouch.world.material import MATERIALS
 
 REGIMES = ("scarce", "full")
@@ -86,7 +87,6 @@ class ScarceRegime:
 def _train_indices(regime: ScarceRegime, n_pairs: int) -> tuple[int, ...]:
     if regime.regime == "full":
         return tuple(range(n_pairs))
-    from ratouch.world.dataset import world_for
 
     world = world_for(WorldConfig(seed=regime.seed))
     scarce = set(regime.scarce_materials())
@@ -118,7 +118,6 @@ def premise_indices(group: str, n: int, regime: ScarceRegime) -> list[int]:
         raise ConfigError(f"group={group!r} must be 'seen' or 'scarce'")
     if regime.regime == "full":
         raise ConfigError("the premise groups need a scarce regime")
-    from ratouch.world.dataset import world_for
 
     world = world_for(WorldConfig(seed=regime.seed))
     scarce = set(regime.scarce_materials())
@@ -134,8 +133,6 @@ def premise_indices(group: str, n: int, regime: ScarceRegime) -> list[int]:
 def material_counts(regime: ScarceRegime, n_pairs: int) -> dict[str, int]:
     """Pairs per material in the regime's training split, most frequent first."""
     from collections import Counter
-
-    from ratouch.world.dataset import world_for
 
     world = world_for(WorldConfig(seed=regime.seed))
     c = Counter(world.plan("train", i)[2].name for i in regime.train_indices(n_pairs))

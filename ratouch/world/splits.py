@@ -1,14 +1,15 @@
 """The world's test split, rendered and encoded once for an evaluation.
 
-`encode_test_split` renders the 402 test pairs (or a subset, or under stress knobs) and encodes
-the contact-box crops and tactile frames with any encoder set (anything with `encode_image`
-and `encode_tactile`); `TestSplit` keeps the embeddings beside each pair's ground truth and its
-TVL-layout file names.
+`encode_test_split` renders the 402 test pairs (or a subset, or under stress knobs) and
+`encode_samples` encodes rendered pairs with any encoder set (anything with `encode_image` and
+`encode_tactile`): the contact-box crops, and the tactile frames against their sensor's
+background, as every TVL row carries one. `TestSplit` keeps the embeddings beside each pair's
+ground truth, its sensor family and its TVL-layout file names.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -16,7 +17,8 @@ import numpy as np
 from ratouch.errors import ConfigError
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import SUBSET_DIRS, world_for
-from ratouch.world.generator import TEST_SIZE
+from ratouch.world.generator import TEST_SIZE, Sample, World
+from ratouch.world.tactile import sensor_family
 
 
 @dataclass
@@ -31,6 +33,7 @@ class TestSplit:
         indices: sample indices in the test split.
         object_scale: object size / frame side per sample (a failure-mode axis).
         world: the world config (seed and stress knobs) the split was rendered with.
+        families: the sensor family ("digit", "gelsight", "mini") of each tactile frame.
     """
 
     V: np.ndarray
@@ -41,6 +44,7 @@ class TestSplit:
     indices: list[int]
     object_scale: list[float]
     world: WorldConfig
+    families: list[str] = field(default_factory=list)
 
     def image_fp(self, i: int) -> str:
 
@@ -62,11 +66,20 @@ def encode_test_split(encoders, world: WorldConfig | None = None,
         raise ConfigError(f"split {split!r} needs explicit indices")
     idx = list(range(TEST_SIZE)) if indices is None else [int(i) for i in indices]
     samples = [gen.sample(split, i) for i in idx]
-    crops = [s.crop for s in samples]
+    return encode_samples(encoders, samples, [gen] * len(samples), idx, world)
+
+
+def encode_samples(encoders, samples: Sequence[Sample], worlds: Sequence[World],
+                   indices: Sequence[int], world: WorldConfig) -> TestSplit:
+    """Encode rendered pairs: each contact-box crop, and each tactile frame against the
+    background of its sensor in the world that rendered it (`worlds[j]` rendered
+    `samples[j]`; `world` is the config the split is reported under)."""
     return TestSplit(
-        V=encoders.encode_image(crops),
+        V=encoders.encode_image([s.crop for s in samples]),
         T=encoders.encode_tactile([s.tactile for s in samples],
-                                  [gen.background_image(s.sensor) for s in samples]),
+                                  [w.background_image(s.sensor) for s, w in zip(samples, worlds,
+                                                                                strict=True)]),
         labels=[s.caption for s in samples], subsets=[s.subset for s in samples],
-        materials=[s.material for s in samples], indices=idx,
-        object_scale=[float(s.object_scale) for s in samples], world=world)
+        materials=[s.material for s in samples], indices=[int(i) for i in indices],
+        object_scale=[float(s.object_scale) for s in samples], world=world,
+        families=[sensor_family(s.sensor) for s in samples])

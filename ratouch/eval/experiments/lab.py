@@ -50,7 +50,9 @@ def source_sha256(modules: Sequence[str] = TRAINING_CODE) -> str:
     every `.py` file beside its `__init__.py`), each with its module-relative name."""
     h = hashlib.sha256()
     for name in modules:
-        path = Path(importlib.import_module(name).__file__)
+        source = importlib.import_module(name).__file__
+        assert source is not None, f"{name} has no source file"  # the project's own modules
+        path = Path(source)
         files = sorted(path.parent.glob("*.py")) if path.name == "__init__.py" else [path]
         for f in files:
             h.update(f"{name}:{f.name}\n".encode())

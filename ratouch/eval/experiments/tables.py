@@ -83,7 +83,8 @@ def table6_withheld(lab: Lab) -> Report:
     unseen = np.array([m in held for m in lab.test.materials])
     groups = (("all test pairs", np.ones(len(unseen), bool)), ("seen materials", ~unseen),
               ("withheld materials", unseen))
-    rows, data = [], {}
+    rows: list[list[str]] = []
+    data: dict[str, dict[str, dict]] = {}
     for name, (b, r) in ((f"all {len(set(lab.train['materials']))} materials in training",
                           (BASELINE, RA_TOUCH)), (f"{n} materials withheld", (base, ra))):
         cells = [name]
@@ -106,14 +107,14 @@ def table6_withheld(lab: Lab) -> Report:
     import plotly.graph_objects as go
 
     fig = go.Figure()
-    for r in data:  # RA-Touch - baseline per subset, with its paired 95 % CI
-        diffs = [v["ra_touch"] - v["baseline"] for v in data[r].values()]
-        fig.add_scatter(name=r, x=list(data[r]), y=diffs, mode="markers", marker={"size": 9},
+    for row in data:  # RA-Touch - baseline per subset, with its paired 95 % CI
+        diffs = [v["ra_touch"] - v["baseline"] for v in data[row].values()]
+        fig.add_scatter(name=row, x=list(data[row]), y=diffs, mode="markers", marker={"size": 9},
                         error_y={"type": "data", "symmetric": False,
-                                 "array": [v["ci95"][1] - d for v, d in zip(data[r].values(),
-                                                                            diffs)],
+                                 "array": [v["ci95"][1] - d for v, d in zip(data[row].values(),
+                                                                              diffs)],
                                  "arrayminus": [d - v["ci95"][0] for v, d in
-                                                zip(data[r].values(), diffs)]})
+                                                zip(data[row].values(), diffs)]})
     fig.add_hline(y=0, line_dash="dot", annotation_text="baseline (no retrieval)")
     fig.update_layout(title="Table 6 - materials withheld from the paired training data",
                       template="plotly_white", height=440, autosize=True, scattermode="group",

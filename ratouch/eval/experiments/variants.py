@@ -5,8 +5,12 @@ integration), the shared `ExperimentConfig`, and one experiment's `Report`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from ratouch.errors import ConfigError
+
+if TYPE_CHECKING:
+    import plotly.graph_objects as go
 
 SUBSET_NAMES = {"SSVTP": "structured", "HCT": "wild"}
 CAPTION_TYPES = ("class_name", "visual_description", "tactile_caption")
@@ -88,6 +92,6 @@ class Report:
     name: str
     title: str
     markdown: str
-    figure: object = None  # a plotly Figure
+    figure: go.Figure | None = None
     data: dict = field(default_factory=dict)
     seconds: float = 0.0

@@ -98,15 +98,17 @@ def fit_calibration(data: Mapping[str, list[dict]], models: Sequence[str], idx: 
     labels = [data[models[0]][i][LABEL_KEY] for i in idx]
     answer_words = {w for m in models for i in idx for w in parse_adjectives(data[m][i][RESPONSE_KEY])}
     label_rates = label_fit_rates(labels, answer_words)
-    X, y = [], []
+    feature_rows: list[list[float]] = []
+    targets: list[float] = []
     for model in models:
         rates = answer_rates(data[model][i][RESPONSE_KEY] for i in idx)
         for label, response, gpt, _, _ in gpt4_rows(data, idx, [model]):
             pred = parse_adjectives(response)
             if pred:
-                X.append(judge_features(parse_adjectives(label), pred, label_rates, rates))
-                y.append(gpt)
-    X, y = np.asarray(X, dtype=np.float64), np.asarray(y, dtype=np.float64)
+                feature_rows.append(judge_features(parse_adjectives(label), pred, label_rates,
+                                                   rates))
+                targets.append(gpt)
+    X, y = np.asarray(feature_rows, dtype=np.float64), np.asarray(targets, dtype=np.float64)
     mean, scale = X.mean(0), X.std(0)
     scale[scale == 0] = 1.0
     Z = (X - mean) / scale

@@ -115,7 +115,7 @@ class LLMJudge:
     def score(self, label: str, response: str | None, question: str = TVL_QUESTION) -> float:
         """Score in [1, 10] from the LLM, or the offline judge's after failed attempts; a
         missing or empty response scores 1 without a request."""
-        if is_failed(response):
+        if response is None or is_failed(response):
             return MIN_SCORE
         prompt = build_judge_prompt(label, response, question)
         for attempt in range(1, self.config.max_attempts + 1):

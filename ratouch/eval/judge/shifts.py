@@ -41,7 +41,7 @@ def style_shift(kind: str, labels: Sequence[str], responses: Sequence[str | None
         return [", ".join(parse_adjectives(r) + [w for w in pad if w not in parse_adjectives(r)])
                 for r in responses]
     if kind == "truncate":
-        return [(parse_adjectives(r) or [None])[0] for r in responses]
+        return [next(iter(parse_adjectives(r)), None) for r in responses]
     if kind == "shuffle":
         perm = np.random.default_rng(seed).permutation(len(responses))
         return [responses[i] for i in perm]
@@ -96,7 +96,8 @@ def style_shifts(data: Mapping[str, list[dict]], idx: Sequence[int], judge: Offl
     pad = generic_words(judge.label_rates)
     levels = chance_level(data, idx, judge, seed)
     chance = levels["chance"]
-    base, shifted = [], {k: [] for k in SHIFTS}
+    base: list[float] = []
+    shifted: dict[str, list[float]] = {k: [] for k in SHIFTS}
     for model in MODELS:
         labels = [data[model][i][LABEL_KEY] for i in idx]
         responses = [data[model][i][RESPONSE_KEY] for i in idx]
@@ -125,20 +126,22 @@ def length_effect(data: Mapping[str, list[dict]], idx: Sequence[int], judge: Off
     words) over the three systems' answers to `idx`; the ``per_adjective`` coefficients are the
     change per extra adjective that neither matches nor contradicts the label.
     """
-    X, gpt, off = [], [], []
+    features: list[list[float]] = []
+    gpt: list[float] = []
+    off: list[float] = []
     for model in MODELS:
         rows = [r for r in gpt4_rows(data, idx, [model]) if parse_adjectives(r[1])]
         off += judge.score_many([(r[0], r[1]) for r in rows])
         for r in rows:
             lab, pred = parse_adjectives(r[0]), parse_adjectives(r[1])
             table = word_table(lab, pred, judge.label_rates)
-            X.append([1.0, sum(t["similarity"] >= MATCHED for t in table),
-                      sum(t["clash"] > 0 for t in table), len(pred), len(lab)])
+            features.append([1.0, sum(t["similarity"] >= MATCHED for t in table),
+                             sum(t["clash"] > 0 for t in table), len(pred), len(lab)])
             gpt.append(r[2])
-    X = np.asarray(X)
+    X = np.asarray(features)
     coef = {name: np.linalg.lstsq(X, np.asarray(y), rcond=None)[0]
             for name, y in (("gpt4", gpt), ("offline", off))}
-    out = {name: {"per_matched": float(c[1]), "per_contradicted": float(c[2]),
-                  "per_adjective": float(c[3])} for name, c in coef.items()}
-    out["difference_per_adjective"] = out["offline"]["per_adjective"] - out["gpt4"]["per_adjective"]
-    return out
+    fits = {name: {"per_matched": float(c[1]), "per_contradicted": float(c[2]),
+                   "per_adjective": float(c[3])} for name, c in coef.items()}
+    return {**fits, "difference_per_adjective": (fits["offline"]["per_adjective"]
+                                                 - fits["gpt4"]["per_adjective"])}

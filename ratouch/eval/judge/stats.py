@@ -27,7 +27,7 @@ from ratouch.vocabulary import adjective_f1, parse_adjectives
 BOOTSTRAP_SAMPLES = 2000
 
 
-def mean_ci(values: Sequence[float], level: float = 0.95, n_boot: int = BOOTSTRAP_SAMPLES,
+def mean_ci(values: Sequence[float] | np.ndarray, level: float = 0.95, n_boot: int = BOOTSTRAP_SAMPLES,
             seed: int = 0) -> tuple[float, float, float]:
     """(mean, low, high): the mean and its percentile bootstrap CI (seeded, so reproducible).
 
@@ -44,8 +44,8 @@ def mean_ci(values: Sequence[float], level: float = 0.95, n_boot: int = BOOTSTRA
     return float(x.mean()), float(lo), float(hi)
 
 
-def score_stats(labels: Sequence[str], responses: Sequence[str | None], scores: Sequence[float],
-                seed: int = 0) -> dict:
+def score_stats(labels: Sequence[str], responses: Sequence[str | None],
+                scores: Sequence[float] | np.ndarray, seed: int = 0) -> dict:
     """What every system comparison prints: the judge mean with its 95 % bootstrap CI, label
     adjective F1 and the mean number of adjectives per answer (failed answers count 0).
 
@@ -133,7 +133,7 @@ def ranking(means: Mapping[str, float]) -> list[str]:
     return sorted(means, key=lambda m: (-means[m], m))
 
 
-def spearman(a: Sequence[float], b: Sequence[float]) -> float:
+def spearman(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray) -> float:
     from scipy.stats import spearmanr
 
     return float(spearmanr(a, b)[0])

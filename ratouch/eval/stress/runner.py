@@ -25,7 +25,7 @@ from ratouch.eval.stress.sweeps import (
 from ratouch.timing import Progress, say_to
 from ratouch.world.config import StressConfig, WorldConfig
 from ratouch.world.generator import World
-from ratouch.world.splits import TestSplit
+from ratouch.world.splits import TestSplit, encode_samples
 
 log = logging.getLogger(__name__)
 
@@ -60,17 +60,11 @@ class _Renderer:
     def split(self, encoders, indices: Sequence[int], knobs: dict | None = None,
               per_sample: Sequence[dict] | None = None) -> TestSplit:
         """Render and encode; `per_sample[j]` are extra knobs for sample j."""
-        samples = []
         shared = self._world(knobs or {})
-        for j, i in enumerate(indices):
-            w = self._world({**(knobs or {}), **per_sample[j]}) if per_sample else shared
-            samples.append(w.sample("test", i))
-        crops = [s.crop for s in samples]
-        return TestSplit(
-            V=encoders.encode_image(crops), T=encoders.encode_tactile([s.tactile for s in samples]),
-            labels=[s.caption for s in samples], subsets=[s.subset for s in samples],
-            materials=[s.material for s in samples], indices=list(indices),
-            object_scale=[float(s.object_scale) for s in samples], world=shared.cfg)
+        worlds = [self._world({**(knobs or {}), **per_sample[j]}) if per_sample else shared
+                  for j in range(len(indices))]
+        samples = [w.sample("test", i) for w, i in zip(worlds, indices, strict=True)]
+        return encode_samples(encoders, samples, worlds, indices, shared.cfg)
 
 
 _NATURAL_LABEL = {"tactile_rotation": "0", "box_offset": "0", "missing": "none"}

@@ -4,7 +4,7 @@ paired with its reference, and which test samples a sweep renders.
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Mapping, Sequence
 
 from ratouch.errors import ConfigError
 from ratouch.world.config import WorldConfig
@@ -45,7 +45,7 @@ def _knob_value(knob: str, text: str):
 
 
 def build_sweeps(knobs: Sequence[str] | None = None,
-                 values: dict[str, Sequence] | None = None) -> dict[str, list[dict]]:
+                 values: Mapping[str, Sequence] | None = None) -> dict[str, list[dict]]:
     """The sweeps to run: the chosen knobs (default all), optionally with other values.
 
     Every value is checked against the world's ranges here, before any work.
