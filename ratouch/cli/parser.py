@@ -330,7 +330,8 @@ def _add_query(sub) -> None:
     q.add_argument("--tactile", default=None, help="tactile image file (optional)")
     q.add_argument("--background", default=None,
                    help="the tactile sensor's no-contact frame (optional; same size as the "
-                        "tactile image), for the no-contact check")
+                        "tactile image): the frame is read against it, and the no-contact "
+                        "check uses it")
     q.add_argument("--box", type=_box, default=None, help="contact box x0,y0,x1,y1 in pixels")
     q.add_argument("--k", type=_pos_int, default=5)
     q.add_argument("--label", default=None, help="ground-truth caption, if known (for the PCA)")
