@@ -178,6 +178,7 @@ def _layout(pipeline, world, conditions, models: list[str] | None) -> SimpleName
     with gr.Row(visible=False):  # the /query API's own inputs and output
         ui.api_visual = gr.File(label="visual image", file_types=["image"])
         ui.api_tactile = gr.File(label="tactile image", file_types=["image"])
+        ui.api_background = gr.File(label="sensor background", file_types=["image"])
         ui.api_out = gr.JSON()
         ui.api_button = gr.Button()
     return ui
@@ -300,8 +301,8 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
         return handlers.regenerate(pipeline, state, tac, a, b, c, d, kept, result, judge,
                                    encoder=model if choice else None, background=bg)
 
-    def api_query(visual, tactile, a, b, c, d, k, model=None):
-        return handlers.api_query(pipeline, visual, tactile, a, b, c, d, k,
+    def api_query(visual, tactile, a, b, c, d, k, model=None, background=None):
+        return handlers.api_query(pipeline, visual, tactile, a, b, c, d, k, background=background,
                                   encoder=(model or None) if choice else None)
 
     def failures_tab(subset, condition, view_label, compute, progress=None):
@@ -348,7 +349,8 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
         show_query, query_in, query_out, **queries, **raw, **private)
     gr.on([ui.bench_tab.select, ui.reload.click],
           lambda: handlers.benchmarks(docs, MAX_FIGURES), None, bench_out, **private)
-    ui.api_button.click(api_query, [ui.api_visual, ui.api_tactile, *ui.fields, ui.k, ui.model],
+    ui.api_button.click(api_query, [ui.api_visual, ui.api_tactile, *ui.fields, ui.k, ui.model,
+                                    ui.api_background],
                         ui.api_out,
                         api_name="query", **queries)
 

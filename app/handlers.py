@@ -327,8 +327,9 @@ def regenerate(pipe, visual: boxes.Visual | None, tactile: Any, x0, y0, x1, y1,
 
 
 def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k,
-              encoder: str | None = None) -> dict:
-    """The `/query` API: image files, box, K and the model in, the answer's JSON out
+              encoder: str | None = None, background: str | None = None) -> dict:
+    """The `/query` API: image files, box, K, the model and the tactile sensor's background
+    (optional: the frame is read against it) in, the answer's JSON out
     (`QueryResult.to_dict`).
 
     Raises:
@@ -339,10 +340,12 @@ def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k,
             raise DataError("a visual image is required")
         box = boxes.fields_to_box(x0, y0, x1, y1)
         request = QueryRequest.decode(visual, tactile, box=box,
-                                      k=parse_k(5 if k is None else k), model=encoder or None)
+                                      k=parse_k(5 if k is None else k), background=background,
+                                      model=encoder or None)
         return answer_one(pipe, request).to_dict()
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
-        files = {"visual image": visual, "tactile image": tactile}
+        files = {"visual image": visual, "tactile image": tactile,
+                 "background image": background}
         raise gr.Error(user_message(e, files), print_exception=False) from e
 
 

@@ -62,7 +62,8 @@ ENDPOINT = "query"
 # The `/query` endpoint's inputs, in order, as the app describes them: (parameter name,
 # component). `ApiClient.values` fills them; the app's inputs must be exactly these.
 INPUTS = (("visual", "File"), ("tactile", "File"), ("a", "Textbox"), ("b", "Textbox"),
-          ("c", "Textbox"), ("d", "Textbox"), ("k", "Slider"), ("model", "Dropdown"))
+          ("c", "Textbox"), ("d", "Textbox"), ("k", "Slider"), ("model", "Dropdown"),
+          ("background", "File"))
 RESULT_KEYS = ("neighbours", "description", "timings_ms", "warnings", "box")  # of every answer
 NO_MESSAGE = ("the server answered with an error event without a message (the app hides "
               "error details: show_error=False); the server log says why")
@@ -79,9 +80,12 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def write_pairs(folder: Path) -> list[tuple[tuple[str, bytes], tuple[str, bytes], list[int]]]:
-    """Test-split pairs as PNG files (what a client uploads: name and bytes), with their
-    contact boxes."""
+Upload = tuple[str, bytes]  # a file as a client uploads it: its name and bytes
+
+
+def write_pairs(folder: Path) -> list[tuple[Upload, Upload, list[int], Upload]]:
+    """Test-split pairs as PNG files (what a client uploads: name and bytes): (visual,
+    tactile, contact box, the tactile sensor's background), as a TVL row carries them."""
     from PIL import Image
 
     from ratouch.world.generator import World
@@ -90,10 +94,12 @@ def write_pairs(folder: Path) -> list[tuple[tuple[str, bytes], tuple[str, bytes]
     for i in PAIRS:
         s = world.sample("test", i)
         v, t = folder / f"visual_{i}.png", folder / f"tactile_{i}.png"
+        b = folder / f"background_{i}.png"
         Image.fromarray(s.visual).save(v)
         Image.fromarray(s.tactile).save(t)
+        Image.fromarray(world.background_image(s.sensor)).save(b)
         out.append(((v.name, v.read_bytes()), (t.name, t.read_bytes()),
-                    [int(x) for x in s.box]))
+                    [int(x) for x in s.box], (b.name, b.read_bytes())))
     return out
 
 
@@ -266,26 +272,30 @@ class ApiClient:
         return self._json("POST", "/gradio_api/upload", body,
                           {"Content-Type": f"multipart/form-data; boundary={boundary}"})
 
-    def values(self, visual: dict, tactile: dict, box, k: int) -> list:
+    def values(self, visual: dict, tactile: dict, box, k: int,
+               background: dict | None = None) -> list:
         """The endpoint's inputs, in its order: the uploaded files, the box as the four text
-        fields (x0, y0, x1, y1), K and the model."""
+        fields (x0, y0, x1, y1), K, the model and the sensor's background (or None)."""
         by_name = {"visual": visual, "tactile": tactile, "k": k, "model": self.model,
-                   **{n: str(int(v)) for n, v in zip("abcd", box)}}
+                   "background": background, **{n: str(int(v)) for n, v in zip("abcd", box)}}
         unknown = [n for n in self.inputs if n not in by_name]
         if unknown:
             raise LoadTestError(f"this script does not know how to fill the /{ENDPOINT} "
                                 f"inputs {unknown}")
         return [by_name[n] for n in self.inputs]
 
-    def query(self, visual: tuple[str, bytes], tactile: tuple[str, bytes], box, k: int,
-              deadline: float | None = None) -> dict:
-        """`/query` with freshly uploaded images, as a user's call would make it; gives up
-        (TimeoutError) at `deadline` (time.monotonic())."""
-        paths = self.upload([visual, tactile])
+    def query(self, visual: Upload, tactile: Upload, box, k: int,
+              deadline: float | None = None, background: Upload | None = None) -> dict:
+        """`/query` with freshly uploaded images (the sensor's background too, when given),
+        as a user's call would make it; gives up (TimeoutError) at `deadline`
+        (time.monotonic())."""
+        uploads = [visual, tactile] + ([background] if background is not None else [])
+        paths = self.upload(uploads)
         files = [{"path": p, "orig_name": n, "meta": {"_type": "gradio.FileData"}}
-                 for p, (n, _) in zip(paths, (visual, tactile))]
+                 for p, (n, _) in zip(paths, uploads, strict=True)]
+        data = self.values(files[0], files[1], box, k, files[2] if background else None)
         event = self._json("POST", f"/gradio_api/call/{ENDPOINT}",
-                           json.dumps({"data": self.values(*files, box, k)}).encode(),
+                           json.dumps({"data": data}).encode(),
                            {"Content-Type": "application/json"})["event_id"]
         r = self._request("GET", f"/gradio_api/call/{ENDPOINT}/{event}")
         kind = None
@@ -396,9 +406,9 @@ def run(clients: int = 16, queries: int = 10, single: int = 8, k: int = 5,
                                  model=report["model"])
 
             def ask(c: ApiClient, j: int) -> float:
-                v, t, box = pairs[j % len(pairs)]
+                v, t, box, bg = pairs[j % len(pairs)]
                 t1 = time.monotonic()
-                out = c.query(v, t, box, k, deadline=t_end)
+                out = c.query(v, t, box, k, deadline=t_end, background=bg)
                 with lock:
                     server.append((out["timings_ms"]["total"] / 1000,
                                    out["timings_ms"].get("batch_size", 1)))

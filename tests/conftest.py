@@ -341,7 +341,7 @@ class FakePipeline:
         frame = req.frame
         self.calls.append({"crop": req.crop.shape, "box": list(req.box), "k": req.k,
                            "label": req.label, "tactile": frame is not None,
-                           "model": req.model})
+                           "background": req.background is not None, "model": req.model})
         time.sleep(self.delay_s)
         k = req.k
         starts = {"image": 0, "tactile": 2, "joint": 1} if frame is not None else {"image": 0}

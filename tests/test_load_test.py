@@ -54,27 +54,30 @@ def test_the_client_sends_every_input_the_endpoint_takes(load_test, choice_app, 
     names = [p["parameter_name"] for p in params]
     assert names == [n for n, _ in load_test.INPUTS]
     assert load_test.choose_model(params) == "small"  # the app's default
-    visual, tactile, box = pairs[0]
+    visual, tactile, box, background = pairs[0]
     for model in ("small", "large"):
         client = load_test.ApiClient(port, inputs=names,
                                      model=load_test.choose_model(params, model))
-        out = client.query(visual, tactile, box, 4)
+        out = client.query(visual, tactile, box, 4, background=background)
         assert set(load_test.RESULT_KEYS) <= set(out) and len(out["neighbours"]["joint"]) == 4
         assert pipes[model].calls[-1]["box"] == box and pipes[model].calls[-1]["k"] == 4
+        assert pipes[model].calls[-1]["background"]  # the sensor's frame reached the model
         assert out["description"]["ra_touch"] == "soft and grainy"
-    assert len(pipes["small"].calls) == len(pipes["large"].calls) == 1
+    client.query(visual, tactile, box, 4)  # the background is optional
+    assert not pipes["large"].calls[-1]["background"]
+    assert len(pipes["small"].calls) == 1 and len(pipes["large"].calls) == 2
 
 
 def test_a_changed_endpoint_stops_the_test_with_a_clear_message(load_test, choice_app):
     port, _ = choice_app
     params = load_test.endpoint_inputs(port)
-    # the endpoint before it took the model (the bug): 7 inputs where the script sends 8
-    with pytest.raises(load_test.LoadTestError, match=r"takes 7 inputs .* sends 8 .*model"):
-        load_test.check_inputs(params[:-1])
-    added = params + [{"parameter_name": "background", "component": "File",
-                       "label": "sensor background"}]
+    # the endpoint before it took the model (the bug): 7 inputs where the script sends 9
+    with pytest.raises(load_test.LoadTestError, match=r"takes 7 inputs .* sends 9 .*model"):
+        load_test.check_inputs(params[:-2])
+    added = params + [{"parameter_name": "label", "component": "Textbox",
+                       "label": "ground-truth caption"}]
     with pytest.raises(load_test.LoadTestError,
-                       match=r"takes 9 inputs .*background \(File\).* update INPUTS"):
+                       match=r"takes 10 inputs .*label \(Textbox\).* update INPUTS"):
         load_test.check_inputs(added)
     with pytest.raises(load_test.LoadTestError, match=r"'huge' is not offered .*small"):
         load_test.choose_model(params, "huge")
@@ -91,7 +94,7 @@ def test_an_error_answer_is_counted_by_what_it_says(load_test, choice_app, pairs
     assert load_test.error_message('{"error": "K must be"}') == "K must be"
     names = [p["parameter_name"] for p in load_test.endpoint_inputs(port)]
     client = load_test.ApiClient(port, inputs=names, model="small")
-    visual, tactile, box = pairs[0]
+    visual, tactile, box, background = pairs[0]
     with pytest.raises(RuntimeError, match=r"/query failed: .*empty or inverted"):
         client.query(visual, tactile, (9, 9, 3, 3), 5)
     assert load_test.check_answer({"neighbours": {"joint": [{}] * 3},
