@@ -212,3 +212,28 @@ def test_natural_aspect_is_positive_and_plausible() -> None:
         assert 0.1 < natural_aspect(family) < 10.0
     assert natural_aspect("spoon") > 2.0  # long and thin
     assert natural_aspect("bottle") < 0.8  # tall
+
+
+def test_xpoly_samples_each_column_between_its_top_and_bottom() -> None:
+    """`XPoly` (a `YPoly` rendered on the transposed grid): without growing, pixel (j, i) is
+    inside exactly when yt(x_i) <= y_j <= yb(x_i), with yt, yb piecewise linear, for x_i
+    within [xs[0], xs[-1]]; its extent is (xs[0], min yt, xs[-1], max yb)."""
+    from ratouch.world.silhouette.primitives import Grid, XPoly
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        xs = np.sort(rng.random(5)) * 10
+        yt = rng.random(5) * 4
+        yb = yt + 0.5 + rng.random(5) * 4
+        g = Grid(-0.5, -0.5, 0.21, 0.17, 55, 60)
+        p = XPoly(xs, yt, yb)
+        assert p.ext == (xs[0], yt.min(), xs[-1], yb.max())
+        full = np.zeros((g.ny, g.nx), bool)
+        out = p.render(g, grow=False)
+        if out is not None:
+            i0, i1, j0, j1, mask = out
+            full[j0:j1, i0:i1] = mask
+        inside_x = (g.X >= xs[0]) & (g.X <= xs[-1])
+        top, bot = np.interp(g.X, xs, yt), np.interp(g.X, xs, yb)
+        expected = (g.Y[:, None] >= top) & (g.Y[:, None] <= bot) & inside_x
+        assert np.array_equal(full, expected)

@@ -57,6 +57,10 @@ class Grid:
         i1 = n if b >= n - 1 else (math.floor(b) + 1 if b >= 0.0 else 0)
         return i0, i1
 
+    def transposed(self) -> Grid:
+        """The same samples with the axes swapped (x for y)."""
+        return Grid(self.y0, self.x0, self.dy, self.dx, self.ny, self.nx)
+
     def cols(self, lo: float, hi: float) -> tuple[int, int]:
         """Index range [i0, i1) of the columns with lo <= x <= hi."""
         return self._span(lo, hi, self.x0, self.dx, self.nx)
@@ -372,39 +376,21 @@ class YPoly(Prim):
 
 
 class XPoly(Prim):
-    """Region whose every column x in [xs[0], xs[-1]] is one interval [yt(x), yb(x)]."""
+    """Region whose every column x in [xs[0], xs[-1]] is one interval [yt(x), yb(x)]: a
+    `YPoly` with the axes swapped, rendered as one on the transposed grid.
+    """
 
-    __slots__ = ("xs", "yt", "yb", "kt", "kb")
+    __slots__ = ("rows",)
 
     def __init__(self, xs: np.ndarray, yt: np.ndarray, yb: np.ndarray) -> None:
-        self.xs = np.asarray(xs, dtype=float)
-        self.yt = np.asarray(yt, dtype=float)
-        self.yb = np.asarray(yb, dtype=float)
-        self.kt = _local_extremes(self.yt, lower=True)
-        self.kb = _local_extremes(self.yb, lower=False)
-        self.ext = (
-            float(self.xs[0]), float(self.yt.min()), float(self.xs[-1]), float(self.yb.max())
-        )
+        self.rows = YPoly(xs, yt, yb)  # its "rows" are this region's columns
+        x0, y0, x1, y1 = self.rows.ext
+        self.ext = (y0, x0, y1, x1)
 
     def render(self, g: Grid, grow: bool) -> Render | None:
-        x0, y0, x1, y1 = self.ext
-        hmin = _MIN_HALF_PX * g.dy if grow else 0.0
-        if grow:
-            wmin = _MIN_HALF_PX * g.dx
-            if (x1 - x0) / 2.0 < wmin:
-                c = (x0 + x1) / 2.0
-                x0, x1 = c - wmin, c + wmin
-            x0, x1 = x0 - _END_PX * g.dx, x1 + _END_PX * g.dx
-        i0, i1 = g.cols(x0, x1)
-        j0, j1 = g.rows(y0 - hmin, y1 + hmin)
-        if i0 >= i1 or j0 >= j1:
+        out = self.rows.render(g.transposed(), grow)
+        if out is None:
             return None
-        top, bot = _footprint_extremes(
-            g.X[i0:i1], g.dx if grow else 0.0, self.xs, self.yt, self.yb, self.kt, self.kb
-        )
-        if grow:
-            mid = (top + bot) * 0.5
-            half = np.maximum((bot - top) * 0.5, hmin)
-            top, bot = mid - half, mid + half
-        ys = g.Y[j0:j1][:, None]
-        return i0, i1, j0, j1, (ys >= top[None, :]) & (ys <= bot[None, :])
+        j0, j1, i0, i1, mask = out
+        assert isinstance(mask, np.ndarray)  # a YPoly's mask is always an array
+        return i0, i1, j0, j1, np.ascontiguousarray(mask.T)
