@@ -23,6 +23,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ratouch.corpus.embed import load_embeddings
 from ratouch.errors import ConfigError
 from ratouch.search.index import (
     APPROXIMATE_KINDS,
@@ -320,7 +321,6 @@ def bench_corpus_index(corpus: str | Path, encoder: str = "default-s", key: str 
         ``{"corpus", "encoder", "key", "n", "dim", "distinct_rows", "kinds": {kind: {"p50_ms",
         "p95_ms", "recall_at_5", "build_s", "sweep", "config"}}, "peak_rss_mb"}``.
     """
-    from ratouch.corpus.embed import load_embeddings
 
     unknown = [k for k in kinds if k not in KINDS]
     if unknown or not kinds:

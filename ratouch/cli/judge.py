@@ -9,6 +9,7 @@ import json
 
 from ratouch.cli.common import usage
 from ratouch.eval import judge as J
+from ratouch.eval.tvl import oracle_length_effect
 from ratouch.files import write_json_atomic
 
 
@@ -54,7 +55,6 @@ def run(args: argparse.Namespace) -> int:
     if args.length_effect:
         # imported here, not at the top: it imports torch and the world, which the rest of
         # `ratouch judge` does without
-        from ratouch.eval.tvl import oracle_length_effect
 
         report["length_effect"] = oracle_length_effect()
     if scored is not None:

@@ -24,6 +24,7 @@ import numpy as np
 from ratouch.errors import ConfigError, DataError
 from ratouch.eval.catalog import BASELINE, RA_TOUCH, SYSTEMS
 from ratouch.eval.judge import RESPONSE_KEY, judge_results
+from ratouch.search.retrieval import mode_query
 from ratouch.vocabulary import TVL_QUESTION
 
 __all__ = ["BASELINE", "RA_TOUCH", "SYSTEMS", "Answers", "answer_split",
@@ -33,7 +34,6 @@ __all__ = ["BASELINE", "RA_TOUCH", "SYSTEMS", "Answers", "answer_split",
 def retrieve(pipeline, V: np.ndarray, T: np.ndarray, k: int, mode: str = "joint",
              key: str = "text") -> np.ndarray:
     """(N, k) corpus ids for a query mode (image / tactile / joint) against a key index."""
-    from ratouch.search.retrieval import mode_query
 
     return pipeline.corpus.search(key, mode_query(mode, V, T, pipeline.joint_query), k)[1]
 
