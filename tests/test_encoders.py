@@ -150,3 +150,40 @@ def test_tvl_weights_fingerprint_follows_the_files_not_their_folder(tmp_path, mo
         "tactile": tmp_path / "moved" / "tvl_enc_vittiny.pth"}).weights_fingerprint == first
     (one / "tvl_enc_vittiny.pth").write_bytes(b"tactile weights, retrained")
     assert create_model("tvl-vittiny", pretrained=one).weights_fingerprint != first
+
+
+@pytest.mark.slow
+def test_queries_are_encoded_as_training_pairs_were():
+    """The shipped default-s sees at query time what it saw in training: training renders
+    prepared by the training data's path (crops resized for the CNN and for the prior, prior
+    features cached as float16, tactile inputs against the background cached as float16) and
+    the same renders through `encode_image` / `encode_tactile` give the same embeddings."""
+    import torch
+
+    from ratouch.encoders.prior import load_prior
+    from ratouch.train.encoders import _pair_chunk
+    from ratouch.world.config import WorldConfig
+    from ratouch.world.dataset import world_for
+
+    enc = create_model("default-s").eval()
+    cfg, idx = enc.cfg, list(range(0, 200, 25))
+    crops, pcrops, _, tacs_bg, _, _ = _pair_chunk(
+        (WorldConfig(), idx, cfg.vision_size, cfg.tactile_size, cfg.prior_size))
+    feats = load_prior(cfg.prior).features(pcrops, cfg.prior_size).astype(np.float16)
+    with torch.no_grad():
+        pixels = torch.from_numpy(np.stack(crops)).float().div(255).sub(0.5).div(0.25)
+        v_train = enc.embed_vision(pixels.permute(0, 3, 1, 2),
+                                   torch.from_numpy(feats.astype(np.float32))).numpy()
+        t_train = enc.embed_tactile(torch.from_numpy(np.stack(tacs_bg).astype(np.float32))).numpy()
+    world = world_for(WorldConfig())
+    samples = [world.sample("train", i) for i in idx]
+    v_query = enc.encode_image([s.crop for s in samples])
+    t_query = enc.encode_tactile([s.tactile for s in samples],
+                                 [world.background_image(s.sensor) for s in samples])
+
+    def cos(a, b):
+        return (a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
+
+    assert cos(v_train, v_query).min() > 0.999 and cos(t_train, t_query).min() > 0.999
+    t_alone = enc.encode_tactile([s.tactile for s in samples])  # without the background
+    assert cos(t_train, t_alone).min() < 0.999  # the check can fail: the background matters
