@@ -321,7 +321,6 @@ def bench_corpus_index(corpus: str | Path, encoder: str = "default-s", key: str 
         ``{"corpus", "encoder", "key", "n", "dim", "distinct_rows", "kinds": {kind: {"p50_ms",
         "p95_ms", "recall_at_5", "build_s", "sweep", "config"}}, "peak_rss_mb"}``.
     """
-
     unknown = [k for k in kinds if k not in KINDS]
     if unknown or not kinds:
         raise ConfigError(f"kinds={tuple(kinds)!r} must be a non-empty subset of {KINDS}")

@@ -78,7 +78,6 @@ FIGURE_NAME = "towers"
 
 
 def _validation_start() -> int:
-
     return VALIDATION_START + RENDER_OFFSET
 
 
@@ -87,7 +86,6 @@ def _validation_start() -> int:
 def render_set(n: int, start: int | None = None, world=None) -> tuple[list[np.ndarray], list[str],
                                                                         list[str]]:
     """Contact crops, materials and class names of train-split renders start .. start+n-1."""
-
     world = world or World()
     start = _validation_start() if start is None else start
     crops, mats, classes = [], [], []
@@ -101,7 +99,6 @@ def render_set(n: int, start: int | None = None, world=None) -> tuple[list[np.nd
 
 def gallery_set(size: int, seed: int, world=None) -> tuple[list[np.ndarray], list[str]]:
     """Images and materials of a class-stratified sample of the world's corpus."""
-
     world = world or World()
     ids = stratified_world_ids(size, seed)
     return ([world.corpus_image(c, i) for c, i in ids],
@@ -123,7 +120,6 @@ class _Tower:
 
 class PriorTower(_Tower):
     def __init__(self, name: str, size: int):
-
         self.name, self.size = name, int(size)
         self.prior = load_prior(name)
         self.prior.extractor(self.size)  # trace now, not inside a timing
@@ -143,7 +139,6 @@ class CNNTower(_Tower):
     """
 
     def __init__(self, encoder: str, weights: str | None = "shipped", partial: bool = True):
-
         self.note: str | None = None  # why only the checkpoint's CNN was loaded
         try:
             model = create_model(encoder, pretrained=weights)
@@ -163,7 +158,6 @@ class CNNTower(_Tower):
                                    " (vision.* only)" if self.note else "")
 
     def _vision_only(self, encoder: str, weights: str, error: Exception):
-
         folder = shipped_weights(encoder) if weights == "shipped" else Path(weights)
         state, saved, _ = read_checkpoint(folder)
         model = create_model(encoder, pretrained=None)
@@ -179,7 +173,6 @@ class CNNTower(_Tower):
         return model
 
     def features(self, images: Sequence[np.ndarray]) -> np.ndarray:
-
         out = []
         with torch.inference_mode():
             for lo in range(0, len(images), 256):
@@ -472,7 +465,6 @@ def tower_chart(result: dict) -> bytes:
         ServiceError: If no static exporter works here (kaleido needs a Chrome/Chromium);
             :func:`write_towers` then writes the HTML figure instead.
     """
-
     data, why = png_bytes(tower_figure(result))
     if data is None:
         raise ServiceError(f"no PNG export of the towers chart: {' '.join(why.split())[:300]}")
@@ -490,7 +482,6 @@ def write_towers(result: dict, png: str | os.PathLike | None = None) -> dict[str
     Returns:
         {"json": path, "png" or "html": path, "note"?: why there is no PNG}.
     """
-
     path = Path(png) if png is not None else DOCS / "figures" / f"{FIGURE_NAME}.png"
     path.parent.mkdir(parents=True, exist_ok=True)
     out = {"json": str(write_json_atomic(path.with_name(f"{path.stem}.data.json"), result))}

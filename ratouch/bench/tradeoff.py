@@ -221,7 +221,6 @@ def _encoder_points(encoders: Sequence[str], lab, alone: dict, pairs: tuple[list
     """A point per other encoder set: the whole RA-Touch answer where its retriever and
     generators are shipped (judge, F1 and P@5 with CIs and their differences to the
     reference), retrieval only (tactile->text P@5) otherwise."""
-
     out, test = [], lab.test
     full = set(available_models())
     ref = alone[lab.cfg.encoder].per_sample
@@ -274,7 +273,6 @@ def _cascade_point(lab, alone: dict, pairs: tuple[list, list],
     """The shipped cascade on the test split, when its calibration is shipped and every stage
     was measured alone: each pair answered by the stage the cascade picks (the stages' own
     answers, judged per sample), its latency on the answer path, and its escalation share."""
-
     path = cascade_calibration()
     if not path.is_file():
         return None
@@ -319,7 +317,6 @@ def _cascade_latency(stages: Sequence, cal, classes: np.ndarray, pairs: tuple[li
                      ) -> dict[str, float | None]:
     """p50 / p95 of the cascade's answer path per pair: each stage in turn encodes, runs its
     retriever and searches until one is confident; that stage generates."""
-
     times = []
     for j, (crop, frame) in enumerate(zip(*pairs)):
         t0 = time.perf_counter()

@@ -141,7 +141,7 @@ def tactile_input(frame: np.ndarray, size: tuple[int, int],
     d = tactile_difference(frame, background)
     rms = float(np.sqrt(np.mean(d * d)))
     d = d / max(rms, CONTRAST_FLOOR)
-    chans = [resize_array(np.ascontiguousarray(d[..., c]), (w, h)) for c in range(3)]
+    chans = [resize_array(d[..., c], (w, h)) for c in range(3)]
     level = np.clip(np.log(max(rms, CONTRAST_FLOOR) / CONTRAST_REF), -3.0, 3.0)
     chans.append(np.full((h, w), level, np.float32))
     return np.stack(chans).astype(np.float32)

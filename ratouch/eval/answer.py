@@ -34,7 +34,6 @@ __all__ = ["BASELINE", "RA_TOUCH", "SYSTEMS", "Answers", "answer_split",
 def retrieve(pipeline, V: np.ndarray, T: np.ndarray, k: int, mode: str = "joint",
              key: str = "text") -> np.ndarray:
     """(N, k) corpus ids for a query mode (image / tactile / joint) against a key index."""
-
     return pipeline.corpus.search(key, mode_query(mode, V, T, pipeline.joint_query), k)[1]
 
 

@@ -170,7 +170,6 @@ def failure_cases(pipeline, world: WorldConfig | None = None, k: int = 5,
         "joint_gap", "joint_loses"}; precisions are material precision@K of each mode's
         neighbours, `joint_gap` = best unimodal precision - joint precision.
     """
-
     conditions = _check_conditions(conditions)
     if not 1 <= int(k) <= len(pipeline.corpus.entries):
         raise ConfigError(f"k must be in 1..{len(pipeline.corpus.entries)}, got {k}")
@@ -234,7 +233,6 @@ def _check_conditions(conditions: Iterable[str]) -> tuple[str, ...]:
 # --------------------------------------------------------------------------- the cache
 
 def _file_digest(path: Path) -> str | None:
-
     return sha256_file(path) if path.is_file() else None
 
 
@@ -273,7 +271,6 @@ def cache_path(pipeline, world: WorldConfig | None = None, k: int = 5,
                conditions: Sequence[str] = DEFAULT_CONDITIONS,
                indices: Sequence[int] | None = None) -> Path:
     """``cache_dir()/failures/<encoder>-<hash of settings and asset manifests>.json``."""
-
     key = json.dumps(settings(pipeline, world, k, conditions, indices), sort_keys=True,
                      default=str)
     digest = hashlib.sha256(key.encode()).hexdigest()[:16]

@@ -63,7 +63,6 @@ DEFAULT_VISUAL = "chelsea"
 
 def reference_dir() -> Path:
     """The real DIGIT frames' folder: ``../shared/data/reference_tactile`` beside the checkout."""
-
     return REPO.parent / "shared" / "data" / "reference_tactile"
 
 
@@ -139,14 +138,12 @@ def _prior_and_size(pipeline, prior=None, size: int | None = None):
 
 
 def _crop(image: np.ndarray, box) -> tuple[np.ndarray, list[int]]:
-
     if box is None:
         box = tvl_contact_box(image.shape[1], image.shape[0])
     return crop_box(image, box, max_side=QUERY_MAX_SIDE), [int(v) for v in box]
 
 
 def _top_imagenet(prior, crop: np.ndarray, size: int, top: int = 3) -> list[list]:
-
     probs = prior.classify([crop], size)[0]
     names = imagenet_names()
     return [[names[j], round(float(probs[j]), 4)] for j in top_k(probs[None], top)[1][0]]

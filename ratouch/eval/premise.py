@@ -57,7 +57,6 @@ def run_folder(encoder: str, run: int) -> Path:
 
 def run_generators(encoder: str, run: int, progress: bool = False):
     """(RA-Touch, baseline) of a run, LoRA merged; run 0 is the shipped pair."""
-
     if run == 0:
         folders = {k: generator_weights(encoder, k) for k in ("ra", "baseline")}
     else:
@@ -73,7 +72,6 @@ def run_generators(encoder: str, run: int, progress: bool = False):
 def token_arm(encoder: str, run: int, progress: bool = False):
     """The run's neighbour-token arm (second arm), trained into the cache on first use from the
     run's stage-1 model with RA-Touch's stage-2 budget; LoRA merged."""
-
     root = run_folder(encoder, run)
     ra = generator_weights(encoder, "ra") if run == 0 else root / "ra"
     if not (root / "tokens" / "manifest.json").is_file():

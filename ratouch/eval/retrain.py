@@ -22,33 +22,29 @@ from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
 from ratouch.train.recipes import generator_recipe, retriever_recipe
 from ratouch.train.trust import TrustConfig, calibrate
 
-#: The encoder sets `train_all` ships a whole chain for (retriever, generators, trust), and
-#: those it ships encoders only for (the paper's ViT-Base row).
-CHAIN_ENCODERS = CHAIN_SETS  # the registry's names (`ratouch.encoders.factory`)
-ENCODER_ONLY = ENCODER_ONLY_SETS
-
 
 def train_all(seed: int = 0, progress: bool = True, report=print, encoders: bool = True) -> dict:
-    """Every shipped weight, in dependency order: the encoders, the corpus embeddings, then
-    for each of `CHAIN_ENCODERS` the retriever, the trust calibration, the language prior
-    and both generators, and last the cascade over them. Returns the seconds each part took;
+    """Every shipped weight, in dependency order: the encoders (`CHAIN_SETS` and
+    `ENCODER_ONLY_SETS`, the registry's), the corpus embeddings, then for each of `CHAIN_SETS`
+    the retriever, the trust calibration, the language prior and both generators, and last
+    the cascade over them. Returns the seconds each part took;
     `report` gets each part's own report as it finishes; `encoders=False` starts from the
     encoders already in assets/ (e.g. trained where a GPU was lent)."""
     clock = Laps()
     lap = clock.lap
 
     shared: dict = {}
-    for name in (*CHAIN_ENCODERS, *ENCODER_ONLY) if encoders else ():
+    for name in (*CHAIN_SETS, *ENCODER_ONLY_SETS) if encoders else ():
         tc = TrainConfig(model=name, seed=seed, steps=STEPS.get(name, 300))
         _, rep = train_encoders(tc, out=str(shipped_weights(name)), cache=shared,
                                 progress=progress)
         report({"encoders": name, **rep})
         lap(f"encoders_{name}")
     shared.clear()
-    for name in (*CHAIN_ENCODERS, *ENCODER_ONLY):
+    for name in (*CHAIN_SETS, *ENCODER_ONLY_SETS):
         default_corpus(name, progress=progress)  # re-embeds: the encoder weights changed
     lap("corpus_embeddings")
-    for name in CHAIN_ENCODERS:
+    for name in CHAIN_SETS:
         report({"retriever": name, **retriever_recipe(name, seed=seed, progress=progress)})
         lap(f"retriever_{name}")
         # the trust calibration needs only the encoders (the pipelines that read it are
@@ -63,9 +59,9 @@ def train_all(seed: int = 0, progress: bool = True, report=print, encoders: bool
         report({"generators": name, **generator_recipe(name, seed=seed, progress=progress)})
         lap(f"generators_{name}")
     cascade = calibrate_cascade([RATouchPipeline.load(n, progress=progress)
-                                 for n in CHAIN_ENCODERS], CascadeConfig(seed=seed))
-    cascade.save(cascade_calibration("+".join(CHAIN_ENCODERS)))
-    report({"cascade": list(CHAIN_ENCODERS), "measure": cascade.measure,
+                                 for n in CHAIN_SETS], CascadeConfig(seed=seed))
+    cascade.save(cascade_calibration("+".join(CHAIN_SETS)))
+    report({"cascade": list(CHAIN_SETS), "measure": cascade.measure,
             "thresholds": list(cascade.thresholds)})
     lap("cascade")
     times = clock.seconds(1)

@@ -101,7 +101,8 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
     world = World(WorldConfig(seed=cfg.seed)).warm()
     nc_world = World(WorldConfig(seed=cfg.seed).with_stress(no_contact=1.0)).warm()
     ref = render_samples(world, "train", range(cfg.n_reference), progress, "reference")
-    nc_ref = render_samples(nc_world, "train", range(cfg.n_reference), progress, "reference, no contact")
+    nc_ref = render_samples(nc_world, "train", range(cfg.n_reference), progress,
+                            "reference, no contact")
     val_idx = range(VALIDATION_START, VALIDATION_START + cfg.n_validation)
     val = render_samples(world, "train", val_idx, progress, "validation")
     nc_val = render_samples(nc_world, "train", val_idx, progress, "validation, no contact")
@@ -109,14 +110,12 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
     nc_test = render_samples(nc_world, "test", range(TEST_SIZE), progress, "test, no contact")
     # per split: (image embeddings, tactile embeddings, the prior's features or None)
     enc: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray | None]] = {}
-    ref_plain_t: np.ndarray | None = None
     for name, d in (("ref", ref), ("val", val), ("test", test)):
         V, P = encoders.encode_image_features(d["crops"]) if hasattr(
             encoders, "encode_image_features") else (encoders.encode_image(d["crops"]), None)
         enc[name] = (V, encoders.encode_tactile(d["frames"], d["backgrounds"]), P)
-        if name == "ref":  # the tactile novelty also knows frames without a background
-            ref_plain_t = encoders.encode_tactile(d["frames"])
-    assert ref_plain_t is not None  # encoded with the reference split, the loop's first
+    # the tactile novelty also knows frames without a background
+    ref_plain_t = encoders.encode_tactile(ref["frames"])
     fa = cfg.false_alarm
     novelty: dict[str, Novelty | None] = {}
     ref_t = np.concatenate([enc["ref"][1], ref_plain_t])
