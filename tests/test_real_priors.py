@@ -8,11 +8,13 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from ratouch.encoders.default import (
     CONTRAST_FLOOR,
     TACTILE_CHANNELS,
     DefaultConfig,
+    PriorHead,
     tactile_input,
 )
 from ratouch.encoders.factory import create_model
@@ -42,6 +44,26 @@ def test_tactile_input_normalises_contrast_and_keeps_it_as_a_channel(world):
 def test_unknown_prior_is_a_config_error():
     with pytest.raises(ConfigError, match="known priors"):
         DefaultConfig(name="x", prior="resnet")
+
+
+@pytest.mark.parametrize("p", [-0.1, 1.0])
+def test_prior_dropout_outside_0_1_is_a_config_error(p):
+    with pytest.raises(ConfigError, match="prior_dropout"):
+        DefaultConfig(name="x", prior="lite0", prior_dropout=p)
+
+
+def test_prior_dropout_acts_in_training_only():
+    torch.manual_seed(0)
+    head = PriorHead(32, 16, 8, dropout=0.5)
+    x = torch.randn(4, 32)
+    head.eval()
+    assert torch.equal(head(x), head(x))  # no dropout when embedding queries
+    head.train()
+    assert not torch.allclose(head(x), head(x))
+    # the shipped sets train their head with it, and the state dict carries no extra tensor
+    cfg = create_model("default-s", pretrained=None).cfg
+    assert cfg.prior_dropout > 0
+    assert "prior_head.dropout" not in " ".join(PriorHead(32, 16, 8, 0.5).state_dict())
 
 
 def test_tactile_backgrounds_must_match_the_frames(world):

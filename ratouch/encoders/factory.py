@@ -75,7 +75,8 @@ def default_config(cfg: dict) -> DefaultConfig:
                          vision_size=tuple(cfg["vision_size"]),
                          tactile_size=tuple(cfg["tactile_size"]), text_hidden=cfg["text_hidden"],
                          prior=cfg.get("prior"), prior_size=cfg.get("prior_size", 128),
-                         prior_hidden=cfg.get("prior_hidden", 512))
+                         prior_hidden=cfg.get("prior_hidden", 512),
+                         prior_dropout=cfg.get("prior_dropout", 0.0))
 
 
 def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | dict | None = "shipped"):

@@ -37,9 +37,13 @@ from ratouch.world.splits import encode_test_split
 log = logging.getLogger(__name__)
 
 
-def training_pairs(encoders, seed: int = 0, progress: bool = False) -> dict:
-    """V, T and captions of the world's cached paired training split, for frozen encoders."""
-    tc = TrainConfig(model=encoders.name, seed=seed)
+def training_pairs(encoders, seed: int = 0, progress: bool = False,
+                   n_pairs: int | None = None) -> dict:
+    """V, T and captions of the world's cached paired training split, for frozen encoders:
+    all the pairs the encoders trained on, or only the first `n_pairs` of them (rendered
+    with a small corpus beside them, which is not returned)."""
+    tc = (TrainConfig(model=encoders.name, seed=seed) if n_pairs is None else
+          TrainConfig(model=encoders.name, seed=seed, n_pairs=n_pairs, n_corpus=250))
     data = training_data(tc, encoders.cfg.vision_size, encoders.cfg.tactile_size, progress,
                          encoders.cfg.prior, encoders.cfg.prior_size)
     emb = paired_embeddings(encoders, data)
