@@ -12,12 +12,13 @@ from typing import Any
 import numpy as np
 import torch
 
+from ratouch.checkpoint import MANIFEST, checkpoint_fingerprint
 from ratouch.encoders.factory import create_model
 from ratouch.model.generator import load_generator, save_generator
 from ratouch.model.loss import RetrieverLossConfig
 from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
 from ratouch.model.retriever import RetrieverConfig
-from ratouch.paths import cache_dir, generator_weights, retriever_weights
+from ratouch.paths import cache_dir, encoder_weights, generator_weights, retriever_weights
 from ratouch.search.retrieval_side import RetrievalSide, load_tgr
 from ratouch.train.encoders import TrainConfig, training_data
 from ratouch.train.generator import (
@@ -163,7 +164,11 @@ def token_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
 
 
 def align_retriever_folder(encoder: str, epochs: int, seed: int = 0) -> Path:
-    return cache_dir() / f"retriever-align-{encoder}-e{epochs}-s{seed}"
+    """Where the align-only retriever of an encoder set's shipped weights is cached: keyed by
+    those weights, so that one trained before a retrain is not read after it."""
+    weights = encoder_weights(encoder)
+    tag = (checkpoint_fingerprint(weights)[:12] if (weights / MANIFEST).is_file() else "none")
+    return cache_dir() / f"retriever-align-{encoder}-{tag}-e{epochs}-s{seed}"
 
 
 def align_only_tgr(encoder: str, epochs: int = 12, seed: int = 0, progress: bool = False):
