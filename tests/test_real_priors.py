@@ -88,12 +88,30 @@ def test_photo_route_reads_the_classifier_over_the_corpus_classes():
     emb = np.zeros((6, 4), np.float32)
     emb[:3, 0], emb[3:, 1] = 1, 1
     route = PhotoRoute(prior, names, emb)
-    cat = prior.features([_centre_crop(skimage_data.chelsea())], 128)
-    photo = route.query(cat[0])
+    photo = route.query(_centre_crop(skimage_data.chelsea()))
     assert photo.classes[0][0] == "tabby"
     assert photo.query[0] > 0.99 and np.isclose(np.linalg.norm(photo.query), 1)
     assert "real photo" in photo.note and "tabby" in photo.note
     assert 0 < photo.coverage <= 1
+
+
+def test_photo_route_classifies_at_the_priors_own_input_size():
+    """The encoders read crops at their `prior_size` (96, chosen on renders); the photo route's
+    classifier reads the crop at the size the prior learnt ImageNet at (224 for Lite0)."""
+    prior = load_prior("lite0")
+    sizes = []
+
+    class Recording:
+        name, spec = prior.name, prior.spec
+
+        def classify(self, images, size=None):
+            sizes.append(size or prior.spec.input_size)
+            return prior.classify(images, size)
+
+    assert DefaultConfig(name="x").prior_size < prior.spec.input_size == 224
+    route = PhotoRoute(Recording(), ["tabby", "teapot"], np.eye(2, dtype=np.float32))
+    route.query(_centre_crop(skimage_data.chelsea()))
+    assert sizes == [224]
 
 
 def test_real_photo_goes_the_photo_route_and_a_render_does_not(pipeline, world):

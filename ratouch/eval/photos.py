@@ -123,18 +123,13 @@ def _encoders(pipeline):
 
 def _prior_and_size(pipeline, prior=None, size: int | None = None):
     """The visual prior to classify crops with and the side it reads them at: the pipeline's
-    encoders' own (at their `prior_size`, what the photo route reads), else lite0 at 224."""
-    enc = _encoders(pipeline)
+    encoders' own prior, else lite0; at the prior's own input size (what the photo route
+    reads), unless `size` is given."""
     if prior is None:
-        prior = getattr(enc, "visual_prior", None)
+        prior = getattr(_encoders(pipeline), "visual_prior", None)
     if prior is None:
-
         prior = load_prior("lite0")
-    if size is None:
-        cfg = getattr(enc, "cfg", None)
-        size = getattr(cfg, "prior_size", None) if getattr(cfg, "prior", None) else None
-        size = size or prior.spec.input_size
-    return prior, int(size)
+    return prior, int(size or prior.spec.input_size)
 
 
 def _crop(image: np.ndarray, box) -> tuple[np.ndarray, list[int]]:
@@ -170,8 +165,8 @@ def evaluate_photos(pipeline, k: int = 5, names: list[str] | None = None, prior=
         names: photos to query (default: the scikit-image photos of :func:`photo_set`).
         prior: the visual prior whose ImageNet classifier reads each crop (default: the
             pipeline's encoders' prior, else lite0).
-        prior_size: the side it reads crops at (default: the encoders' `prior_size`, the
-            size the photo route reads; else the prior's own input size).
+        prior_size: the side it reads crops at (default: the prior's own input size, the
+            size the photo route reads).
 
     Returns:
         Per photo: {"name", "licence", "size" [W, H], "box", "novelty", "threshold", "novel"

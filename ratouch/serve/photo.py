@@ -19,7 +19,6 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from ratouch.encoders.prior import VisualPrior, imagenet_to_world, world_class_probabilities
 from ratouch.search.index import top_k
@@ -83,12 +82,16 @@ class PhotoRoute:
         assert self._protos is not None and self._present is not None
         return self._protos, self._present
 
-    def query(self, prior_features: np.ndarray) -> PhotoQuery:
-        """The image query of one crop from its (1280,) or (1, 1280) prior features."""
+    def query(self, crop: np.ndarray) -> PhotoQuery:
+        """The image query of one uint8 (H, W, 3) crop.
+
+        The classifier reads the crop at the prior's own input size (224 px for Lite0), the
+        size it learnt ImageNet at, not at the encoders' `prior_size`: that smaller size was
+        chosen for renders (`ratouch bench towers`) and costs a classifier of real photos
+        accuracy. Only crops that take this route pay for the second pass."""
         protos, present = self._prototypes()
-        feats = np.asarray(prior_features, np.float32).reshape(1, -1)
-        probs = torch.softmax(torch.from_numpy(self.prior.logits_from_features(feats)), -1)
-        world = world_class_probabilities(probs.numpy())[0] * present
+        probs = self.prior.classify([crop])
+        world = world_class_probabilities(probs)[0] * present
         coverage = float(world.sum())
         weights = world / coverage if coverage > 0 else present / present.sum()
         q = weights @ protos

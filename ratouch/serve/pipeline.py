@@ -319,7 +319,7 @@ class RATouchPipeline(RetrievalSide):
             return V, P, routes
         novel = self.trust.visual_prior.score(P) > self.trust.visual_prior.threshold
         for j in np.flatnonzero(novel):
-            photo = self.photos.query(P[j])
+            photo = self.photos.query(crops[j])
             V[j] = photo.query
             routes[j] = {"route": "photo", "classes": photo.classes,
                          "coverage": photo.coverage, "note": photo.note}
