@@ -33,9 +33,10 @@ class DefaultConfig:
     tactile_size: tuple[int, int] = (64, 48)
     text_hidden: int = 768
     #: The frozen visual prior beside the render CNN ("lite0", "lite2"; None: the CNN alone),
-    #: and the square side (pixels) crops are resized to for it.
+    #: and the square side (pixels) crops are resized to for it: 96, the choice of the
+    #: speed-against-accuracy chart on validation renders (`ratouch bench towers`).
     prior: str | None = None
-    prior_size: int = 128
+    prior_size: int = 96
     #: Hidden width of the trained head that maps the prior's features into the shared space.
     prior_hidden: int = 512
     #: Dropout on the prior's (normalised) features while the head trains. The frozen 1280-d

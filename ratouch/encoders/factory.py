@@ -74,7 +74,7 @@ def default_config(cfg: dict) -> DefaultConfig:
     return DefaultConfig(name=cfg["name"], dim=cfg["dim"], width=cfg["width"],
                          vision_size=tuple(cfg["vision_size"]),
                          tactile_size=tuple(cfg["tactile_size"]), text_hidden=cfg["text_hidden"],
-                         prior=cfg.get("prior"), prior_size=cfg.get("prior_size", 128),
+                         prior=cfg.get("prior"), prior_size=cfg.get("prior_size", DefaultConfig.prior_size),
                          prior_hidden=cfg.get("prior_hidden", 512),
                          prior_dropout=cfg.get("prior_dropout", 0.0))
 
