@@ -71,12 +71,12 @@ def shipped_weights(name: str) -> Path:
 def default_config(cfg: dict) -> DefaultConfig:
     from ratouch.encoders.default import DefaultConfig
 
+    # the prior's settings are optional in a config: absent ones take DefaultConfig's defaults
+    prior = {k: cfg[k] for k in ("prior", "prior_size", "prior_hidden", "prior_dropout") if k in cfg}
     return DefaultConfig(name=cfg["name"], dim=cfg["dim"], width=cfg["width"],
                          vision_size=tuple(cfg["vision_size"]),
                          tactile_size=tuple(cfg["tactile_size"]), text_hidden=cfg["text_hidden"],
-                         prior=cfg.get("prior"), prior_size=cfg.get("prior_size", DefaultConfig.prior_size),
-                         prior_hidden=cfg.get("prior_hidden", 512),
-                         prior_dropout=cfg.get("prior_dropout", 0.0))
+                         **prior)
 
 
 def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | dict | None = "shipped"):
