@@ -22,6 +22,7 @@ from ratouch.encoders.prior import PRIORS, load_prior
 from ratouch.encoders.text import MINILM_DIM, MiniLM, TextCache
 from ratouch.errors import ConfigError
 from ratouch.images import resize_array
+from ratouch.world.sensors import canonical, family, guess_family
 
 
 @dataclass(frozen=True)
@@ -113,20 +114,21 @@ TACTILE_CHANNELS = 4
 FIELD_SIGMA = 10.0
 #: Floor of the per-frame contrast a difference image is divided by (about 1 / 255).
 CONTRAST_FLOOR = 0.004
-#: Reference contrast of the log-contrast channel (a typical pressed DIGIT-like frame).
-CONTRAST_REF = 0.02
 
 
 def tactile_difference(frame: np.ndarray, background: np.ndarray | None = None) -> np.ndarray:
-    """What touch changed in a frame, float (H, W, 3).
+    """What touch changed in a frame, float (H, W, 3), in the world's portrait orientation
+    (a landscape frame is turned, `sensors.canonical`).
 
     Without the sensor's no-contact frame: the frame minus its own smooth illumination field
     (a heavy blur). With it: the same band of the difference from the background, which also
     removes the sensor's own structure (marker dots, vignetting, the gel's tint). Both inputs
     keep the same frequency band, so an encoder trained on a mix of the two reads either.
     """
+    frame = canonical(frame)
     f = frame.astype(np.float32) / 255.0
     if background is not None:
+        background = canonical(background)
         if background.shape != frame.shape:
             background = resize_array(background, (frame.shape[1], frame.shape[0]))
         f = f - background.astype(np.float32) / 255.0
@@ -136,32 +138,40 @@ def tactile_difference(frame: np.ndarray, background: np.ndarray | None = None) 
 
 
 def tactile_input(frame: np.ndarray, size: tuple[int, int],
-                  background: np.ndarray | None = None) -> np.ndarray:
+                  background: np.ndarray | None = None, sensor: str | None = None
+                  ) -> np.ndarray:
     """One frame -> the tactile encoder's (4, H, W) float32 input.
 
     The difference image is divided by its own RMS contrast, so a low-contrast sensor (a
-    GelSight Mini changes pixels by 2-5 of 255) and a crisp one (a DIGIT) look alike to the
-    CNN; the contrast itself is kept as a fourth, constant channel (log, against
-    :data:`CONTRAST_REF`), so how strongly the gel was pressed is not lost.
+    GelSight Mini changes pixels by 2-5 of 255) and a crisp one (a DIGIT, about 30) look alike
+    to the CNN; the contrast itself is kept as a fourth, constant channel, in log units of the
+    sensor family's typical press (`SensorFamily.press_contrast`), so how strongly the gel was
+    pressed is not lost and a faint sensor's firm press is not read as a light touch.
+    `sensor` names the family; None: guessed from the frame's colours (`guess_family`).
     """
     h, w = size
     d = tactile_difference(frame, background)
     rms = float(np.sqrt(np.mean(d * d)))
     d = d / max(rms, CONTRAST_FLOOR)
-    chans = [resize_array(d[..., c], (w, h)) for c in range(3)]
-    level = np.clip(np.log(max(rms, CONTRAST_FLOOR) / CONTRAST_REF), -3.0, 3.0)
+    chans = [resize_array(np.ascontiguousarray(d[..., c]), (w, h)) for c in range(3)]
+    ref = family(sensor if sensor is not None else guess_family(frame)[0]).press_contrast
+    level = np.clip(np.log(max(rms, CONTRAST_FLOOR / 4) / ref), -3.0, 3.0)
     chans.append(np.full((h, w), level, np.float32))
     return np.stack(chans).astype(np.float32)
 
 
 def tactile_tensor(frames: Sequence[np.ndarray], size: tuple[int, int],
-                   backgrounds: Sequence[np.ndarray | None] | None = None) -> torch.Tensor:
-    """uint8 tactile frames (and their sensors' no-contact frames, where known) ->
-    (N, 4, H, W) float tensor."""
+                   backgrounds: Sequence[np.ndarray | None] | None = None,
+                   sensors: Sequence[str | None] | None = None) -> torch.Tensor:
+    """uint8 tactile frames (and their sensors' no-contact frames and families, where known)
+    -> (N, 4, H, W) float tensor."""
     bgs = list(backgrounds) if backgrounds is not None else [None] * len(frames)
-    if len(bgs) != len(frames):
-        raise ConfigError(f"{len(bgs)} backgrounds for {len(frames)} tactile frames")
-    return torch.from_numpy(np.stack([tactile_input(f, size, b) for f, b in zip(frames, bgs)]))
+    fams = list(sensors) if sensors is not None else [None] * len(frames)
+    if len(bgs) != len(frames) or len(fams) != len(frames):
+        raise ConfigError(f"{len(bgs)} backgrounds and {len(fams)} sensor families for "
+                          f"{len(frames)} tactile frames")
+    return torch.from_numpy(np.stack([tactile_input(f, size, b, s)
+                                      for f, b, s in zip(frames, bgs, fams)]))
 
 
 class PriorHead(nn.Module):
@@ -282,20 +292,25 @@ class DefaultEncoders(nn.Module):
     @torch.no_grad()
     def encode_tactile(self, frames: Sequence[np.ndarray],
                        backgrounds: Sequence[np.ndarray | None] | None = None,
-                       batch_size: int = 256) -> np.ndarray:
+                       batch_size: int = 256,
+                       sensors: Sequence[str | None] | None = None) -> np.ndarray:
         """uint8 tactile frames -> (N, D) unit vectors. Where a frame's sensor background
         (its no-contact frame) is given, the input is the difference from it; otherwise the
-        difference from the frame's own illumination field."""
+        difference from the frame's own illumination field. `sensors`: each frame's sensor
+        family where known (else guessed from the frame)."""
         self.eval()
         frames = list(frames)
         bgs = list(backgrounds) if backgrounds is not None else [None] * len(frames)
-        if len(bgs) != len(frames):
-            raise ConfigError(f"{len(bgs)} backgrounds for {len(frames)} tactile frames")
+        fams = list(sensors) if sensors is not None else [None] * len(frames)
+        if len(bgs) != len(frames) or len(fams) != len(frames):
+            raise ConfigError(f"{len(bgs)} backgrounds and {len(fams)} sensor families for "
+                              f"{len(frames)} tactile frames")
         if not frames:
             return np.zeros((0, self.dim), np.float32)
         return np.concatenate([
             self.embed_tactile(tactile_tensor(frames[k:k + batch_size], self.cfg.tactile_size,
-                                              bgs[k:k + batch_size])).numpy()
+                                              bgs[k:k + batch_size],
+                                              fams[k:k + batch_size])).numpy()
             for k in range(0, len(frames), batch_size)]).astype(np.float32)
 
     @torch.no_grad()

@@ -48,7 +48,9 @@ CONTACT_SIDE = 128
 #: Blur sigmas (working-resolution pixels) of the contact score: noise, illumination field.
 NOISE_SIGMA = 1.0
 FIELD_SIGMA = 8.0
-FORMAT = "ratouch-trust-2"
+FORMAT = "ratouch-trust-3"
+#: What the contact reading of a frame can be.
+CONTACT_STATES = ("contact", "no contact", "uncertain")
 #: Band-pass pairs (working-resolution sigmas) the contact model reads.
 CONTACT_BANDS = ((0.7, 2.0), (1.5, 4.0), (3.0, 8.0))
 
@@ -170,7 +172,9 @@ def contact_features(frame: np.ndarray, background: np.ndarray | None = None) ->
         blocks = band[:h, :w].reshape(gh, h // gh, gw, w // gw).transpose(0, 2, 1, 3)
         energy = np.sqrt((blocks.reshape(gh * gw, -1) ** 2).mean(1))
         med = np.median(energy) + eps
-        feats += [np.log(energy.max() / med), np.log(np.percentile(energy, 80) / med)]
+        # eps on both sides: a frame equal to its background has no energy at all
+        feats += [np.log((energy.max() + eps) / med),
+                  np.log((np.percentile(energy, 80) + eps) / med)]
     fine = f - blurred[NOISE_SIGMA]
     feats.append(np.log(np.sqrt(np.mean(fine * fine)) + eps))
     feats += [float(c) for c in colour]
@@ -178,6 +182,28 @@ def contact_features(frame: np.ndarray, background: np.ndarray | None = None) ->
         low = np.abs(blurred[NOISE_SIGMA] - blurred[NOISE_SIGMA].mean((0, 1)))
         feats += [np.log(np.sqrt(np.mean(low * low)) + eps), np.log(np.percentile(low, 99) + eps)]
     return np.asarray(feats, np.float64)
+
+
+def background_change(frame: np.ndarray, background: np.ndarray) -> float:
+    """How much a frame differs from its sensor's no-contact frame beyond a global brightness
+    drift: the 99th percentile of the lightly blurred |difference| (mean over channels, per
+    channel's mean difference removed), [0, 1] units at the working resolution.
+
+    A frame equal to its background within sensor noise scores at the noise's level; the
+    calibration's `noise_floor` (set on no-contact renders) is the bound.
+
+    Raises:
+        DataError: If the background's size differs from the frame's.
+    """
+    if background.shape != frame.shape:
+        raise DataError(
+            f"background is {background.shape[1]}x{background.shape[0]} (WxH) but the "
+            f"tactile image is {frame.shape[1]}x{frame.shape[0]}; the background must be "
+            "the same sensor's no-contact frame at the same size")
+    f = _working(frame)
+    d = f - _working(background, (f.shape[1], f.shape[0]))
+    d = gaussian_filter(d - d.mean((0, 1)), (NOISE_SIGMA, NOISE_SIGMA, 0))
+    return float(np.percentile(np.abs(d).mean(2), 99))
 
 
 def _quadratic(z: np.ndarray) -> np.ndarray:
@@ -247,6 +273,11 @@ class TrustCalibration:
         contact_threshold, contact_threshold_bg: frames whose contact logit is below it have
             no contact.
         meta: provenance and measured rates.
+        noise_floor: a frame whose `background_change` is below it is its background within
+            sensor noise: no contact, whatever the model says.
+        uncertain: without a background, the contact logits (low, high) between which the
+            model cannot decide (set on renders: below `low` lie few presses, above `high`
+            few empty frames); a frame there is "uncertain".
     """
 
     encoder: str
@@ -258,12 +289,16 @@ class TrustCalibration:
     contact_threshold_bg: float
     visual_prior: Novelty | None = None
     meta: dict = field(default_factory=dict)
+    noise_floor: float = 0.0
+    uncertain: tuple[float, float] | None = None
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the calibration as JSON (atomically; the vectors one per line)."""
         head = {"format": FORMAT, "encoder": self.encoder, "meta": self.meta,
                 "contact_threshold": self.contact_threshold,
                 "contact_threshold_bg": self.contact_threshold_bg,
+                "noise_floor": self.noise_floor,
+                "uncertain": None if self.uncertain is None else list(self.uncertain),
                 "contact": self.contact.to_dict(), "contact_bg": self.contact_bg.to_dict()}
         lines = [json.dumps(head, indent=1)[:-2] + ","]
         models = [("visual", self.visual), ("tactile", self.tactile)]
@@ -292,11 +327,14 @@ class TrustCalibration:
             if d.get("format") != FORMAT:
                 raise ValueError(f"format {d.get('format')!r}, expected {FORMAT!r}")
             prior = d.get("visual_prior")
+            band = d.get("uncertain")
             return cls(d["encoder"], Novelty.from_dict(d["visual"]),
                        Novelty.from_dict(d["tactile"]), ContactModel.from_dict(d["contact"]),
                        ContactModel.from_dict(d["contact_bg"]), float(d["contact_threshold"]),
                        float(d["contact_threshold_bg"]),
-                       None if prior is None else Novelty.from_dict(prior), d.get("meta", {}))
+                       None if prior is None else Novelty.from_dict(prior), d.get("meta", {}),
+                       float(d["noise_floor"]),
+                       None if band is None else (float(band[0]), float(band[1])))
         except (ValueError, KeyError, TypeError) as e:
             raise DataError(f"{path} is not a trust calibration: {e}") from e
 
@@ -304,6 +342,26 @@ class TrustCalibration:
         """The contact logit of one frame (with its background's model where one is given)."""
         model = self.contact if background is None else self.contact_bg
         return float(model.score(contact_features(frame, background))[0])
+
+    def contact_state(self, frame: np.ndarray, background: np.ndarray | None = None
+                      ) -> tuple[str, float]:
+        """What the frame shows, one of :data:`CONTACT_STATES`, and its contact logit.
+
+        With a background: a frame within sensor noise of it (`noise_floor`) is "no contact"
+        by construction; otherwise the model decides at `contact_threshold_bg`. Without:
+        the model decides outside the `uncertain` band and says "uncertain" inside it. A
+        score that is not a finite number is never "contact": it is "uncertain".
+        """
+        if background is not None and background_change(frame, background) < self.noise_floor:
+            return "no contact", float(self.contact_score(frame, background))
+        score = self.contact_score(frame, background)
+        if not np.isfinite(score):
+            return "uncertain", score
+        if background is not None:
+            return ("no contact" if score < self.contact_threshold_bg else "contact"), score
+        if self.uncertain is not None and self.uncertain[0] <= score < self.uncertain[1]:
+            return "uncertain", score
+        return ("no contact" if score < self.contact_threshold else "contact"), score
 
     def visual_novelty(self, V: np.ndarray, prior: np.ndarray | None = None) -> dict:
         """The visual novelty block: in the prior's feature space where both the calibration
@@ -313,7 +371,8 @@ class TrustCalibration:
         return {**_novelty_block(self.visual, V), "space": "embedding"}
 
     def assess(self, V: np.ndarray, T: np.ndarray | None, frame: np.ndarray | None,
-               background: np.ndarray | None = None, prior: np.ndarray | None = None) -> dict:
+               background: np.ndarray | None = None, prior: np.ndarray | None = None,
+               sensor: dict | None = None) -> dict:
         """The trust block of one query.
 
         Args:
@@ -322,10 +381,12 @@ class TrustCalibration:
             frame: the tactile frame (uint8), or None.
             background: the sensor's no-contact frame, or None.
             prior: (1, 1280) the visual prior's features of the crop, or None.
+            sensor: which sensor family the frame was read as ({"family", "source"}), or None.
 
         Returns:
             {"visual": {"novelty", "threshold", "novel", "space"}, "tactile": {... plus
-            "contact", "contact_threshold", "no_contact", "background"} or None,
+            "contact" (None when not a number), "contact_threshold", "state",
+            "no_contact", "uncertain", "background", "sensor"} or None,
             "warnings": [...]}
         """
         out: dict[str, Any] = {"visual": self.visual_novelty(V, prior), "tactile": None}
@@ -337,16 +398,26 @@ class TrustCalibration:
         if T is not None and frame is not None:
             tac = _novelty_block(self.tactile, T)
             thr = self.contact_threshold if background is None else self.contact_threshold_bg
-            score = self.contact_score(frame, background)
-            tac.update({"contact": round(score, 4), "contact_threshold": round(thr, 4),
-                        "no_contact": bool(score < thr), "background": background is not None})
+            state, score = self.contact_state(frame, background)
+            tac.update({"contact": round(score, 4) if np.isfinite(score) else None,
+                        "contact_threshold": round(thr, 4), "state": state,
+                        "no_contact": state == "no contact", "uncertain": state == "uncertain",
+                        "background": background is not None})
+            if sensor is not None:
+                tac["sensor"] = sensor
             out["tactile"] = tac
+            against = ", against the background frame" if background is not None else ""
             if tac["no_contact"]:
+                shown = "" if tac["contact"] is None else (
+                    f" (contact {tac['contact']} < {tac['contact_threshold']}{against})")
                 warnings.append(
-                    f"no contact detected: the tactile image looks like the sensor's "
-                    f"background with nothing pressed into it (contact {tac['contact']} < "
-                    f"{tac['contact_threshold']}{', against the background frame' if background is not None else ''}); "
-                    "no material description is given")
+                    "no contact detected: the tactile image looks like the sensor's "
+                    f"background with nothing pressed into it{shown}; no material "
+                    "description is given")
+            elif tac["uncertain"]:
+                warnings.append(
+                    "contact uncertain: give the sensor's no-contact frame (background); "
+                    "the description below is a guess")
             elif tac["novel"]:
                 warnings.append(
                     f"the tactile image is unlike the frames the encoders were trained on "

@@ -47,6 +47,7 @@ from ratouch.serve.request import (
     slots_for,
 )
 from ratouch.timing import Laps
+from ratouch.world.sensors import guess_family
 
 log = logging.getLogger(__name__)
 
@@ -233,8 +234,13 @@ class RATouchPipeline(RetrievalSide):
         """Step 2: the trust block of one request (None: no calibration)."""
         if self.trust is None:
             return None
+        sensor = None
+        if request.frame is not None:
+            name, distance = guess_family(request.frame)
+            sensor = {"family": name, "source": "guessed from the frame's colours",
+                      "distance": round(distance, 3)}
         return self.trust.assess(encoded.queries["image"], encoded.queries.get("tactile"),
-                                 request.frame, request.background, encoded.prior)
+                                 request.frame, request.background, encoded.prior, sensor)
 
     def _trust_warnings(self, trust: dict | None) -> list[str]:
         if trust is None:

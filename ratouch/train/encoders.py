@@ -32,6 +32,7 @@ from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import _fork_context, world_for
 from ratouch.world.scarcity import ScarceRegime
+from ratouch.world.tactile import TOUCH_VERSION
 
 log = logging.getLogger(__name__)
 
@@ -39,8 +40,6 @@ ANTONYM_PROBE = ("soft, fuzzy, deformable", "hard, rigid, smooth", "squishy, plu
 
 # Steps per shipped size, chosen so that the three train in under 15 minutes on 2 cores.
 STEPS = {"default-tiny": 700, "default-s": 900, "default-b": 700, "debug": 20}
-#: Bumped when the rendered touch or the tactile input changes, so cached data is redone.
-TOUCH_VERSION = "touch2"
 
 
 @dataclass(frozen=True)
@@ -89,8 +88,8 @@ def _pair_chunk(args):
         if psize:
             pcrops.append(resize_array(crop, psize))
         bg = world.background_image(s.sensor)
-        tacs.append(tactile_input(s.tactile, tsize).astype(np.float16))
-        tacs_bg.append(tactile_input(s.tactile, tsize, bg).astype(np.float16))
+        tacs.append(tactile_input(s.tactile, tsize, None, s.family).astype(np.float16))
+        tacs_bg.append(tactile_input(s.tactile, tsize, bg, s.family).astype(np.float16))
         labels.append(s.caption)
         mats.append(s.material)
     return crops, pcrops, tacs, tacs_bg, labels, mats

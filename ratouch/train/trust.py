@@ -21,6 +21,7 @@ from ratouch.model.trust import (
     ContactModel,
     Novelty,
     TrustCalibration,
+    background_change,
     contact_features,
     threshold_for,
 )
@@ -33,6 +34,9 @@ log = logging.getLogger(__name__)
 
 #: First training-split index of the validation renders: beyond any training run's pairs.
 VALIDATION_START = 1_000_000
+#: Without a background, the share of validation presses (and of empty frames) allowed on
+#: the wrong side of the "uncertain" band's edges.
+UNCERTAIN_SHARE = 0.01
 
 
 @dataclass(frozen=True)
@@ -139,6 +143,16 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
         contact = ContactModel.fit(feats["ref"][col], feats["nc_ref"][col])
         models.append(contact)
         thresholds.append(threshold_for(contact.score(feats["val"][col]), fa, above=False))
+    # the noise floor: what no-contact validation renders differ from their background by
+    changes = {name: np.array([background_change(f, b) for f, b in
+                               zip(d["frames"], d["backgrounds"])])
+               for name, d in (("val", val), ("nc_val", nc_val), ("test", test),
+                               ("nc_test", nc_test))}
+    noise_floor = float(np.quantile(changes["nc_val"], 0.995))
+    # without a background: the band where presses and empty frames overlap on validation
+    low = float(np.quantile(models[0].score(feats["val"][0]), UNCERTAIN_SHARE))
+    high = float(np.quantile(models[0].score(feats["nc_val"][0]), 1 - UNCERTAIN_SHARE))
+    band = (low, high) if low < high else None
     measured: dict[str, Any] = {
         "visual_false_alarm_test": _rate(visual.score(enc["test"][0]) > visual.threshold),
         "tactile_false_alarm_test": _rate(tactile.score(enc["test"][1]) > tactile.threshold),
@@ -148,6 +162,15 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
         assert test_prior is not None  # the same encoders give every split the same features
         measured["visual_prior_false_alarm_test"] = _rate(
             prior.score(test_prior) > prior.threshold)
+    measured["noise_floor"] = round(noise_floor, 5)
+    measured["presses_below_noise_floor_test"] = _rate(changes["test"] < noise_floor)
+    measured["empty_below_noise_floor_test"] = _rate(changes["nc_test"] < noise_floor)
+    measured["uncertain_band"] = None if band is None else [round(low, 4), round(high, 4)]
+    if band is not None:
+        measured["uncertain_test"] = _rate(np.r_[
+            (models[0].score(feats["test"][0]) >= low) & (models[0].score(feats["test"][0]) < high),
+            (models[0].score(feats["nc_test"][0]) >= low)
+            & (models[0].score(feats["nc_test"][0]) < high)])
     families = np.asarray(test["families"])
     for col, suffix in ((0, ""), (1, "_bg")):
         press = models[col].score(feats["test"][col]) < thresholds[col]  # a press called empty
@@ -166,7 +189,7 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
             "rank": cfg.rank, "families": list(FAMILIES), "measured": measured}
     log.info("trust calibration for %s: %s", encoders.name, measured)
     return TrustCalibration(encoders.name, visual, tactile, models[0], models[1], thresholds[0],
-                            thresholds[1], prior, meta)
+                            thresholds[1], prior, meta, noise_floor, band)
 
 
 def _rate(flags: np.ndarray) -> float:

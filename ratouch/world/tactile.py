@@ -1,28 +1,20 @@
-"""Tactile frames rendered like real vision-based tactile sensors of three families.
+"""Tactile frames rendered like real vision-based tactile sensors.
 
 The gel is pressed by the contacted material: the indentation (a contact patch whose area and
-edge softness come from the material's compliance and the force) plus the material's micro
-height-map (attenuated by compliance) give a surface; its normals are shaded by the sensor's
-coloured lights (photometric shading) over the sensor unit's own background image, then gel
-blur and sensor noise are applied. A no-contact frame is the unit's background plus noise.
+edge softness come from the material's compliance and the force, shaped by what presses: a
+flat face, a sphere or a cylinder, which rigid materials keep and soft ones flatten) plus the
+material's micro height-map (attenuated by compliance) give a surface. The sensor family's
+row (:mod:`ratouch.world.sensors`) says how it becomes a frame: the world's photometric
+shader (normals shaded by coloured lights) or Taxim's optics calibrated on real presses
+(:mod:`ratouch.world.taxim_optics`); either way the change is added to the unit's own
+background, then gel blur and sensor noise are applied. A no-contact frame is the unit's
+background plus noise.
 
-Sensor families (:data:`FAMILIES`), each with :data:`UNITS_PER_FAMILY` units; a unit's index
-is the global sensor id (`TactilePlan.sensor`, `sensor_{k}.png` of the TVL layout):
-
-* ``digit``: a DIGIT. Red, green and blue LEDs 120 degrees apart light a bluish-grey gel;
-  contact shows as strong colour shifts that follow the surface normals (high contrast).
-* ``gelsight``: a GelSight as in Touch and Go. A bright grey-white gel lit low from four sides
-  with a regular grid of small dark marker dots; in contact the dots move outwards along the
-  indentation's slope and with a small shear, and the side lighting shows the texture.
-* ``mini``: a GelSight Mini. A vignetted teal-to-violet gel; contact is faint: about 2-5 of
-  255 mean absolute change over the frame, 99th percentile of the change about 12-23, as
-  measured on real presses. No markers.
-
-Each unit's background (tint, lighting, vignette, marker grid) is fixed; what varies from
-frame to frame (light strength and direction, tint and vignetting of the contact shading,
-blur, noise, a small global brightness drift, marker shear and jitter) is drawn from the
-plan's `render_seed`, never from the shared plan generator, so that adding sensor families
-left every other part of a sample byte-identical.
+Each unit's background (field, marker grid) is fixed; what varies from frame to frame (light
+strength and direction, tint and vignetting of the contact shading, blur, noise, a small
+global brightness drift, marker shear and jitter, the pressing shape) is drawn from the plan's
+`render_seed`, never from the shared plan generator, so that sensor families left every other
+part of a sample byte-identical.
 """
 
 from __future__ import annotations
@@ -34,86 +26,39 @@ from typing import Callable
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from ratouch.errors import ConfigError
 from ratouch.world.config import WorldConfig
 from ratouch.world.material import Material, material
+from ratouch.world.sensors import (
+    FAMILIES,
+    N_SENSORS,
+    UNITS_PER_FAMILY,
+    family,
+    family_sensors,
+    has_markers,
+    sensor_family,
+    unit_field,
+)
 from ratouch.world.texture import PatternSpec, pixel_grid, sample_tile
 
-FAMILIES = ("digit", "gelsight", "mini")
-UNITS_PER_FAMILY = 8
-N_SENSORS = len(FAMILIES) * UNITS_PER_FAMILY  # distinct sensor units, each with its background
+__all__ = ["FAMILIES", "N_SENSORS", "UNITS_PER_FAMILY", "family_sensors", "sensor_family",
+           "TactilePlan", "SensorUnit", "sensor_unit", "sensor_background", "plan_tactile",
+           "render_tactile", "gel_surface", "marker_shadow", "TOUCH_VERSION", "SHAPES"]
 
+#: Bumped when rendered touch changes, so that cached renders and training data are redone.
+TOUCH_VERSION = "touch3"
 #: the bound of the shared plan generator's sensor draw before sensor families existed (4
 #: units); `plan_tactile` still makes that draw so that the generator's stream is unchanged
 _LEGACY_SENSOR_DRAW = 4
 #: second seed word of the per-frame generator derived from `render_seed`
 _FRAME_STREAM = 17
-
-# Light directions (x right, y down, z out of the gel) and colours: red, green, blue LEDs
-# 120 degrees apart around the gel, as on a DIGIT.
-_LIGHTS = (
-    (np.array([-0.85, 0.0, 0.53]), np.array([1.0, 0.25, 0.2])),
-    (np.array([0.43, -0.74, 0.53]), np.array([0.2, 1.0, 0.3])),
-    (np.array([0.43, 0.74, 0.53]), np.array([0.25, 0.3, 1.0])),
-)
-# GelSight (Touch and Go): four LEDs low on the four sides, so slopes show strongly
-_GELSIGHT_LIGHTS = (
-    (np.array([-0.93, 0.0, 0.37]), np.array([1.0, 0.45, 0.4])),
-    (np.array([0.93, 0.0, 0.37]), np.array([0.4, 1.0, 0.5])),
-    (np.array([0.0, -0.93, 0.37]), np.array([0.45, 0.5, 1.0])),
-    (np.array([0.0, 0.93, 0.37]), np.array([0.8, 0.8, 0.6])),
-)
-# GelSight Mini: three LEDs, a diffuse gel; shading is faint
-_MINI_LIGHTS = (
-    (np.array([-0.8, -0.3, 0.52]), np.array([0.9, 0.4, 1.0])),
-    (np.array([0.8, -0.3, 0.52]), np.array([0.3, 1.0, 0.9])),
-    (np.array([0.0, 0.85, 0.52]), np.array([0.6, 0.5, 1.0])),
-)
-
-
-@dataclass(frozen=True)
-class _Family:
-    lights: tuple
-    gain: float  # strength of the contact shading
-    darken: float  # how much the pressed gel darkens
-    texture: float  # gain of the pressed texture against the indentation's dome
-    blur: tuple[float, float]  # per-frame gel blur sigma range, pixels at 96 px width
-    noise: tuple[float, float]  # per-frame noise std range
-    gain_jitter: float  # per-frame light strength factor: 1 +- this
-    turn_jitter: float  # per-frame rotation of the lights, degrees
-    tint_jitter: float  # per-frame per-channel tint of the contact shading
-    vignette: tuple[float, float]  # per-frame vignetting of the contact shading
-
-
-_FAMILY = {
-    "digit": _Family(_LIGHTS, gain=0.55, darken=0.12, texture=1.0, blur=(0.5, 1.1),
-                     noise=(0.006, 0.015), gain_jitter=0.12, turn_jitter=8.0,
-                     tint_jitter=0.06, vignette=(0.1, 0.4)),
-    "gelsight": _Family(_GELSIGHT_LIGHTS, gain=0.2, darken=0.05, texture=1.8, blur=(0.4, 0.9),
-                        noise=(0.004, 0.010), gain_jitter=0.15, turn_jitter=10.0,
-                        tint_jitter=0.08, vignette=(0.1, 0.4)),
-    "mini": _Family(_MINI_LIGHTS, gain=0.11, darken=0.025, texture=1.0, blur=(0.7, 1.3),
-                    noise=(0.006, 0.011), gain_jitter=0.2, turn_jitter=12.0,
-                    tint_jitter=0.1, vignette=(0.5, 0.9)),
-}
+#: What presses into the gel, with its probability: a flat face (as before shapes existed),
+#: a sphere (a ball, a knob, a fingertip-sized bump) or a cylinder (an edge, a rod, a rim).
+SHAPES = {"flat": 0.5, "sphere": 0.3, "cylinder": 0.2}
+#: Height-map scale of the shader's normals (the gel's thickness in pixel units).
+_SHADER_RELIEF = 6.0
 #: global brightness drift between a frame and its unit's background, relative, per unit of
 #: noise std (so that a noise-free frame of no contact is exactly the background)
 _DRIFT_PER_NOISE = 0.6
-
-
-def sensor_family(sensor: int) -> str:
-    """The family ("digit", "gelsight" or "mini") of global sensor unit `sensor`."""
-    if not 0 <= int(sensor) < N_SENSORS:
-        raise ConfigError(f"sensor={sensor!r} out of range [0, {N_SENSORS})")
-    return FAMILIES[int(sensor) // UNITS_PER_FAMILY]
-
-
-def family_sensors(family: str) -> range:
-    """The global sensor ids of the units of `family`."""
-    if family not in FAMILIES:
-        raise ConfigError(f"family={family!r} must be one of {FAMILIES}")
-    k = FAMILIES.index(family)
-    return range(k * UNITS_PER_FAMILY, (k + 1) * UNITS_PER_FAMILY)
 
 
 @dataclass(frozen=True)
@@ -142,6 +87,7 @@ class TactilePlan:
     drift: float = 0.0  # relative global brightness change against the background
     shear: tuple[float, float] = (0.0, 0.0)  # marker shear inside the contact, pixels
     marker_jitter: float = 0.0  # std of irregular marker motion inside the contact, pixels
+    shape: str = "flat"  # what presses: a key of SHAPES
 
     @property
     def family(self) -> str:
@@ -162,56 +108,6 @@ class SensorUnit:
     markers: np.ndarray  # (N, 2) marker centres (x, y), pixels; (0, 2) without markers
     marker_radius: float
     marker_darkness: float
-
-
-def _digit_field(unit: int, hw: tuple[int, int]) -> np.ndarray:
-    # the renderer's original sensor backgrounds: digit units 0..3 are the former sensors 0..3
-    rng = np.random.default_rng([7919, unit])
-    h, w = hw
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
-    u, v = xs / w - 0.5, ys / h - 0.5
-    img = np.zeros((h, w, 3), np.float32) + np.array([0.36, 0.38, 0.50]) * rng.uniform(0.9, 1.1, 3)
-    for (d, colour), k in zip(_LIGHTS, rng.uniform(0.8, 1.2, 3)):
-        # each LED brightens the side it sits on, fading across the gel
-        fall = np.exp(-(((u - d[0] * 0.55) ** 2) / 0.12 + ((v - d[1] * 0.55) ** 2) / 0.2))
-        img += 0.32 * k * fall[..., None] * colour
-    vignette = 1 - 0.35 * (u ** 2 + v ** 2)
-    img *= vignette[..., None]
-    return np.clip(img, 0, 1)
-
-
-def _gelsight_field(rng: np.random.Generator, hw: tuple[int, int]) -> np.ndarray:
-    h, w = hw
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
-    u, v = xs / w - 0.5, ys / h - 0.5
-    base = rng.uniform(0.62, 0.74) * (np.array([1.0, 0.99, 0.97]) * rng.uniform(0.96, 1.04, 3))
-    img = np.zeros((h, w, 3), np.float32) + base
-    for (d, colour), k in zip(_GELSIGHT_LIGHTS, rng.uniform(0.6, 1.4, 4)):
-        # each side LED tints a band along its edge
-        side = u * d[0] + v * d[1]  # -0.5 .. 0.5, larger towards the light
-        fall = np.exp((side - 0.5) / 0.16)
-        img += 0.09 * k * fall[..., None] * (colour - 0.7)
-    img *= (1 - rng.uniform(0.12, 0.25) * (u ** 2 + v ** 2) * 2)[..., None]
-    return np.clip(img, 0, 1)
-
-
-def _mini_field(rng: np.random.Generator, hw: tuple[int, int]) -> np.ndarray:
-    h, w = hw
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
-    u, v = xs / w - 0.5, ys / h - 0.5
-    teal = np.array([0.20, 0.60, 0.62]) * rng.uniform(0.92, 1.08, 3)
-    violet = np.array([0.50, 0.30, 0.68]) * rng.uniform(0.92, 1.08, 3)
-    a = np.deg2rad(rng.uniform(-35, 35) + (180 if rng.random() < 0.5 else 0))  # teal side
-    s = np.clip(0.5 + 1.1 * (u * np.cos(a) + v * np.sin(a) * h / w), 0, 1)
-    s = s * s * (3 - 2 * s)
-    img = teal * s[..., None] + violet * (1 - s[..., None])
-    img *= rng.uniform(1.0, 1.15)
-    # a soft hot spot from the LEDs and a strong vignette: dark corners
-    cx, cy = rng.uniform(-0.1, 0.1, 2)
-    img *= (1 + 0.12 * np.exp(-((u - cx) ** 2 + (v - cy) ** 2) / 0.05))[..., None]
-    r2 = (u / 0.5) ** 2 + (v / 0.5) ** 2  # 1 at the middle of the edges, 2 at the corners
-    img *= (1 - rng.uniform(0.22, 0.32) * r2 ** 1.5)[..., None]
-    return np.clip(img, 0, 1)
 
 
 def _marker_grid(rng: np.random.Generator, hw: tuple[int, int]) -> np.ndarray:
@@ -253,27 +149,22 @@ def marker_shadow(centres: np.ndarray, radius: float, hw: tuple[int, int]) -> np
 @lru_cache(maxsize=4 * N_SENSORS)
 def sensor_unit(sensor: int, hw: tuple[int, int]) -> SensorUnit:
     """The fixed parts of sensor unit `sensor` at frame size `hw` (cached; read-only)."""
-    family = sensor_family(sensor)
-    unit = int(sensor) - FAMILIES.index(family) * UNITS_PER_FAMILY
+    name = sensor_family(sensor)
     hw = (int(hw[0]), int(hw[1]))
-    rng = np.random.default_rng([7919, FAMILIES.index(family), unit])
+    field = unit_field(sensor, hw).astype(np.float32)
     markers, radius, darkness = np.zeros((0, 2), np.float32), 0.0, 0.0
-    if family == "digit":
-        field = _digit_field(unit, hw)
-    elif family == "gelsight":
-        field = _gelsight_field(rng, hw)
+    if has_markers(sensor):
+        unit = int(sensor) - FAMILIES.index(name) * UNITS_PER_FAMILY
+        rng = np.random.default_rng([7919, FAMILIES.index(name), unit])
         markers = _marker_grid(rng, hw)
-        scale = hw[1] / 96
-        radius, darkness = float(rng.uniform(1.0, 1.5) * scale), float(rng.uniform(0.6, 0.8))
-    else:
-        field = _mini_field(rng, hw)
-    field = field.astype(np.float32)
+        radius = float(rng.uniform(1.0, 1.5) * hw[1] / 96)
+        darkness = float(rng.uniform(0.6, 0.8))
     background = field
     if len(markers):
         background = field * (1 - darkness * marker_shadow(markers, radius, hw))[..., None]
-    for a in (field, background, markers):
-        a.setflags(write=False)
-    return SensorUnit(int(sensor), family, field, background, markers, radius, darkness)
+    for arr in (field, background, markers):
+        arr.setflags(write=False)
+    return SensorUnit(int(sensor), name, field, background, markers, radius, darkness)
 
 
 def sensor_background(sensor: int, hw: tuple[int, int]) -> np.ndarray:
@@ -313,7 +204,7 @@ def plan_tactile(rng: np.random.Generator, cfg: WorldConfig, mat: Material,
     frame = np.random.default_rng([render_seed, _FRAME_STREAM])
     drawn = int(frame.integers(N_SENSORS))
     sensor = drawn if sensor is None else int(sensor)
-    fam = _FAMILY[sensor_family(sensor)]
+    fam = family(sensor_family(sensor)).variation
     scale = cfg.tactile_hw[1] / 96
     blur = float(frame.uniform(*fam.blur)) * scale
     noise = float(frame.uniform(*fam.noise))
@@ -326,11 +217,13 @@ def plan_tactile(rng: np.random.Generator, cfg: WorldConfig, mat: Material,
     sx, sy = frame.normal(0, 0.5, 2) * scale
     shear = (float(sx), float(sy))
     marker_jitter = float(frame.uniform(0.05, 0.25) * scale)
+    names = list(SHAPES)
+    shape = names[int(frame.choice(len(names), p=[SHAPES[n] for n in names]))]
     if st.tactile_blur is not None:
         blur = st.tactile_blur
     if st.tactile_noise is not None:
         noise = st.tactile_noise
-    if sensor_family(sensor) != "gelsight":
+    if not has_markers(sensor):
         shear, marker_jitter = (0.0, 0.0), 0.0
     return TactilePlan(
         material=mat.name, sensor=sensor, contact=contact, centre=centre, force=force,
@@ -338,7 +231,8 @@ def plan_tactile(rng: np.random.Generator, cfg: WorldConfig, mat: Material,
         texture_offset=texture_offset, texture_step=texture_step, blur=blur, noise=noise,
         render_seed=render_seed, blur_frame=st.tactile_blur is not None,
         light_gain=light_gain, light_turn=light_turn, tint=tint, vignette=vignette,
-        drift=_DRIFT_PER_NOISE * noise * drift_z, shear=shear, marker_jitter=marker_jitter)
+        drift=_DRIFT_PER_NOISE * noise * drift_z, shear=shear, marker_jitter=marker_jitter,
+        shape=shape)
 
 
 # ----------------------------------------------------------------------------------- rendering
@@ -358,10 +252,19 @@ def gel_surface(plan: TactilePlan, feel_pyramid: list, hw: tuple[int, int],
     dx, dy = xs - cx, ys - cy
     u = (dx * np.cos(a) + dy * np.sin(a)) / (radius * plan.axes[0])
     v = (-dx * np.sin(a) + dy * np.cos(a)) / (radius * plan.axes[1])
+    if plan.shape == "cylinder":
+        v = v / 1.8  # a long patch along the cylinder's axis
     rho = np.sqrt(u * u + v * v)
     edge = 0.12 + 0.45 * k
     inside = np.clip((1 - rho) / edge, 0, 1)
     inside = inside * inside * (3 - 2 * inside)  # smoothstep
+    if plan.shape != "flat":
+        # a rigid material keeps the pressing shape (a spherical or cylindrical cap); a
+        # compliant one wraps around it and flattens it towards the plateau
+        across = rho if plan.shape == "sphere" else np.abs(u)
+        cap = np.sqrt(np.clip(1 - across * across, 0, 1)) * inside
+        keep = 1 - 0.8 * k
+        inside = keep * cap + (1 - keep) * inside
     depth = 0.5 + 0.5 * plan.force
     tex = sample_tile(feel_pyramid, hw, plan.texture_step, plan.texture_angle, plan.texture_offset)
     relief = mat.feel.relief * (1 - 0.55 * k)
@@ -398,13 +301,51 @@ def _sample_at(a: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return a[iy, ix]
 
 
+def _shader_change(plan: TactilePlan, z: np.ndarray, dome: np.ndarray, field: np.ndarray
+                   ) -> np.ndarray:
+    """The world's photometric shader: the field's change (float (H, W, 3)) under a gel
+    surface `z` (indentation, gel thickness units)."""
+    shader = family(plan.family).shader
+    assert shader is not None  # the row's check: a "shader" family has one
+    if shader.texture != 1.0:
+        z = dome + shader.texture * (z - dome)
+    z = z * _SHADER_RELIEF
+    gy, gx = np.gradient(z)
+    norm = np.sqrt(gx * gx + gy * gy + 1)
+    n = np.stack([-gx / norm, -gy / norm, 1 / norm - 1], -1)  # change against the flat gel
+    mix = _light_mix(shader.lights, plan.light_turn)
+    mix *= (shader.gain * plan.light_gain) * np.asarray(plan.tint, np.float32)[None, :]
+    shade = n @ mix
+    if plan.vignette:
+        shade *= (1 - plan.vignette * _radius2(z.shape))[..., None]
+    press = (1 - shader.darken * np.clip(z / _SHADER_RELIEF, 0, 1))[..., None]  # gel darkens
+    return (field + shade) * press - field
+
+
+def _taxim_change(plan: TactilePlan, z: np.ndarray) -> np.ndarray:
+    """Taxim's optics: the colour change (float (H, W, 3)) of the family's calibrated sensor
+    pressed `z` deep (indentation, gel thickness units; `press_mm` millimetres per unit)."""
+    from ratouch.world.taxim_optics import optics  # the calibration loads on first use
+
+    row = family(plan.family)
+    height = -row.press_mm * z  # mm; below 0 presses into the gel
+    if row.landscape:  # the sensor is mounted turned: render its own orientation, turn back
+        change = optics(str(row.calibration)).change(height.T).transpose(1, 0, 2)
+    else:
+        change = optics(str(row.calibration)).change(height)
+    change = change * (plan.light_gain * np.asarray(plan.tint, np.float32))
+    if plan.vignette:
+        change *= (1 - plan.vignette * _radius2(z.shape))[..., None]
+    return change.astype(np.float32)
+
+
 def render_tactile(plan: TactilePlan, pyramid_fn: Callable[[PatternSpec], list],
                    hw: tuple[int, int], background: np.ndarray) -> np.ndarray:
     """Render a tactile frame, (H, W, 3) uint8: `background` (the unit's no-contact image)
-    plus the blurred contact shading, a global brightness drift and sensor noise."""
+    plus the blurred contact change (by the family's renderer), moved marker dots, a global
+    brightness drift and sensor noise."""
     hw = (int(hw[0]), int(hw[1]))
     rng = np.random.default_rng(plan.render_seed)
-    fam = _FAMILY[plan.family]
     bg = np.asarray(background, np.float32)
     img = bg
     blur = 0.0 if plan.blur_frame else plan.blur
@@ -412,21 +353,15 @@ def render_tactile(plan: TactilePlan, pyramid_fn: Callable[[PatternSpec], list],
         unit = sensor_unit(plan.sensor, hw)
         mat = material(plan.material)
         z, dome = gel_surface(plan, pyramid_fn(mat.feel.pattern), hw, dome=True)
-        if fam.texture != 1.0:
-            z = dome + fam.texture * (z - dome)
-        z = z * 6.0
-        gy, gx = np.gradient(z)
-        norm = np.sqrt(gx * gx + gy * gy + 1)
-        n = np.stack([-gx / norm, -gy / norm, 1 / norm - 1], -1)  # change against the flat gel
-        mix = _light_mix(fam.lights, plan.light_turn)
-        mix *= (fam.gain * plan.light_gain) * np.asarray(plan.tint, np.float32)[None, :]
-        shade = n @ mix
-        if plan.vignette:
-            shade *= (1 - plan.vignette * _radius2(hw))[..., None]
-        press = (1 - fam.darken * np.clip(z / 6.0, 0, 1))[..., None]  # pressed gel darkens
+        if family(plan.family).renderer == "taxim":
+            lit = _taxim_change(plan, z)
+        else:
+            lit = _shader_change(plan, z, dome, unit.field)
+        if blur > 0:  # the gel blur softens the change; dots stay as sharp as the background's
+            lit = gaussian_filter(lit, sigma=(blur, blur, 0))
         if len(unit.markers):
             # markers move outwards along the indentation's slope, with shear and jitter
-            dgy, dgx = np.gradient(dome * 6.0)
+            dgy, dgx = np.gradient(dome * _SHADER_RELIEF)
             at = unit.markers
             inside = np.clip(_sample_at(dome, at) / max(float(dome.max()), 1e-6), 0, 1)
             jit = rng.standard_normal(at.shape).astype(np.float32) * plan.marker_jitter
@@ -434,16 +369,9 @@ def render_tactile(plan: TactilePlan, pyramid_fn: Callable[[PatternSpec], list],
             move += (np.asarray(plan.shear, np.float32)[None, :] + jit) * inside[:, None]
             cover = marker_shadow((at + move).astype(np.float32), unit.marker_radius, hw)
             dots = (1 - unit.marker_darkness * cover)[..., None]
-            # the gel blur softens the shading; the dots are drawn as sharp as the background's
-            lit = (unit.field + shade) * press - unit.field
-            if blur > 0:
-                lit = gaussian_filter(lit, sigma=(blur, blur, 0))
             img = bg + ((unit.field + lit) * dots - unit.background)
         else:
-            delta = (bg + shade) * press - bg
-            if blur > 0:
-                delta = gaussian_filter(delta, sigma=(blur, blur, 0))
-            img = bg + delta
+            img = bg + lit
     if plan.blur_frame and plan.blur > 0:
         img = gaussian_filter(img, sigma=(plan.blur, plan.blur, 0))
     if plan.drift:
