@@ -1,11 +1,13 @@
-"""The visible real photos: the set, its licences, and the tables made from a pipeline's answers
-(a stub pipeline here; the real pipeline's run is done by hand after retraining)."""
+"""The visible real photos: the set, its licences, the tables made from a pipeline's answers
+(a stub pipeline), and how the photo route ranks a photo's image neighbours (a stub classifier
+over a made-up corpus, then the shipped pipeline on the cat photo)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from ratouch.encoders.prior import imagenet_to_world
 from ratouch.errors import ConfigError, DataNotFoundError
 from ratouch.eval.photos import (
     PHOTO_LICENCES,
@@ -18,6 +20,8 @@ from ratouch.eval.photos import (
     photo_set,
     reference_dir,
 )
+from ratouch.serve.photo import PhotoRoute
+from ratouch.world.objects import OBJECT_CLASSES
 
 pytest.importorskip("skimage.data")
 NAMES = ["chelsea", "coffee", "brick", "grass", "gravel", "rocket", "astronaut"]
@@ -145,3 +149,112 @@ def test_cli_eval_photos_help(capsys):
     assert e.value.code == 0
     out = capsys.readouterr().out
     assert "--encoder" in out and "--json" in out and "neighbours per photo" in out
+
+
+# ------------------------------------------------------------------ the photo route's ranking
+
+class ClassPrior:
+    """A visual prior whose ImageNet classifier puts the given probabilities on the given
+    world classes (through one ImageNet class mapped to each); the rest of the probability
+    sits on ImageNet classes that map to no world class."""
+
+    name = "stub"
+
+    class spec:
+        input_size = 224
+
+    def __init__(self, world: dict[str, float]):
+        mapping = imagenet_to_world()
+        first: dict[str, int] = {}
+        for j in sorted(mapping):
+            first.setdefault(OBJECT_CLASSES[mapping[j]].name, j)
+        unmapped = [j for j in range(1000) if j not in mapping]
+        self.p = np.zeros(1000, np.float32)
+        for name, prob in world.items():
+            self.p[first[name]] = prob
+        self.p[unmapped] = (1 - sum(world.values())) / len(unmapped)
+
+    def classify(self, images, size=None):
+        return np.tile(self.p, (len(images), 1))
+
+
+def _unit(v):
+    v = np.asarray(v, np.float32)
+    return v / np.linalg.norm(v)
+
+
+def _mapped_classes() -> list[str]:
+    """The world classes some ImageNet class maps to, other than tabby and teapot."""
+    mapped = {OBJECT_CLASSES[k].name for k in imagenet_to_world().values()}
+    assert {"tabby", "teapot"} <= mapped
+    return sorted(mapped - {"tabby", "teapot"})
+
+
+def _mixture_trap():
+    """Tabby entries along e0, teapot entries along e1, and a third class whose entries lie
+    between them: the classifier says tabby 0.40, teapot 0.35, third class 0."""
+    third = _mapped_classes()[0]
+    names = ["teapot", third, "tabby", "teapot", third, "tabby", "tabby", "teapot", third]
+    emb = np.stack([_unit([0, 1, 0.1]), _unit([1, 1, 0]), _unit([1, -0.1, 0]),
+                    _unit([0, 1, 0]), _unit([1, 1, 0.05]), _unit([1, 0, 0]),
+                    _unit([1, 0.1, 0]), _unit([0.1, 1, 0]), _unit([1, 1, -0.05])])
+    return third, names, emb, ClassPrior({"tabby": 0.40, "teapot": 0.35})
+
+
+def test_photo_neighbours_are_the_most_probable_class_first_not_the_mixtures_nearest():
+    third, names, emb, prior = _mixture_trap()
+    route = PhotoRoute(prior, names, emb)
+    photo = route.query(np.zeros((32, 32, 3), np.uint8))
+    assert [n for n, _ in photo.classes] == ["tabby", "teapot"]
+    # the prototype mixture lies nearest to the third class, which the classifier rules out
+    assert names[int(np.argmax(emb @ photo.query))] == third
+    scores, ids = route.neighbours(photo, 9)
+    assert [names[i] for i in ids] == ["tabby"] * 3 + ["teapot"] * 3 + [third] * 3
+    assert np.allclose(scores, [0.40] * 3 + [0.35] * 3 + [0] * 3)
+    # within a class: nearest to the photo's query vector first (e0 leaning towards e1)
+    assert list(ids[:3]) == [6, 5, 2] and list(ids[3:6]) == [7, 3, 0]
+    assert ids.dtype == np.int64 and scores.dtype == np.float32
+    # k caps the list; a corpus-wide k lists every entry once
+    assert list(route.neighbours(photo, 2)[1]) == [6, 5]
+    assert sorted(route.neighbours(photo, 50)[1]) == list(range(9))
+    assert "scored by that probability" in photo.note
+
+
+def test_photo_neighbours_when_the_corpus_lacks_the_photos_class():
+    """The classifier's top class is not in the corpus: the neighbours are of the most probable
+    class the corpus has, and the note says the corpus's classes hold little probability."""
+    third, names, emb, _ = _mixture_trap()
+    absent = _mapped_classes()[1]
+    prior = ClassPrior({absent: 0.80, "teapot": 0.04, "tabby": 0.01})
+    route = PhotoRoute(prior, names, emb)
+    photo = route.query(np.zeros((32, 32, 3), np.uint8))
+    assert [n for n, _ in photo.classes] == ["teapot", "tabby"]
+    assert [names[i] for i in route.neighbours(photo, 4)[1]] == ["teapot"] * 3 + ["tabby"]
+    assert photo.coverage == pytest.approx(0.05, abs=1e-4)
+    assert "hold only 5%" in photo.note
+
+
+def test_a_real_photos_image_neighbours_are_its_top_class_first(pipeline):
+    """The shipped pipeline on the cat photo: the image neighbours are the corpus entries of
+    the class the classifier finds most probable, scored by that probability, then the next
+    class's; the result has the shape of any query's."""
+    row = evaluate_photos(pipeline, k=5, names=["chelsea"])[0]
+    assert row["visual_route"] == "photo"
+    result = pipeline.query(load_photo("chelsea"), None, k=5)
+    classes = result["visual_route"]["classes"]
+    image = result["neighbours"]["image"]
+    count = {}
+    for e in pipeline.corpus.entries:
+        count[e.class_name] = count.get(e.class_name, 0) + 1
+    top, p_top = classes[0]
+    first = min(5, count[top])
+    assert [n["class_name"] for n in image[:first]] == [top] * first
+    assert [n["score"] for n in image[:first]] == [round(p_top, 4)] * first
+    assert all(a["score"] >= b["score"] for a, b in zip(image, image[1:]))
+    probability = dict(classes)
+    assert all(n["score"] == round(probability[n["class_name"]], 4) for n in image
+               if n["class_name"] in probability)
+    assert [n["class_name"] for n in row["neighbours"]] == [n["class_name"] for n in image]
+    assert all(set(n) == {"id", "score", "class_name", "caption", "description", "source"}
+               for n in image)
+    assert list(result["neighbours"]) == ["image"]

@@ -38,7 +38,7 @@ from ratouch.search.retrieval_side import (
     load_tgr,
     open_retriever,
 )
-from ratouch.serve.photo import PhotoRoute
+from ratouch.serve.photo import PhotoQuery, PhotoRoute
 from ratouch.serve.request import (
     QueryRequest,
     QueryResult,
@@ -90,14 +90,20 @@ class Encoded:
     Attributes:
         queries: {mode: (1, D) query}: "image", and "tactile" and "joint" with a frame.
         prior: (1, 1280) the visual prior's features of the crop, or None (no prior).
-        route: {"route": "render"}, or the photo route's account of the crop.
+        photo: the photo route's query where it answered the crop (its image neighbours
+            are then the route's ranking, not a search), else None.
         warnings: what encoding adds to the request's warnings (the photo route's note).
     """
 
     queries: dict[str, np.ndarray]
     prior: np.ndarray | None = None
-    route: dict = field(default_factory=lambda: {"route": "render"})
+    photo: PhotoQuery | None = None
     warnings: list[str] = field(default_factory=list)
+
+    @property
+    def route(self) -> dict:
+        """The result's `visual_route`: {"route": "render"}, or the photo route's account."""
+        return {"route": "render"} if self.photo is None else self.photo.route()
 
 
 class RATouchPipeline(RetrievalSide):
@@ -181,13 +187,11 @@ class RATouchPipeline(RetrievalSide):
     def encode(self, requests: Sequence[QueryRequest], clock: Laps) -> list[Encoded]:
         """Step 1: the image queries of the crops, the tactile queries of the frames and the
         Tactile-Guided Retriever's joint queries."""
-        V, P, routes = self.encode_images([r.crop for r in requests])
+        V, P, photos = self.encode_images([r.crop for r in requests])
         encoded = []
-        for j in range(len(requests)):
-            route = routes[j]
+        for j, photo in enumerate(photos):
             encoded.append(Encoded({"image": V[j:j + 1]}, None if P is None else P[j:j + 1],
-                                   route or {"route": "render"},
-                                   [route["note"]] if route else []))
+                                   photo, [] if photo is None else [photo.note]))
         clock.lap("encode_image")
         touch = [j for j, r in enumerate(requests) if r.frame is not None]
         if touch:
@@ -251,12 +255,22 @@ class RATouchPipeline(RetrievalSide):
     def _search(self, requests: Sequence[QueryRequest], encoded: Sequence[Encoded]
                 ) -> list[dict]:
         """Step 3: every mode of every request against the text index, in one search at the
-        largest K: per request {mode: ((1, k) scores, (1, k) ids)}."""
-        rows = [(j, m) for j, e in enumerate(encoded) for m in QUERY_MODES if m in e.queries]
+        largest K: per request {mode: ((1, k) scores, (1, k) ids)}. The image neighbours of a
+        crop the photo route answered are the route's ranking instead
+        (`PhotoRoute.neighbours`: by the classifier's probability of the entry's class)."""
+        found: list[dict] = [{} for _ in requests]
+        for j, e in enumerate(encoded):
+            if e.photo is not None:
+                assert self.photos is not None   # only the route makes a PhotoQuery
+                sc, ii = self.photos.neighbours(e.photo, requests[j].k)
+                found[j]["image"] = (sc[None], ii[None])
+        rows = [(j, m) for j, e in enumerate(encoded) for m in QUERY_MODES
+                if m in e.queries and m not in found[j]]
+        if not rows:
+            return found
         scores, ids = self.corpus.search(
             "text", np.concatenate([encoded[j].queries[m] for j, m in rows]),
-            max(r.k for r in requests))
-        found: list[dict] = [{} for _ in requests]
+            max(requests[j].k for j, _ in rows))
         for r, (j, m) in enumerate(rows):
             k = requests[j].k
             found[j][m] = (scores[r:r + 1, :k], ids[r:r + 1, :k])
@@ -309,27 +323,27 @@ class RATouchPipeline(RetrievalSide):
     # ----------------------------------------------------------------- building blocks
 
     def encode_images(self, crops: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray | None,
-                                                                 list[dict | None]]:
+                                                                 list[PhotoQuery | None]]:
         """Image queries of visual crops: (N, D) V, the prior's (N, 1280) features (None
-        without a prior) and, per crop, the photo route's account where it answered it.
+        without a prior) and, per crop, the photo route's query where it answered it.
 
         A crop the trust calibration finds novel in the prior's feature space (a real
         photo, not a render) gets its image query from the photo route
-        (`ratouch.serve.photo`); every other crop from the encoders' vision tower."""
+        (`ratouch.serve.photo`: its row of V is the route's query vector, and its image
+        neighbours the route's ranking); every other crop from the encoders' vision
+        tower."""
         if hasattr(self.encoders, "encode_image_features"):
             V, P = self.encoders.encode_image_features(crops)
         else:
             V, P = self.encoders.encode_image(crops), None
-        routes: list[dict | None] = [None] * len(crops)
+        photos: list[PhotoQuery | None] = [None] * len(crops)
         if P is None or self.photos is None or self.trust is None or self.trust.visual_prior is None:
-            return V, P, routes
+            return V, P, photos
         novel = self.trust.visual_prior.score(P) > self.trust.visual_prior.threshold
         for j in np.flatnonzero(novel):
-            photo = self.photos.query(crops[j])
+            photos[j] = photo = self.photos.query(crops[j])
             V[j] = photo.query
-            routes[j] = {"route": "photo", "classes": photo.classes,
-                         "coverage": photo.coverage, "note": photo.note}
-        return V, P, routes
+        return V, P, photos
 
     def ra_prefix(self, V: np.ndarray, T: np.ndarray, ids: np.ndarray
                   ) -> tuple[torch.Tensor, dict[str, np.ndarray]]:
