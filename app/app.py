@@ -36,8 +36,8 @@ log = logging.getLogger(__name__)
 # A few structured close-ups (indices < 46), then wild scenes, spread over the test split.
 EXAMPLES = [0, 12, 40, 60, 140, 190, 290, 390]
 THUMBNAIL_SIDE = 128
-VISUAL_HEIGHT = 300  # the preview's display height: the inputs fit beside the answer
-TACTILE_HEIGHT = 150
+VISUAL_HEIGHT = 270  # the preview's display height: the inputs fit beside the answer
+TACTILE_HEIGHT = 130
 EXAMPLES_HEIGHT = 96
 MAX_K = handlers.MAX_K
 SESSION_TTL_S = 2 * 3600
@@ -50,6 +50,11 @@ CSS = """
 .ra-shared { white-space: nowrap; color: #b8860b; }
 .ra-gallery .caption-label { white-space: normal; font-size: 0.72em; line-height: 1.2;
                              max-width: calc(100% - 8px); }
+#inputs, #answer { gap: 6px; }
+#inputs .form { gap: 4px; }
+#inputs input[type=text] { padding: 2px 6px; }
+#status { font-size: 0.85em; }
+#status p, #status ul { margin: 0; }
 #header h2 { margin: 0 0 2px 0; }
 #header p { margin: 0; }
 .ra-about summary { cursor: pointer; color: var(--body-text-color-subdued); font-size: 0.85em; }
@@ -92,7 +97,7 @@ start-up. Conditions:
 
 def build_demo(pipeline, world=None, failure_options: dict | None = None,
                docs: str | Path | None = None, models: list[str] | None = None,
-               max_batch: int | None = None) -> gr.Blocks:
+               max_batch: int | None = None, model_state=None) -> gr.Blocks:
     """The app around a serving answerer (read-only, shared by all sessions).
 
     Args:
@@ -109,6 +114,8 @@ def build_demo(pipeline, world=None, failure_options: dict | None = None,
             None: the pipeline's one model, no choice.
         max_batch: how many concurrent queries the pipeline answers together (None: a
             `QueryBatcher`'s own `max_batch`, else 2).
+        model_state: name -> `ModelChoice.state(name)` (never waits), for saying that a
+            model chosen is still being prepared; None: every model is ready.
     """
     world = world or World()
     try:  # scores the descriptions of labelled examples; shared, read-only
@@ -129,7 +136,7 @@ def build_demo(pipeline, world=None, failure_options: dict | None = None,
     with gr.Blocks(title="RA-Touch Explorer", delete_cache=(1800, SESSION_TTL_S)) as demo:
         ui = _layout(pipeline, world, options["conditions"], models)
         _wire(demo, ui, pipeline, world, thumbnail, options, docs, judge, bool(models),
-              max_batch)
+              max_batch, model_state)
     demo.ratouch_docs = docs  # `launch` serves its images (and nothing else from disk)
     return demo
 
@@ -139,6 +146,11 @@ def _pending(pipeline) -> bool:
     says so; anything else is loaded."""
     ready = getattr(pipeline, "ready", None)
     return callable(ready) and not ready()
+
+
+def _load_seconds(pipeline) -> float | None:
+    """How long the default model took to load (a `BackgroundPipeline`'s), else None."""
+    return getattr(pipeline, "seconds", None)
 
 
 def _corpus_size(pipeline) -> int:
@@ -223,7 +235,7 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int,
     # then the trust line, both descriptions, what retrieval did and each mode's first
     # neighbours); the PCA, the tables and the details below
     with gr.Row(equal_height=False):
-        with gr.Column(scale=5, min_width=420):
+        with gr.Column(scale=5, min_width=420, elem_id="inputs"):
             ui.visual = gr.Image(
                 label="1 · Photo — 2 · click two opposite corners of the contact box",
                 type="filepath", image_mode=None, sources=["upload", "clipboard"],
@@ -256,7 +268,6 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int,
                                        visible=bool(models), scale=2)
             ui.model_note = gr.Markdown(elem_id="model-note", elem_classes="ra-muted")
             ui.run = gr.Button("5 · Run query", variant="primary", elem_id="run")
-            ui.status = gr.Markdown(elem_id="status")
         with gr.Column(scale=7, min_width=560, elem_id="answer"):
             # open on the first screen (one click loads a pair and runs it); closed after a
             # result, which takes its place
@@ -272,6 +283,9 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int,
                                          value=0, precision=0, minimum=0,
                                          maximum=test_size - 1, min_width=120)
                     ui.load = gr.Button("Load example", size="sm", min_width=80)
+            # what was queried (box used, model) and the warnings the trust block does not
+            # show, then the answer
+            ui.status = gr.Markdown(elem_id="status")
             ui.description = gr.Markdown(elem_id="description")
             # each mode's neighbours: a row of fixed-size tiles (duplicates folded, ×n)
             ui.galleries = [gr.HTML(elem_id=f"gallery-{mode}") for mode in view.MODES]
@@ -296,7 +310,7 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int,
 
 
 def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, options: dict,
-          docs: Path, judge, choice: bool, max_batch: int) -> None:
+          docs: Path, judge, choice: bool, max_batch: int, model_state=None) -> None:
     """Connect events to the handlers. Only `/query` is an API; the UI's events are private.
 
     Long on purpose: the page's whole event table in one place, so which event calls which
@@ -326,11 +340,17 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
         x, y = evt.index
         return handlers.click_box(state, x, y, (a, b, c, d))
 
+    def model_note(model):
+        if not (choice and model_state and model):
+            return ""
+        return view.model_state_md(model, *model_state(model), _load_seconds(pipeline))
+
     def show_query(state, tac, a, b, c, d, k, bg, model, progress=gr.Progress()):
         largest = min(MAX_K, _corpus_size(pipeline))
         return tuple(handlers.run_query(pipeline, thumbnail, state, tac, a, b, c, d, k,
                                         progress, background=bg, largest_k=largest,
-                                        judge=judge, encoder=model if choice else None))
+                                        judge=judge, encoder=model if choice else None,
+                                        wait_note=model_note(model)))
 
     def regenerate(state, tac, a, b, c, d, kept, result, model, bg):
         return handlers.regenerate(pipeline, state, tac, a, b, c, d, kept, result, judge,
@@ -358,6 +378,7 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
         return _header(pipeline), gr.Timer(active=_pending(pipeline))
 
     gr.on([demo.load, ui.timer.tick], poll_header, None, [ui.header, ui.timer], **light)
+    ui.model.change(model_note, ui.model, ui.model_note, **light)
     ui.visual.upload(handlers.visual_uploaded, ui.visual, box_out + query_out, **raw, **private)
     ui.tactile.upload(handlers.upload_tactile, ui.tactile, [ui.tactile, *query_out], **raw,
                       **private)
@@ -420,10 +441,22 @@ def main(argv: list[str] | None = None) -> None:
     # it names.
     log.info("loading the RA-Touch pipeline (encoder %s) in the background ...", args.encoder)
     models = list(dict.fromkeys([args.encoder, *available_models()]))
-    loading = BackgroundPipeline(
-        lambda: QueryBatcher(ModelChoice(args.encoder, models, corpus=args.corpus),
-                             max_batch=args.max_batch), args.encoder, start=False)
-    demo = build_demo(loading, models=models, max_batch=args.max_batch)
+    loaded: dict = {}
+
+    def load():
+        # the default model first; then the others are prepared in the background, so that
+        # choosing one does not make its first query wait (a query for one still being
+        # prepared waits for it and says so)
+        loaded["choice"] = ModelChoice(args.encoder, models, corpus=args.corpus)
+        loaded["choice"].prepare([m for m in models if m != args.encoder])
+        return QueryBatcher(loaded["choice"], max_batch=args.max_batch)
+
+    def model_state(name: str):
+        return loaded["choice"].state(name) if "choice" in loaded else ("not prepared", None)
+
+    loading = BackgroundPipeline(load, args.encoder, start=False)
+    demo = build_demo(loading, models=models, max_batch=args.max_batch,
+                      model_state=model_state)
     launch(demo, args.host, args.port, block=False)
     loading.start()  # after the server is up: both compete for the same cores and the GIL
     log.info("serving on http://%s:%d/ (%.1f s after main()); the models are loading",

@@ -26,6 +26,7 @@ from app.plot import pca_figure
 from ratouch.encoders.preprocess import QUERY_MAX_SIDE, to_rgb_array
 from ratouch.errors import DataError, RATouchError
 from ratouch.eval import failures
+from ratouch.eval.report import last_commit, weights_commit
 from ratouch.serve.request import QueryRequest, answer_one
 from ratouch.serve.trace import trace_retrieval
 
@@ -288,24 +289,28 @@ def error_view(message: str) -> QueryView:
 
 def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual | None,
               tactile: Any, x0, y0, x1, y1, k, progress=None, background: Any = None,
-              largest_k: int = MAX_K, judge=None, encoder: str | None = None) -> QueryView:
+              largest_k: int = MAX_K, judge=None, encoder: str | None = None,
+              wait_note: str = "") -> QueryView:
     """Decode the session's image, the tactile image (and the sensor's background frame, if
     given) and the box into a request, have `pipe` answer it, and format the answer.
     `tactile` and `background` may be the components' raw values; `judge` scores the
     descriptions of labelled examples; `encoder` names the model where `pipe` offers a
-    choice (`ModelChoice`)."""
+    choice (`ModelChoice`); `wait_note` says, while the query waits, that its model is still
+    being prepared."""
     tactile, background = upload_path(tactile), upload_path(background)
+    t_run = time.perf_counter()
     try:
         if visual is None:
             raise DataError("upload a visual image or pick an example first")
         box = boxes.fields_to_box(x0, y0, x1, y1)
         k = parse_k(k, largest_k)
         if progress is not None:
-            progress(0.05, desc="encoding, retrieving, generating…")
+            progress(0.05, desc=wait_note or "encoding, retrieving, generating…")
         request = QueryRequest.decode(visual.source, tactile, box=box, k=k, label=visual.label,
                                       background=background, model=encoder or None)
         result = answer_one(pipe, request).to_dict()
         t0 = time.perf_counter()
+        waited_ms = (t0 - t_run) * 1000  # from Run: decoding, any wait for a model, answer
         if progress is not None:
             progress(0.9, desc="thumbnails…")
         trace = trace_retrieval(result)
@@ -324,7 +329,7 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
     return QueryView(view.status_md(visual.title, result["warnings"], result.get("box"), result),
                      *galleries, *tables, pca_figure(result, visual.label),
                      view.description_md(result, visual.label, scores, trace),
-                     view.timings_md(result["timings_ms"], render_ms), result)
+                     view.timings_md(result["timings_ms"], render_ms, waited_ms), result)
 
 
 def neighbour_picker(result: dict | None):
@@ -503,6 +508,15 @@ def open_case(world_cfg, row: Any) -> tuple:
 
 # ---------------------------------------------------------------------- benchmarks
 
+def figure_made(path: Path) -> tuple[str, str | None]:
+    """(date, commit) of a figure file: its last commit, else (an untracked copy) the day
+    it was written and no commit."""
+    made = last_commit(path)
+    if made is not None:
+        return made
+    return time.strftime("%Y-%m-%d", time.gmtime(path.stat().st_mtime)), None
+
+
 def benchmarks(docs: Path, slots: int) -> tuple:
     """The Benchmarks tab: the report's markdown, then `slots` plot updates (the figures
     found in docs/figures/, the rest hidden).
@@ -513,6 +527,7 @@ def benchmarks(docs: Path, slots: int) -> tuple:
     import plotly.io as pio
 
     files = view.list_figures(docs)
+    weights = weights_commit()
     updates, problems = [], []
     for path in files:
         if len(updates) == slots:
@@ -523,7 +538,11 @@ def benchmarks(docs: Path, slots: int) -> tuple:
         except (OSError, ValueError, TypeError) as e:
             problems.append(f"{path.name} ({type(e).__name__}: {str(e)[:120]})")
             continue
-        updates.append(gr.update(value=fig, label=view.figure_title(path), visible=True))
+        # the width its maker chose (1,500 px for the trade-off) would be clipped by the
+        # page: every figure takes its container's width
+        fig.update_layout(width=None, autosize=True)
+        label = f"{view.figure_title(path)} — {view.figure_provenance(figure_made(path), weights)}"
+        updates.append(gr.update(value=fig, label=label, visible=True))
     updates += [gr.update(value=None, visible=False)] * (slots - len(updates))
     note = (f"{len(files)} figure file(s) in `docs/figures/`" if files else
             "No figure files (`docs/figures/*.json`) yet: `ratouch bench tradeoff` writes the "

@@ -279,12 +279,29 @@ def model_note(result: dict) -> str:
             + (", escalated" if c["escalated"] else "") + f": {why})")
 
 
+def model_state_md(name: str, state: str, seconds: float | None,
+                   default_load_s: float | None) -> str:
+    """What a chosen model is doing: "" when ready, else that it is being prepared (or will
+    be, by its first query) and how long the default model took, as an estimate."""
+    if state == "ready":
+        return ""
+    took = (f"; the default model took {default_load_s:.0f} s to prepare"
+            if default_load_s else "")
+    if state == "preparing":
+        return (f"Model `{name}` is being prepared in the background ({seconds or 0:.0f} s so "
+                f"far{took}): a query waits for it.")
+    return (f"Model `{name}` is not prepared yet: its first query prepares it (loads it and, "
+            f"the first time, embeds the corpus with it{took}) and waits.")
+
+
 def error_md(message: str) -> str:
     return f"**✖ Cannot run this query:** {message}"
 
 
-def timings_md(timings: dict[str, float], render_ms: float | None = None) -> str:
-    """One discreet line: per-stage milliseconds, the total, and the app's own rendering."""
+def timings_md(timings: dict[str, float], render_ms: float | None = None,
+               from_run_ms: float | None = None) -> str:
+    """One discreet line: per-stage milliseconds, the total, the app's own rendering and the
+    time from Run to the answer (which includes any wait for a model being prepared)."""
     stages = [f"{k.replace('_', ' ')} {v:.0f} ms" for k, v in timings.items()
               if k not in ("total", "batch_size")]
     line = " · ".join(stages) + f" · **total {timings.get('total', 0):.0f} ms**"
@@ -292,6 +309,11 @@ def timings_md(timings: dict[str, float], render_ms: float | None = None) -> str
         line += f" (answered in a batch of {timings['batch_size']} concurrent queries)"
     if render_ms is not None:
         line += f" (+ app rendering {render_ms:.0f} ms)"
+    if from_run_ms is not None:
+        line += f" · **from Run to answer {from_run_ms / 1000:.1f} s**"
+        waited = from_run_ms - timings.get("total", 0) - timings.get("decode", 0)
+        if waited > 1000:  # the model was being prepared (loaded, its corpus embedded)
+            line += f", of which {waited / 1000:.1f} s waiting for the model to be prepared"
     return f"Timings: {line}"
 
 
@@ -383,6 +405,19 @@ def list_figures(docs: Path) -> list[Path]:
                    if p.is_file() and not p.name.endswith(".data.json"))
     rank = {name: i for i, name in enumerate(FIRST_FIGURES)}
     return sorted(files, key=lambda p: (rank.get(p.stem, len(rank)), p.name))
+
+
+def figure_provenance(made: tuple[str, str | None], weights: tuple[str, str] | None) -> str:
+    """Which weights and date a figure comes from: the day (and commit) its file was made,
+    against the shipped weights' (a figure made before them was not regenerated since)."""
+    date, commit = made
+    when = f"made {date}" + (f" (commit {commit})" if commit else "")
+    if weights is None:
+        return when
+    if date < weights[0]:
+        return (f"{when}, on weights older than the shipped ones of {weights[0]} "
+                f"({weights[1]}): not regenerated since")
+    return f"{when}, on the shipped weights of {weights[0]} ({weights[1]})"
 
 
 def figure_title(path: Path) -> str:

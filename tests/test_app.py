@@ -436,7 +436,14 @@ def test_benchmarks_tab_without_and_with_a_report(tmp_path):
     assert " missing " in report and "[web](https://x.org/a)" in report
     assert [u["visible"] for u in slots] == [True, True, False]
     assert slots[0]["value"].layout.title.text == "speed vs accuracy"
-    assert slots[0]["label"] == "tradeoff" and "broken.json (" in note
+    assert slots[0]["label"].startswith("tradeoff — made ") and "broken.json (" in note
+    assert slots[0]["value"].layout.width is None  # it takes the container's width
+    # each figure says which weights and date it comes from
+    old = view.figure_provenance(("2026-11-23", "a7d8ae0"), ("2026-11-26", "b4e551b"))
+    assert old == ("made 2026-11-23 (commit a7d8ae0), on weights older than the shipped "
+                   "ones of 2026-11-26 (b4e551b): not regenerated since")
+    assert "on the shipped weights" in view.figure_provenance(("2026-11-27", None),
+                                                              ("2026-11-26", "b4e551b"))
     report, note, *slots = handlers.benchmarks(tmp_path, 1)  # more figures than slots
     assert "only 1 figures are shown" in note
 
