@@ -54,6 +54,10 @@ CSS = """
 #inputs .form { gap: 4px; }
 #inputs input[type=text] { padding: 2px 6px; }
 #status { font-size: 0.85em; }
+.ra-notes summary { white-space: nowrap; overflow: hidden; text-overflow: ellipsis;
+                    cursor: pointer; color: #92400e; }
+.ra-notes div { margin: 2px 0 2px 12px; }
+.ra-warn { color: #92400e; font-size: 0.92em; }
 #status p, #status ul { margin: 0; }
 #header h2 { margin: 0 0 2px 0; }
 #header p { margin: 0; }

@@ -172,13 +172,12 @@ def description_md(result: dict, label: str | None,
              line("RA-Touch (with retrieval)", "ra_touch", marked_description(d, trace)),
              line("Baseline (no retrieval)", "baseline")]
     if label:
-        parts.append(f"**Ground-truth label:** {escape(label)}")
+        judged = any(v is not None for v in scores.values())
+        parts.append(f"**Ground-truth label:** {escape(label)}" + (
+            " <span class='ra-muted'>(judge: the offline judge's 1–10 score of a description "
+            "against this label, as in `ratouch eval tvl`)</span>" if judged else ""))
     if trace is not None:
         parts.append(retrieval_md(trace))
-    if any(v is not None for v in scores.values()):
-        parts.append("<span class='ra-muted'>judge: the offline judge's 1–10 score of the "
-                     "description against the ground-truth label (as in `ratouch eval tvl`)"
-                     "</span>")
     return "\n\n".join(parts)
 
 
@@ -234,21 +233,22 @@ def trust_lines(result: dict) -> list[str]:
     trust = result.get("trust")
     warned = [w for w in result.get("warnings", []) if is_trust_warning(w)]
     if not trust:
-        return [f"> ⚠️ {w}" for w in warned]
+        return [f"<span class='ra-warn'>⚠ {escape(w)}</span>" for w in warned]
     cells = []
     for mode in ("visual", "tactile"):
         t = trust.get(mode)
         if not t:
             continue
-        mark = "⚠️ unfamiliar" if t["novel"] else "✓ familiar"
+        mark = "⚠ unfamiliar" if t["novel"] else "✓ familiar"
         cells.append(f"{mode} novelty {t['novelty']:.2f} (flag > {t['threshold']:.2f}) {mark}")
         if "contact" in t:
             mark = "✖ no contact" if t["no_contact"] else "✓ contact"
             against = ", vs background" if t.get("background") else ""
             cells.append(f"contact {t['contact']:.2f} (flag < {t['contact_threshold']:.2f}"
                          f"{against}) {mark}")
-    lines = ["**Trust:** " + " · ".join(cells)]
-    return lines + [f"> ⚠️ **{w}**" for w in warned]
+    line = "**Trust:** " + " · ".join(cells)
+    # its warnings on the same line, marked but not shouting: the answer stays in view
+    return [line + "".join(f"<br><span class='ra-warn'>⚠ {escape(w)}</span>" for w in warned)]
 
 
 def status_md(title: str, warnings: list[str], box: list[int] | None = None,
@@ -260,8 +260,13 @@ def status_md(title: str, warnings: list[str], box: list[int] | None = None,
     what = "**Image-only query** (no tactile image)" if result and image_only else "**Queried:**"
     lines = [f"{what} {title}" + (f" · contact box {box}" if box else "")
              + model_note(result or {})]
-    lines += [f"- ⚠️ {w}" for w in warnings if not is_trust_warning(w)]
-    return "\n".join(lines)
+    notes = [w for w in warnings if not is_trust_warning(w)]
+    if notes:  # folded: one line (the first words of each), the whole text on a click
+        head = "; ".join(notes)
+        lines.append(f"<details class='ra-notes'><summary>⚠ {len(notes)} "
+                     f"note{'s' if len(notes) > 1 else ''}: {escape(head)}</summary>"
+                     + "".join(f"<div>⚠ {escape(w)}</div>" for w in notes) + "</details>")
+    return "\n\n".join(lines)
 
 
 def model_note(result: dict) -> str:

@@ -873,9 +873,13 @@ def test_trust_is_shown_above_the_descriptions():
                                     "no_contact": True, "background": False}}}
     md = view.description_md(result, None)
     assert md.index("**Trust:**") < md.index("RA-Touch (with retrieval)")
-    assert "✖ no contact" in md and "⚠️ unfamiliar" in md and "✓ familiar" in md
+    assert "✖ no contact" in md and "⚠ unfamiliar" in md and "✓ familiar" in md
     assert "**no contact detected**: nothing is pressed" in md
-    assert "> ⚠️ **no contact detected" in md
+    assert "<span class='ra-warn'>⚠ no contact detected" in md
+    # each warning once: the status shows the others, folded into one line
+    status = view.status_md("x", [*result["warnings"], "no contact box given: used TVL's"],
+                            None, result)
+    assert "no contact detected" not in status and "⚠ 1 note: no contact box given" in status
 
 
 def test_header_says_what_the_corpus_is(fake):
