@@ -549,6 +549,10 @@ def benchmarks(docs: Path, slots: int) -> tuple:
             "speed-vs-accuracy chart.")
     if files and not (Path(docs) / view.FIGURES_DIR / "tradeoff.json").is_file():
         note += " · no speed-vs-accuracy chart yet (`ratouch bench tradeoff`)"
+    report = Path(docs) / view.REPORT_NAME
+    if report.is_file():
+        note += (f" · the report (`{view.REPORT_NAME}`) was "
+                 + view.figure_provenance(figure_made(report), weights))
     if problems:
         note += " · not shown: " + "; ".join(problems)
     return (view.report_md(docs, files), note, *updates)

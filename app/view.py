@@ -92,6 +92,8 @@ def neighbour_strip(result: dict, mode: str, thumbnail: Callable[[int], np.ndarr
         return (f"<div class='ra-mode' id='strip-{mode}'>{title}<div class='ra-strip ra-muted'>"
                 "not available for this query (needs a tactile image)</div></div>")
     shared = shared_modes(result["neighbours"])
+    # a folded tile is outlined when any neighbour it holds was among the most attended
+    read = {rows[r - 1]["caption"] for r in attended if 0 < r <= len(rows)}
     tiles = []
     for rank, n, count in group_by_caption(rows):
         modes = shared[n["id"]]
@@ -100,7 +102,7 @@ def neighbour_strip(result: dict, mode: str, thumbnail: Callable[[int], np.ndarr
         hover = (f"#{rank} of {len(rows)} · similarity {n['score']:.3f}"
                  + (f" · {count} of the top {len(rows)} share this caption" if count > 1 else "")
                  + f" · {n['class_name']} (corpus id {n['id']}){held}\n{n['caption']}")
-        cls = "ra-tile ra-attended" if mode == "joint" and rank in attended else "ra-tile"
+        cls = "ra-tile ra-attended" if mode == "joint" and n["caption"] in read else "ra-tile"
         badges = f"<span class='ra-badge'>{rank} · {n['score']:.2f}</span>"
         if count > 1:
             badges += f"<span class='ra-count'>×{count}</span>"
@@ -209,8 +211,10 @@ def retrieval_md(trace: RetrievalTrace) -> str:
             [f"dropped *{', '.join(trace.dropped)}*"] if trace.dropped else [])
         verdict = ("RA-Touch **differs from the baseline**: " + "; ".join(changes)
                    if changes else "RA-Touch said the baseline's words in another order")
-    lines = [f"**What retrieval did:** {verdict}. Read most (the integrator's attention; an "
-             f"even share is {trace.even_share:.0%}):"]
+    spread = ("nearly even: no neighbour stands out" if trace.nearly_even else
+              f"an even share is {trace.even_share:.0%}")
+    lines = [f"**What retrieval did:** {verdict}. Read most (the integrator's attention; "
+             f"{spread}):"]
     for a in trace.attended:
         carries = (f" — carries *{', '.join(a.words)}*" if a.words else
                    " — carries none of RA-Touch's words")

@@ -33,6 +33,7 @@ def test_most_attended_neighbours_and_the_words_they_carry():
     assert trace.attended[0].weight == pytest.approx(0.4) and trace.even_share == 0.25
     assert trace.attended[0].words == ("soft", "fuzzy")
     assert trace.carried == {"soft": (2, 3), "fuzzy": (2,), "plush": (3,)}
+    assert not trace.nearly_even  # 0.4 is 1.6 even shares
 
 
 def test_words_that_differ_from_the_baseline():
@@ -49,6 +50,7 @@ def test_no_integrator_attention_means_even_shares_in_retrieval_order():
     trace = trace_retrieval(_result("soft", "soft", ["a", "b", "c"], None, None), top=2)
     assert [a.rank for a in trace.attended] == [1, 2]
     assert all(a.weight == pytest.approx(1 / 3) for a in trace.attended)
+    assert trace.nearly_even
 
 
 def test_no_description_or_no_neighbours_gives_no_trace():

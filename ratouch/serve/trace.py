@@ -73,6 +73,11 @@ class RetrievalTrace:
     carried: dict[str, tuple[int, ...]] = field(default_factory=dict)
     in_neighbours: tuple[str, ...] = ()
 
+    @property
+    def nearly_even(self) -> bool:
+        """No neighbour stands out: the most attended holds under 1.25 even shares."""
+        return not self.attended or self.attended[0].weight < 1.25 * self.even_share
+
 
 def trace_retrieval(result: QueryResult | Mapping[str, Any], top: int = 3
                     ) -> RetrievalTrace | None:
