@@ -111,11 +111,9 @@ def test_upload_mark_box_query_in_chromium(app_url, page, tmp_path, world):
     page.screenshot(path=str(shot), full_page=True)
     shutil.copy(shot, SCREENSHOT_COPY)
 
-    # an example pair from the test split brings its ground-truth label
-    page.get_by_text("Examples from the world's test split").click()  # a closed accordion
+    # an example pair from the test split brings its ground-truth label, and runs at once
+    page.get_by_text("Start here: click an example").click()  # closed after a result
     page.locator("#examples .thumbnail-item").first.click()
-    page.get_by_text("Ground-truth label:").first.wait_for()
-    page.locator("#run").click()
     page.locator("#description").get_by_text("Ground-truth label:").wait_for()
 
 
