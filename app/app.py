@@ -36,10 +36,9 @@ log = logging.getLogger(__name__)
 # A few structured close-ups (indices < 46), then wild scenes, spread over the test split.
 EXAMPLES = [0, 12, 40, 60, 140, 190, 290, 390]
 THUMBNAIL_SIDE = 128
-VISUAL_HEIGHT = 420  # the preview's display height: inputs end well above a 900 px fold
-# after Run, the answer is scrolled into view (the inputs stay just above it)
-SHOW_ANSWER_JS = ("() => document.getElementById('description')"
-                  "?.scrollIntoView({behavior: 'smooth', block: 'nearest'})")
+VISUAL_HEIGHT = 270  # the preview's display height: the inputs fit beside the answer
+TACTILE_HEIGHT = 130
+EXAMPLES_HEIGHT = 96
 MAX_K = handlers.MAX_K
 SESSION_TTL_S = 2 * 3600
 
@@ -51,6 +50,40 @@ CSS = """
 .ra-shared { white-space: nowrap; color: #b8860b; }
 .ra-gallery .caption-label { white-space: normal; font-size: 0.72em; line-height: 1.2;
                              max-width: calc(100% - 8px); }
+#inputs, #answer { gap: 6px; }
+#inputs .form { gap: 4px; }
+#inputs input[type=text] { padding: 2px 6px; }
+#status { font-size: 0.85em; }
+.ra-notes summary { white-space: nowrap; overflow: hidden; text-overflow: ellipsis;
+                    cursor: pointer; color: #92400e; }
+.ra-notes div { margin: 2px 0 2px 12px; }
+.ra-warn { color: #92400e; font-size: 0.92em; }
+#status p, #status ul { margin: 0; }
+#header h2 { margin: 0 0 2px 0; }
+#header p { margin: 0; }
+.ra-about summary { cursor: pointer; color: var(--body-text-color-subdued); font-size: 0.85em; }
+.ra-about { font-size: 0.85em; }
+#description p, #description blockquote { margin: 0 0 4px 0; }
+#description ul { margin: 0 0 4px 0; }
+#description li { margin: 0; font-size: 0.92em; }
+mark.ra-carried { background: #fde68a; color: inherit; padding: 0 2px; border-radius: 3px; }
+.ra-mode { display: flex; align-items: flex-start; gap: 8px; margin: 2px 0; }
+.ra-mode-title { flex: 0 0 96px; font-weight: 600; font-size: 0.9em; line-height: 1.25; }
+.ra-strip { display: flex; gap: 6px; overflow-x: auto; min-width: 0; flex: 1 1 auto;
+            padding-bottom: 2px; }
+.ra-tile { flex: 0 0 76px; width: 76px; margin: 0; position: relative; }
+.ra-tile img { width: 76px; height: 76px; object-fit: cover; display: block;
+               border-radius: 4px; border: 2px solid transparent; box-sizing: border-box; }
+.ra-tile.ra-attended img { border-color: #2ca02c; border-width: 3px; }
+.ra-tile figcaption { font-size: 10.5px; line-height: 1.2; height: 2.4em; overflow: hidden;
+                      display: -webkit-box; -webkit-line-clamp: 2;
+                      -webkit-box-orient: vertical; word-break: break-word; }
+.ra-badge, .ra-count, .ra-shared-badge { position: absolute; font-size: 10px; color: #fff;
+                                         padding: 0 3px; border-radius: 3px; line-height: 1.4; }
+.ra-badge { top: 3px; left: 3px; background: rgba(0, 0, 0, 0.65); }
+.ra-count { top: 3px; right: 3px; background: #b45309; font-weight: 700; }
+.ra-shared-badge { top: 58px; left: 3px; background: rgba(184, 134, 11, 0.9); }
+.js-plotly-plot, .plot-container { max-width: 100%; }
 """
 
 MAX_FIGURES = 12  # plot slots of the Benchmarks tab
@@ -68,7 +101,7 @@ start-up. Conditions:
 
 def build_demo(pipeline, world=None, failure_options: dict | None = None,
                docs: str | Path | None = None, models: list[str] | None = None,
-               max_batch: int | None = None) -> gr.Blocks:
+               max_batch: int | None = None, model_state=None) -> gr.Blocks:
     """The app around a serving answerer (read-only, shared by all sessions).
 
     Args:
@@ -85,6 +118,8 @@ def build_demo(pipeline, world=None, failure_options: dict | None = None,
             None: the pipeline's one model, no choice.
         max_batch: how many concurrent queries the pipeline answers together (None: a
             `QueryBatcher`'s own `max_batch`, else 2).
+        model_state: name -> `ModelChoice.state(name)` (never waits), for saying that a
+            model chosen is still being prepared; None: every model is ready.
     """
     world = world or World()
     try:  # scores the descriptions of labelled examples; shared, read-only
@@ -105,7 +140,7 @@ def build_demo(pipeline, world=None, failure_options: dict | None = None,
     with gr.Blocks(title="RA-Touch Explorer", delete_cache=(1800, SESSION_TTL_S)) as demo:
         ui = _layout(pipeline, world, options["conditions"], models)
         _wire(demo, ui, pipeline, world, thumbnail, options, docs, judge, bool(models),
-              max_batch)
+              max_batch, model_state)
     demo.ratouch_docs = docs  # `launch` serves its images (and nothing else from disk)
     return demo
 
@@ -117,24 +152,38 @@ def _pending(pipeline) -> bool:
     return callable(ready) and not ready()
 
 
+def _load_seconds(pipeline) -> float | None:
+    """How long the default model took to load (a `BackgroundPipeline`'s), else None."""
+    return getattr(pipeline, "seconds", None)
+
+
 def _corpus_size(pipeline) -> int:
     """Entries of the corpus the loaded models search (MAX_K while they load)."""
     return MAX_K if _pending(pipeline) else len(pipeline.model().corpus.entries)
 
 
+STEPS = ("Describe how a surface feels, with retrieval (RA-Touch) and without (baseline): "
+         "**photo → contact box → tactile frame → background (optional) → Run**, or click "
+         "an example on the right.")
+
+
 def _header(pipeline) -> str:
-    title = "# RA-Touch Explorer\nRetrieval-augmented touch understanding · encoder "
+    """The title, the steps in one line, the models' state, and what the model and corpus
+    are in a collapsed note (plain-text marks: Debian's Chromium lacks the emoji glyphs)."""
+    title = f"## RA-Touch Explorer\n{STEPS}"
     if _pending(pipeline):
         status = pipeline.status()
         if status == "loading":
-            return (f"{title}`{pipeline.name}` · ⏳ loading the models "
+            return (f"{title} · Models `{pipeline.name}`: loading the models "
                     f"({time.perf_counter() - pipeline.started:.0f} s so far): browse "
                     "examples meanwhile; a query waits until they are ready")
-        return f"{title}`{pipeline.name}` · ⛔ {status}"
+        return f"{title} · Models `{pipeline.name}`: ✖ {status}"
     model = pipeline.model()
     prior = getattr(getattr(model, "encoders", None), "prior_note", None)
-    return (f"{title}`{model.name}` · {view.corpus_provenance(model.corpus)}"
-            + (f" · {prior}" if prior else ""))
+    about = (f"encoder `{model.name}` · {view.corpus_provenance(model.corpus)}"
+             + (f" · {prior}" if prior else ""))
+    return (f"{title}\n<details class='ra-about'><summary>About the model and corpus"
+            f"</summary>{about}</details>")
 
 
 def _layout(pipeline, world, conditions, models: list[str] | None) -> SimpleNamespace:
@@ -186,12 +235,13 @@ def _layout(pipeline, world, conditions, models: list[str] | None) -> SimpleName
 
 def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int,
                  models: list[str] | None) -> None:
-    # inputs, then the answer right below them (description and trust first); the examples
-    # sit beside the inputs, never between the inputs and the answer
-    with gr.Row():
-        with gr.Column(scale=3):
+    # one screen: the inputs on the left, the answer on the right (examples to start with,
+    # then the trust line, both descriptions, what retrieval did and each mode's first
+    # neighbours); the PCA, the tables and the details below
+    with gr.Row(equal_height=False):
+        with gr.Column(scale=5, min_width=420, elem_id="inputs"):
             ui.visual = gr.Image(
-                label="Visual image — click two opposite corners of the contact box",
+                label="1 · Photo — 2 · click two opposite corners of the contact box",
                 type="filepath", image_mode=None, sources=["upload", "clipboard"],
                 format="png", height=VISUAL_HEIGHT, elem_id="visual")
             with gr.Row():
@@ -202,15 +252,14 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int,
                              for n in ("x0", "y0", "x1", "y1")]
                 ui.reset = gr.Button("Default box", size="sm", min_width=60)
             ui.box_note = gr.Markdown(elem_id="box-note")
-        with gr.Column(scale=2):
             with gr.Row():
-                ui.tactile = gr.Image(label="Tactile image (DIGIT / GelSight frame)",
+                ui.tactile = gr.Image(label="3 · Tactile frame (DIGIT / GelSight)",
                                       type="filepath", image_mode=None, format="png",
-                                      sources=["upload", "clipboard"], height=230,
-                                      elem_id="tactile", scale=3)
-                ui.background = gr.Image(label="Sensor background (optional)",
+                                      sources=["upload", "clipboard"], height=TACTILE_HEIGHT,
+                                      elem_id="tactile")
+                ui.background = gr.Image(label="4 · Sensor background (optional)",
                                          type="filepath", image_mode=None, format="png",
-                                         sources=["upload"], height=230, scale=2,
+                                         sources=["upload"], height=TACTILE_HEIGHT,
                                          elem_id="background")
             with gr.Row():
                 ui.k = gr.Slider(1, min(MAX_K, n_corpus), value=min(5, n_corpus), step=1,
@@ -221,22 +270,36 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int,
                                        label="model (encoder size)", elem_id="model",
                                        interactive=bool(models and len(models) > 1),
                                        visible=bool(models), scale=2)
-            ui.run = gr.Button("Run query", variant="primary", elem_id="run")
-            ui.status = gr.Markdown(elem_id="status")
-            # closed: open, it would push the answer below the fold
-            with gr.Accordion("Examples from the world's test split (ground-truth label shown)",
-                              open=False, elem_id="examples-box"):
+            ui.model_note = gr.Markdown(elem_id="model-note", elem_classes="ra-muted")
+            ui.run = gr.Button("5 · Run query", variant="primary", elem_id="run")
+        with gr.Column(scale=7, min_width=560, elem_id="answer"):
+            # open on the first screen (one click loads a pair and runs it); closed after a
+            # result, which takes its place
+            with gr.Accordion("Start here: click an example from the world's test split to "
+                              "load and run it", open=True, elem_id="examples-box"
+                              ) as ui.examples_box:
                 ui.examples = gr.Gallery(
-                    handlers.example_gallery(world, EXAMPLES), columns=4, height=220,
-                    allow_preview=False, show_label=False, elem_id="examples",
-                    elem_classes="ra-gallery")
+                    handlers.example_gallery(world, EXAMPLES), columns=len(EXAMPLES),
+                    height=EXAMPLES_HEIGHT, allow_preview=False, show_label=False,
+                    elem_id="examples", elem_classes="ra-gallery", object_fit="cover")
                 with gr.Row():
                     ui.index = gr.Number(label=f"or any test index (0–{test_size - 1})",
                                          value=0, precision=0, minimum=0,
-                                         maximum=test_size - 1)
-                    ui.load = gr.Button("Load example", size="sm")
-    with gr.Row():
-        ui.description = gr.Markdown(elem_id="description")
+                                         maximum=test_size - 1, min_width=120)
+                    ui.load = gr.Button("Load example", size="sm", min_width=80)
+            # what was queried (box used, model) and the warnings the trust block does not
+            # show, then the answer
+            ui.status = gr.Markdown(elem_id="status")
+            ui.description = gr.Markdown(elem_id="description")
+            # each mode's neighbours: a row of fixed-size tiles (duplicates folded, ×n)
+            ui.galleries = [gr.HTML(elem_id=f"gallery-{mode}") for mode in view.MODES]
+    ui.tables = []
+    with gr.Row(equal_height=False):
+        for mode in view.MODES:
+            with gr.Column(min_width=260):
+                gr.Markdown(view.mode_header(mode))
+                ui.tables.append(gr.HTML(elem_id=f"table-{mode}"))
+    ui.plot = gr.Plot(label="PCA", elem_id="pca")
     with gr.Accordion("Take retrieval apart: untick neighbours RA-Touch reads and regenerate "
                       "its description", open=False, elem_id="apart"):
         ui.keep = gr.CheckboxGroup(label="the joint query's neighbours (similarity; the "
@@ -244,16 +307,6 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int,
                                    elem_id="keep")
         ui.regen = gr.Button("Regenerate RA-Touch", size="sm", elem_id="regen")
         ui.regen_out = gr.Markdown(elem_id="regen-out")
-    ui.galleries, ui.tables = [], []
-    with gr.Row(equal_height=False):
-        for mode in view.MODES:
-            with gr.Column(min_width=260):
-                gr.Markdown(view.mode_header(mode))
-                ui.galleries.append(gr.Gallery(
-                    show_label=False, columns=3, height=300, object_fit="contain",
-                    elem_id=f"gallery-{mode}"))
-                ui.tables.append(gr.HTML(elem_id=f"table-{mode}"))
-    ui.plot = gr.Plot(label="PCA", elem_id="pca")
     ui.timings = gr.Markdown(elem_id="timings", elem_classes="ra-timings")
     with gr.Accordion("Raw result (the JSON that the /query API and `ratouch query` return)",
                       open=False):
@@ -261,7 +314,7 @@ def _explore_tab(ui: SimpleNamespace, world, n_corpus: int, test_size: int,
 
 
 def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, options: dict,
-          docs: Path, judge, choice: bool, max_batch: int) -> None:
+          docs: Path, judge, choice: bool, max_batch: int, model_state=None) -> None:
     """Connect events to the handlers. Only `/query` is an API; the UI's events are private.
 
     Long on purpose: the page's whole event table in one place, so which event calls which
@@ -291,11 +344,17 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
         x, y = evt.index
         return handlers.click_box(state, x, y, (a, b, c, d))
 
+    def model_note(model):
+        if not (choice and model_state and model):
+            return ""
+        return view.model_state_md(model, *model_state(model), _load_seconds(pipeline))
+
     def show_query(state, tac, a, b, c, d, k, bg, model, progress=gr.Progress()):
         largest = min(MAX_K, _corpus_size(pipeline))
         return tuple(handlers.run_query(pipeline, thumbnail, state, tac, a, b, c, d, k,
                                         progress, background=bg, largest_k=largest,
-                                        judge=judge, encoder=model if choice else None))
+                                        judge=judge, encoder=model if choice else None,
+                                        wait_note=model_note(model)))
 
     def regenerate(state, tac, a, b, c, d, kept, result, model, bg):
         return handlers.regenerate(pipeline, state, tac, a, b, c, d, kept, result, judge,
@@ -323,18 +382,26 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
         return _header(pipeline), gr.Timer(active=_pending(pipeline))
 
     gr.on([demo.load, ui.timer.tick], poll_header, None, [ui.header, ui.timer], **light)
+    ui.model.change(model_note, ui.model, ui.model_note, **light)
     ui.visual.upload(handlers.visual_uploaded, ui.visual, box_out + query_out, **raw, **private)
     ui.tactile.upload(handlers.upload_tactile, ui.tactile, [ui.tactile, *query_out], **raw,
                       **private)
+    ui.background.upload(handlers.upload_background, [ui.background, ui.tactile],
+                         [ui.background, *query_out], **raw, **private)
     ui.visual.clear(lambda: handlers.reset_box(None), None, box_out, **light)
-    ui.examples.select(select_example, None, example_out, **private)
+    # a result takes the examples' place: close them (one click opens them again)
+    close_examples = dict(fn=lambda: gr.Accordion(open=False), inputs=None,
+                          outputs=ui.examples_box, **light)
+    # one click starts: the example is loaded and run
+    ui.examples.select(select_example, None, example_out, **private).success(
+        show_query, query_in, query_out, **queries, **raw, **private).then(**close_examples)
     ui.load.click(lambda i: handlers.load_example(world, i), ui.index, example_out, **private)
     ui.visual.select(click, [ui.state, *ui.fields], box_out, **light)
     gr.on([f.submit for f in ui.fields] + [f.blur for f in ui.fields], handlers.typed_box,
           [ui.state, *ui.fields], [ui.state, ui.visual, ui.box_note], **light)
     ui.reset.click(handlers.reset_box, ui.state, box_out, **light)
     ui.run.click(show_query, query_in, query_out, **queries, **raw, **private).then(
-        None, None, None, js=SHOW_ANSWER_JS, **private)
+        **close_examples)
     # a new result (or none) resets the neighbour picker and the regenerated answer
     ui.raw.change(lambda r: (handlers.neighbour_picker(r), ""), ui.raw,
                   [ui.keep, ui.regen_out], **light)
@@ -378,10 +445,22 @@ def main(argv: list[str] | None = None) -> None:
     # it names.
     log.info("loading the RA-Touch pipeline (encoder %s) in the background ...", args.encoder)
     models = list(dict.fromkeys([args.encoder, *available_models()]))
-    loading = BackgroundPipeline(
-        lambda: QueryBatcher(ModelChoice(args.encoder, models, corpus=args.corpus),
-                             max_batch=args.max_batch), args.encoder, start=False)
-    demo = build_demo(loading, models=models, max_batch=args.max_batch)
+    loaded: dict = {}
+
+    def load():
+        # the default model first; then the others are prepared in the background, so that
+        # choosing one does not make its first query wait (a query for one still being
+        # prepared waits for it and says so)
+        loaded["choice"] = ModelChoice(args.encoder, models, corpus=args.corpus)
+        loaded["choice"].prepare([m for m in models if m != args.encoder])
+        return QueryBatcher(loaded["choice"], max_batch=args.max_batch)
+
+    def model_state(name: str):
+        return loaded["choice"].state(name) if "choice" in loaded else ("not prepared", None)
+
+    loading = BackgroundPipeline(load, args.encoder, start=False)
+    demo = build_demo(loading, models=models, max_batch=args.max_batch,
+                      model_state=model_state)
     launch(demo, args.host, args.port, block=False)
     loading.start()  # after the server is up: both compete for the same cores and the GIL
     log.info("serving on http://%s:%d/ (%.1f s after main()); the models are loading",

@@ -15,7 +15,7 @@ from typing import Sequence
 import numpy as np
 from PIL import Image, ImageDraw
 
-from ratouch.encoders.preprocess import to_rgb_array, tvl_contact_box
+from ratouch.encoders.preprocess import clip_box, to_rgb_array, tvl_contact_box
 from ratouch.errors import DataError
 from ratouch.images import resize_array
 
@@ -119,8 +119,15 @@ def box_problem(box: Sequence[float], size: tuple[int, int]) -> str | None:
     if x1 <= 0 or y1 <= 0 or x0 >= w or y0 >= h:
         return f"box {list(box)} lies entirely outside the {w}x{h} (WxH) image"
     if x0 < 0 or y0 < 0 or x1 > w or y1 > h:
-        return f"box {list(box)} reaches outside the {w}x{h} (WxH) image; it will be clipped"
+        return (f"box {list(box)} reaches outside the {w}x{h} (WxH) image; it will be clipped "
+                f"to {list(clip_box(box, w, h))}")
     return None
+
+
+def used_box(box: Sequence[float], size: tuple[int, int]) -> tuple[int, int, int, int]:
+    """The box a query crops for `box` on an image of `size`: whole pixels, clipped (the
+    library's `clip_box`, which `QueryRequest.decode` applies)."""
+    return clip_box(box, *size)
 
 
 def draw(visual: Visual, box: Sequence[float] | None) -> np.ndarray:
@@ -134,8 +141,11 @@ def draw(visual: Visual, box: Sequence[float] | None) -> np.ndarray:
         _dashed_rect(d, (x0, y0, x1 - 1, y1 - 1), DEFAULT, lw)
         d.text((x0 + 4, y0 + 3), "default box", fill=DEFAULT)
     elif box[2] > box[0] and box[3] > box[1]:  # an inverted box has nothing to draw
-        x0, y0, x1, y1 = (v * s for v in box)
-        d.rectangle((x0, y0, x1 - 1, y1 - 1), outline=MARKED, width=lw)
+        try:  # the box the query will use: whole pixels, clipped to the image
+            x0, y0, x1, y1 = (v * s for v in used_box(box, visual.size))
+            d.rectangle((x0, y0, x1 - 1, y1 - 1), outline=MARKED, width=lw)
+        except DataError:  # entirely outside: nothing to draw (the note says why)
+            pass
     if visual.corner is not None:
         cx, cy, r = visual.corner[0] * s, visual.corner[1] * s, 3 * lw
         d.line((cx - r, cy, cx + r, cy), fill=CORNER, width=lw)

@@ -26,7 +26,9 @@ from app.plot import pca_figure
 from ratouch.encoders.preprocess import QUERY_MAX_SIDE, to_rgb_array
 from ratouch.errors import DataError, RATouchError
 from ratouch.eval import failures
+from ratouch.eval.report import last_commit, weights_commit
 from ratouch.serve.request import QueryRequest, answer_one
+from ratouch.serve.trace import trace_retrieval
 
 log = logging.getLogger(__name__)
 
@@ -79,9 +81,13 @@ def user_message(e: BaseException, files: dict[str, Any] | None = None) -> str:
         log.error("unexpected error in an app handler", exc_info=e)
         return f"internal error ({type(e).__name__}); it has been logged on the server"
     for role, path in (files or {}).items():
-        if isinstance(path, str) and path:  # the first mention with its role, then the name
-            msg = msg.replace(path, f"{Path(path).name} ({role})", 1)
-            msg = msg.replace(path, Path(path).name)
+        if isinstance(path, str) and path:  # the role once (the library's or ours), the name
+            name = Path(path).name
+            if f"{role} {path}" in msg:
+                msg = msg.replace(f"{role} {path}", f"{role} {name}")
+            else:
+                msg = msg.replace(path, f"{name} ({role})", 1)
+            msg = msg.replace(path, name)
     return msg
 
 
@@ -101,7 +107,12 @@ def _box_note(visual: boxes.Visual | None, box) -> str:
         return (f"No box marked: the query uses TVL's centred crop {list(boxes.default_box(visual))}"
                 " (dashed). Click two opposite corners on the image, or type x0, y0, x1, y1.")
     problem = boxes.box_problem(box, visual.size)
-    return f"⚠️ {problem}" if problem else f"Contact box {[round(v) for v in box]}."
+    if problem:
+        return f"⚠️ {problem}"
+    used = list(boxes.used_box(box, visual.size))
+    whole = [int(v) if float(v).is_integer() else v for v in box]
+    return f"Contact box {used}." + ("" if used == whole else
+                                     f" (typed {whole}; the query uses whole pixels)")
 
 
 # ---------------------------------------------------------------------- loading the images
@@ -119,7 +130,7 @@ def upload_visual(value: Any) -> tuple:
     try:
         visual = boxes.load_visual(path, f"uploaded image {Path(path).name}")
     except USER_ERRORS as e:
-        return (None, None, *NO_BOX, f"⛔ {_fail(e, {'visual image': path})}")
+        return (None, None, *NO_BOX, f"✖ {_fail(e, {'visual image': path})}")
     return (visual, boxes.draw(visual, None), *NO_BOX, _box_note(visual, None))
 
 
@@ -131,7 +142,7 @@ def visual_uploaded(value: Any) -> tuple:
         (visual state, preview, x0, y0, x1, y1, box note, *QueryView)
     """
     out = upload_visual(value)
-    if out[0] is None and out[-1].startswith("⛔"):
+    if out[0] is None and out[-1].startswith("✖"):
         return (*out, *error_view(out[-1][2:]))
     return (*out, *(gr.update() for _ in QueryView._fields))
 
@@ -144,14 +155,38 @@ def upload_tactile(value: Any) -> tuple:
     Returns:
         (tactile image, *QueryView)
     """
+    return _check_upload(value, "tactile image")
+
+
+def upload_background(value: Any, tactile: Any = None) -> tuple:
+    """A sensor background was uploaded: checked at once like a tactile frame (readable; the
+    tactile frame's size when one is loaded), else removed, with the reason.
+
+    Returns:
+        (background image, *QueryView)
+    """
+    return _check_upload(value, "background image", against=upload_path(tactile))
+
+
+def _check_upload(value: Any, role: str, against: Any = None) -> tuple:
+    """Decode an uploaded frame now (bounded, as the query will), and compare its size with
+    `against` (the tactile frame a background belongs to): an unusable file is named, with
+    its role, at once; it is then removed and the previous results are cleared."""
     path = upload_path(value)
     keep = tuple(gr.update() for _ in QueryView._fields)
     if path is None or not isinstance(path, str):
         return (gr.update(), *keep)
     try:
-        to_rgb_array(path, name="tactile image", max_side=QUERY_MAX_SIDE)
+        to_rgb_array(path, name=role, max_side=QUERY_MAX_SIDE)
+        if isinstance(against, str) and against:
+            with Image.open(path) as a, Image.open(against) as b:
+                if a.size != b.size:
+                    raise DataError(f"the {role} {path} is {a.size[0]}x{a.size[1]} (WxH) but "
+                                    f"the tactile image is {b.size[0]}x{b.size[1]}; the "
+                                    "background must be the same sensor's no-contact frame "
+                                    "at the same size")
     except USER_ERRORS as e:
-        return (None, *error_view(_fail(e, {"tactile image": path})))
+        return (None, *error_view(_fail(e, {role: path})))
     return (gr.update(), *keep)
 
 
@@ -181,7 +216,7 @@ def load_example(world, index: Any) -> tuple:
     except (TypeError, ValueError, IndexError, *USER_ERRORS) as e:
         msg = _fail(e if isinstance(e, USER_ERRORS) else
                     DataError(f"no test example {index!r}: {e}"))
-        return (None, None, None, None, *NO_BOX, f"⛔ {msg}")
+        return (None, None, None, None, *NO_BOX, f"✖ {msg}")
     box = tuple(int(v) for v in s.box)
     return (visual, boxes.draw(visual, box), s.tactile, world.background_image(s.sensor), *box,
             f"Ground-truth label: **{s.caption}** · {_box_note(visual, box)}")
@@ -236,9 +271,9 @@ class QueryView(NamedTuple):
     """Everything the Explore tab shows for one query, in output order."""
 
     status: str
-    gallery_image: list
-    gallery_tactile: list
-    gallery_joint: list
+    gallery_image: str  # HTML: the mode's row of neighbour tiles
+    gallery_tactile: str
+    gallery_joint: str
     table_image: str
     table_tactile: str
     table_joint: str
@@ -249,32 +284,38 @@ class QueryView(NamedTuple):
 
 
 def error_view(message: str) -> QueryView:
-    return QueryView(view.error_md(message), [], [], [], "", "", "", None, "", "", None)
+    return QueryView(view.error_md(message), "", "", "", "", "", "", None, "", "", None)
 
 
 def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual | None,
               tactile: Any, x0, y0, x1, y1, k, progress=None, background: Any = None,
-              largest_k: int = MAX_K, judge=None, encoder: str | None = None) -> QueryView:
+              largest_k: int = MAX_K, judge=None, encoder: str | None = None,
+              wait_note: str = "") -> QueryView:
     """Decode the session's image, the tactile image (and the sensor's background frame, if
     given) and the box into a request, have `pipe` answer it, and format the answer.
     `tactile` and `background` may be the components' raw values; `judge` scores the
     descriptions of labelled examples; `encoder` names the model where `pipe` offers a
-    choice (`ModelChoice`)."""
+    choice (`ModelChoice`); `wait_note` says, while the query waits, that its model is still
+    being prepared."""
     tactile, background = upload_path(tactile), upload_path(background)
+    t_run = time.perf_counter()
     try:
         if visual is None:
             raise DataError("upload a visual image or pick an example first")
         box = boxes.fields_to_box(x0, y0, x1, y1)
         k = parse_k(k, largest_k)
         if progress is not None:
-            progress(0.05, desc="encoding, retrieving, generating…")
+            progress(0.05, desc=wait_note or "encoding, retrieving, generating…")
         request = QueryRequest.decode(visual.source, tactile, box=box, k=k, label=visual.label,
                                       background=background, model=encoder or None)
         result = answer_one(pipe, request).to_dict()
         t0 = time.perf_counter()
+        waited_ms = (t0 - t_run) * 1000  # from Run: decoding, any wait for a model, answer
         if progress is not None:
             progress(0.9, desc="thumbnails…")
-        galleries = [view.gallery_items(result, m, thumbnail) for m in view.MODES]
+        trace = trace_retrieval(result)
+        attended = [a.rank for a in trace.attended] if trace else []
+        galleries = [view.neighbour_strip(result, m, thumbnail, attended) for m in view.MODES]
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         files = {"visual image": getattr(visual, "source", None), "tactile image": tactile,
                  "background image": background}
@@ -287,8 +328,8 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
     render_ms = (time.perf_counter() - t0) * 1000
     return QueryView(view.status_md(visual.title, result["warnings"], result.get("box"), result),
                      *galleries, *tables, pca_figure(result, visual.label),
-                     view.description_md(result, visual.label, scores),
-                     view.timings_md(result["timings_ms"], render_ms), result)
+                     view.description_md(result, visual.label, scores, trace),
+                     view.timings_md(result["timings_ms"], render_ms, waited_ms), result)
 
 
 def neighbour_picker(result: dict | None):
@@ -379,7 +420,7 @@ def failures_tab(pipe, options: dict, shared: dict, compute: bool, subset: str,
         if shared.get("table") is None:
             shared["table"] = failure_table(pipe, options, compute, progress)
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
-        return FailureView(f"⛔ cannot {'compute' if compute else 'load'} the failure "
+        return FailureView(f"✖ cannot {'compute' if compute else 'load'} the failure "
                            f"table: {_fail(e)}", None, None)
     return failure_view(shared["table"], subset, condition, view_label, limit)
 
@@ -395,7 +436,7 @@ def failure_view(table: dict | None, subset: str, condition: str, view_label: st
     try:
         matching = failures.select_cases(table["rows"], subset, condition, view_key, limit=None)
     except RATouchError as e:
-        return FailureView(f"⛔ {e}", None, None)
+        return FailureView(f"✖ {e}", None, None)
     summary = failures.summarise([r for r in table["rows"]
                                   if condition in ("all", r["condition"])])
     shown = matching[:limit]
@@ -467,6 +508,15 @@ def open_case(world_cfg, row: Any) -> tuple:
 
 # ---------------------------------------------------------------------- benchmarks
 
+def figure_made(path: Path) -> tuple[str, str | None]:
+    """(date, commit) of a figure file: its last commit, else (an untracked copy) the day
+    it was written and no commit."""
+    made = last_commit(path)
+    if made is not None:
+        return made
+    return time.strftime("%Y-%m-%d", time.gmtime(path.stat().st_mtime)), None
+
+
 def benchmarks(docs: Path, slots: int) -> tuple:
     """The Benchmarks tab: the report's markdown, then `slots` plot updates (the figures
     found in docs/figures/, the rest hidden).
@@ -477,6 +527,7 @@ def benchmarks(docs: Path, slots: int) -> tuple:
     import plotly.io as pio
 
     files = view.list_figures(docs)
+    weights = weights_commit()
     updates, problems = [], []
     for path in files:
         if len(updates) == slots:
@@ -487,13 +538,21 @@ def benchmarks(docs: Path, slots: int) -> tuple:
         except (OSError, ValueError, TypeError) as e:
             problems.append(f"{path.name} ({type(e).__name__}: {str(e)[:120]})")
             continue
-        updates.append(gr.update(value=fig, label=view.figure_title(path), visible=True))
+        # the width its maker chose (1,500 px for the trade-off) would be clipped by the
+        # page: every figure takes its container's width
+        fig.update_layout(width=None, autosize=True)
+        label = f"{view.figure_title(path)} — {view.figure_provenance(figure_made(path), weights)}"
+        updates.append(gr.update(value=fig, label=label, visible=True))
     updates += [gr.update(value=None, visible=False)] * (slots - len(updates))
     note = (f"{len(files)} figure file(s) in `docs/figures/`" if files else
             "No figure files (`docs/figures/*.json`) yet: `ratouch bench tradeoff` writes the "
             "speed-vs-accuracy chart.")
     if files and not (Path(docs) / view.FIGURES_DIR / "tradeoff.json").is_file():
         note += " · no speed-vs-accuracy chart yet (`ratouch bench tradeoff`)"
+    report = Path(docs) / view.REPORT_NAME
+    if report.is_file():
+        note += (f" · the report (`{view.REPORT_NAME}`) was "
+                 + view.figure_provenance(figure_made(report), weights))
     if problems:
         note += " · not shown: " + "; ".join(problems)
     return (view.report_md(docs, files), note, *updates)

@@ -5,14 +5,18 @@ Formatting only: every number comes from the library or from files it wrote."""
 
 from __future__ import annotations
 
+import base64
+import io
 import re
 from html import escape
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
+from PIL import Image
 
 from ratouch.search.retrieval import QUERY_MODES
+from ratouch.serve.trace import RetrievalTrace, marked_segments
 
 MODES = QUERY_MODES
 MODE_TITLE = {"image": "Image query", "tactile": "Tactile query",
@@ -65,6 +69,53 @@ def gallery_items(result: dict, mode: str, thumbnail: Callable[[int], np.ndarray
     return items
 
 
+def data_uri(image: np.ndarray | str) -> str:
+    """A thumbnail as an inline JPEG (a string passes through: already a URI)."""
+    if isinstance(image, str):
+        return image
+    buf = io.BytesIO()
+    Image.fromarray(np.asarray(image, dtype=np.uint8)).convert("RGB").save(buf, "JPEG",
+                                                                          quality=85)
+    return "data:image/jpeg;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def neighbour_strip(result: dict, mode: str, thumbnail: Callable[[int], np.ndarray | str],
+                    attended: Sequence[int] = ()) -> str:
+    """One mode's neighbours as a row of fixed-size tiles (HTML), one per distinct tactile
+    caption, best first: a rank/similarity badge and a ×n badge for folded duplicates on the
+    image, the caption under it (two lines; all of it, the class and which modes share it on
+    hover). `attended`: ranks of joint neighbours the integrator attended to most, outlined."""
+    title = (f"<div class='ra-mode-title'><span style='color:{MODE_COLOUR[mode]}'>●</span> "
+             f"{escape(MODE_TITLE[mode])}</div>")
+    rows = result.get("neighbours", {}).get(mode)
+    if not rows:
+        return (f"<div class='ra-mode' id='strip-{mode}'>{title}<div class='ra-strip ra-muted'>"
+                "not available for this query (needs a tactile image)</div></div>")
+    shared = shared_modes(result["neighbours"])
+    # a folded tile is outlined when any neighbour it holds was among the most attended
+    read = {rows[r - 1]["caption"] for r in attended if 0 < r <= len(rows)}
+    tiles = []
+    for rank, n, count in group_by_caption(rows):
+        modes = shared[n["id"]]
+        held = f" · also found by the {', '.join(m for m in modes if m != mode)} query" \
+            if len(modes) > 1 else ""
+        hover = (f"#{rank} of {len(rows)} · similarity {n['score']:.3f}"
+                 + (f" · {count} of the top {len(rows)} share this caption" if count > 1 else "")
+                 + f" · {n['class_name']} (corpus id {n['id']}){held}\n{n['caption']}")
+        cls = "ra-tile ra-attended" if mode == "joint" and n["caption"] in read else "ra-tile"
+        badges = f"<span class='ra-badge'>{rank} · {n['score']:.2f}</span>"
+        if count > 1:
+            badges += f"<span class='ra-count'>×{count}</span>"
+        if len(modes) > 1:
+            badges += (f"<span class='ra-shared-badge'>"
+                       f"{'·'.join(MODE_LETTER[m] for m in modes)}</span>")
+        tiles.append(f"<figure class='{cls}' title='{escape(hover, quote=True)}'>"
+                     f"<img src='{data_uri(thumbnail(n['id']))}' alt='{escape(n['caption'])}'>"
+                     f"{badges}<figcaption>{escape(n['caption'])}</figcaption></figure>")
+    return (f"<div class='ra-mode' id='strip-{mode}'>{title}<div class='ra-strip'>"
+            f"{''.join(tiles)}</div></div>")
+
+
 def corpus_provenance(corpus) -> str:
     """What the corpus is, for the header: the world's own ImageNet-T-recipe corpus, or the
     user's (with its image source)."""
@@ -101,9 +152,11 @@ def mode_header(mode: str) -> str:
 
 
 def description_md(result: dict, label: str | None,
-                   scores: Mapping[str, float | None] | None = None) -> str:
-    """The generated descriptions (with and without retrieval), the ground truth and, when
-    the label is known, each description's judge score."""
+                   scores: Mapping[str, float | None] | None = None,
+                   trace: RetrievalTrace | None = None) -> str:
+    """The trust line, the generated descriptions (with and without retrieval; RA-Touch's
+    words that its most attended neighbours carry marked), the ground truth, each
+    description's judge score when the label is known, and what retrieval did (`trace`)."""
     d = result["description"]
     scores = scores or {}
 
@@ -112,58 +165,112 @@ def description_md(result: dict, label: str | None,
              "material to describe" if tactile.get("no_contact") else
              "_not available: needs a tactile image_")
 
-    def line(title: str, key: str) -> str:
-        text = d.get(key) or empty
+    def line(title: str, key: str, text: str | None = None) -> str:
+        text = text or escape(d.get(key) or "") or empty
         score = scores.get(key)
         return f"**{title}:** {text}" + (f" · judge **{score:.1f}**/10" if score else "")
 
-    parts = ["### Tactile description", *trust_lines(result),
-             line("RA-Touch (with retrieval)", "ra_touch"),
+    parts = [*trust_lines(result),
+             line("RA-Touch (with retrieval)", "ra_touch", marked_description(d, trace)),
              line("Baseline (no retrieval)", "baseline")]
     if label:
-        parts.append(f"**Ground-truth label:** {label}")
-    if any(v is not None for v in scores.values()):
-        parts.append("<span class='ra-muted'>judge: the offline judge's 1–10 score of the "
-                     "description against the ground-truth label (as in `ratouch eval tvl`)"
-                     "</span>")
+        judged = any(v is not None for v in scores.values())
+        parts.append(f"**Ground-truth label:** {escape(label)}" + (
+            " <span class='ra-muted'>(judge: the offline judge's 1–10 score of a description "
+            "against this label, as in `ratouch eval tvl`)</span>" if judged else ""))
+    if trace is not None:
+        parts.append(retrieval_md(trace))
     return "\n\n".join(parts)
 
 
+def marked_description(description: Mapping[str, str], trace: RetrievalTrace | None) -> str:
+    """RA-Touch's description as HTML, each word its most attended neighbours' captions carry
+    highlighted, with those neighbours' joint ranks ("" when there is no description)."""
+    text = description.get("ra_touch") or ""
+    if not text or trace is None:
+        return escape(text)
+    out = []
+    for piece, ranks in marked_segments(text, trace.carried):
+        if not ranks:
+            out.append(escape(piece))
+            continue
+        who = ", ".join(f"#{r}" for r in ranks)
+        out.append(f"<mark class='ra-carried' title='carried by joint neighbour(s) {who}'>"
+                   f"{escape(piece)}</mark><sup>{who}</sup>")
+    return "".join(out)
+
+
+def retrieval_md(trace: RetrievalTrace) -> str:
+    """What retrieval did: the words RA-Touch changed against the baseline (or that it did
+    not), then the joint neighbours the integrator read most, with their captions."""
+    if trace.same_words:
+        verdict = ("RA-Touch gave **the same words as the baseline**: retrieval did not change "
+                   "this answer")
+    else:
+        changes = ([f"added *{', '.join(trace.added)}*"] if trace.added else []) + (
+            [f"dropped *{', '.join(trace.dropped)}*"] if trace.dropped else [])
+        verdict = ("RA-Touch **differs from the baseline**: " + "; ".join(changes)
+                   if changes else "RA-Touch said the baseline's words in another order")
+    spread = ("nearly even: no neighbour stands out" if trace.nearly_even else
+              f"an even share is {trace.even_share:.0%}")
+    lines = [f"**What retrieval did:** {verdict}. Read most (the integrator's attention; "
+             f"{spread}):"]
+    for a in trace.attended:
+        carries = (f" — carries *{', '.join(a.words)}*" if a.words else
+                   " — carries none of RA-Touch's words")
+        lines.append(f"- joint #{a.rank} **{a.weight:.0%}** · {escape(a.class_name)}: "
+                     f"{escape(a.caption)}{carries}")
+    return "\n".join(lines)
+
+
 TRUST_WORDS = ("no contact detected", "unlike the")
+
+
+def is_trust_warning(warning: str) -> bool:
+    """Whether a warning belongs to the trust block (shown there, not in the status)."""
+    return any(t in warning for t in TRUST_WORDS) or warning.startswith("no trust calibration")
 
 
 def trust_lines(result: dict) -> list[str]:
     """The trust block of a result, shown above the descriptions: one line of scores, then
     its warnings (an uncalibrated pipeline says that nothing is checked)."""
     trust = result.get("trust")
-    warned = [w for w in result.get("warnings", []) if any(t in w for t in TRUST_WORDS)
-              or w.startswith("no trust calibration")]
+    warned = [w for w in result.get("warnings", []) if is_trust_warning(w)]
     if not trust:
-        return [f"> ⚠️ {w}" for w in warned]
+        return [f"<span class='ra-warn'>⚠ {escape(w)}</span>" for w in warned]
     cells = []
     for mode in ("visual", "tactile"):
         t = trust.get(mode)
         if not t:
             continue
-        mark = "⚠️ unfamiliar" if t["novel"] else "✓ familiar"
+        mark = "⚠ unfamiliar" if t["novel"] else "✓ familiar"
         cells.append(f"{mode} novelty {t['novelty']:.2f} (flag > {t['threshold']:.2f}) {mark}")
         if "contact" in t:
-            mark = "⛔ no contact" if t["no_contact"] else "✓ contact"
+            mark = "✖ no contact" if t["no_contact"] else "✓ contact"
             against = ", vs background" if t.get("background") else ""
             cells.append(f"contact {t['contact']:.2f} (flag < {t['contact_threshold']:.2f}"
                          f"{against}) {mark}")
-    lines = ["**Trust:** " + " · ".join(cells)]
-    return lines + [f"> ⚠️ **{w}**" for w in warned]
+    line = "**Trust:** " + " · ".join(cells)
+    # its warnings on the same line, marked but not shouting: the answer stays in view
+    return [line + "".join(f"<br><span class='ra-warn'>⚠ {escape(w)}</span>" for w in warned)]
 
 
 def status_md(title: str, warnings: list[str], box: list[int] | None = None,
               result: dict | None = None) -> str:
-    """The status line after a query: what was queried, with which box and which model (and
-    for the cascade, why that one), and any warnings."""
-    lines = [f"**Queried:** {title}" + (f" · contact box {box}" if box else "")
+    """The status line after a query: what was queried, with which box (the one used) and
+    which model (and for the cascade, why that one), then the warnings that the trust block
+    does not show already (each warning is shown once)."""
+    image_only = not (result or {}).get("neighbours", {}).get("tactile")
+    what = "**Image-only query** (no tactile image)" if result and image_only else "**Queried:**"
+    lines = [f"{what} {title}" + (f" · contact box {box}" if box else "")
              + model_note(result or {})]
-    lines += [f"- ⚠️ {w}" for w in warnings]
-    return "\n".join(lines)
+    notes = [w for w in warnings if not is_trust_warning(w)]
+    if notes:  # folded: one line (the first words of each), the whole text on a click
+        head = "; ".join(notes)
+        lines.append(f"<details class='ra-notes'><summary>⚠ {len(notes)} "
+                     f"note{'s' if len(notes) > 1 else ''}: {escape(head)}</summary>"
+                     + "".join(f"<div>⚠ {escape(w)}</div>" for w in notes) + "</details>")
+    return "\n\n".join(lines)
 
 
 def model_note(result: dict) -> str:
@@ -181,12 +288,29 @@ def model_note(result: dict) -> str:
             + (", escalated" if c["escalated"] else "") + f": {why})")
 
 
+def model_state_md(name: str, state: str, seconds: float | None,
+                   default_load_s: float | None) -> str:
+    """What a chosen model is doing: "" when ready, else that it is being prepared (or will
+    be, by its first query) and how long the default model took, as an estimate."""
+    if state == "ready":
+        return ""
+    took = (f"; the default model took {default_load_s:.0f} s to prepare"
+            if default_load_s else "")
+    if state == "preparing":
+        return (f"Model `{name}` is being prepared in the background ({seconds or 0:.0f} s so "
+                f"far{took}): a query waits for it.")
+    return (f"Model `{name}` is not prepared yet: its first query prepares it (loads it and, "
+            f"the first time, embeds the corpus with it{took}) and waits.")
+
+
 def error_md(message: str) -> str:
-    return f"**⛔ Cannot run this query:** {message}"
+    return f"**✖ Cannot run this query:** {message}"
 
 
-def timings_md(timings: dict[str, float], render_ms: float | None = None) -> str:
-    """One discreet line: per-stage milliseconds, the total, and the app's own rendering."""
+def timings_md(timings: dict[str, float], render_ms: float | None = None,
+               from_run_ms: float | None = None) -> str:
+    """One discreet line: per-stage milliseconds, the total, the app's own rendering and the
+    time from Run to the answer (which includes any wait for a model being prepared)."""
     stages = [f"{k.replace('_', ' ')} {v:.0f} ms" for k, v in timings.items()
               if k not in ("total", "batch_size")]
     line = " · ".join(stages) + f" · **total {timings.get('total', 0):.0f} ms**"
@@ -194,6 +318,11 @@ def timings_md(timings: dict[str, float], render_ms: float | None = None) -> str
         line += f" (answered in a batch of {timings['batch_size']} concurrent queries)"
     if render_ms is not None:
         line += f" (+ app rendering {render_ms:.0f} ms)"
+    if from_run_ms is not None:
+        line += f" · **from Run to answer {from_run_ms / 1000:.1f} s**"
+        waited = from_run_ms - timings.get("total", 0) - timings.get("decode", 0)
+        if waited > 1000:  # the model was being prepared (loaded, its corpus embedded)
+            line += f", of which {waited / 1000:.1f} s waiting for the model to be prepared"
     return f"Timings: {line}"
 
 
@@ -285,6 +414,19 @@ def list_figures(docs: Path) -> list[Path]:
                    if p.is_file() and not p.name.endswith(".data.json"))
     rank = {name: i for i, name in enumerate(FIRST_FIGURES)}
     return sorted(files, key=lambda p: (rank.get(p.stem, len(rank)), p.name))
+
+
+def figure_provenance(made: tuple[str, str | None], weights: tuple[str, str] | None) -> str:
+    """Which weights and date a figure comes from: the day (and commit) its file was made,
+    against the shipped weights' (a figure made before them was not regenerated since)."""
+    date, commit = made
+    when = f"made {date}" + (f" (commit {commit})" if commit else "")
+    if weights is None:
+        return when
+    if date < weights[0]:
+        return (f"{when}, on weights older than the shipped ones of {weights[0]} "
+                f"({weights[1]}): not regenerated since")
+    return f"{when}, on the shipped weights of {weights[0]} ({weights[1]})"
 
 
 def figure_title(path: Path) -> str:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -41,6 +42,11 @@ def pair_files(tmp_path_factory):
     Image.fromarray(s.visual).save(d / "visual.png")
     Image.fromarray(s.tactile).save(d / "tactile.png")
     return d / "visual.png", d / "tactile.png", s
+
+
+def _plain(md: str) -> str:
+    """A description block without its HTML marks (highlighted words, neighbour ranks)."""
+    return re.sub(r"<sup>.*?</sup>|<[^>]+>", "", md)
 
 
 def _thumb(i: int) -> np.ndarray:
@@ -107,8 +113,9 @@ def test_example_pair_brings_its_box_label_and_tactile(fake, world):
     # both descriptions carry the offline judge's score against the label
     scores = judge_scores(s.caption, {"ra_touch": "soft and grainy", "baseline": "smooth"},
                           judge)
-    assert f"soft and grainy · judge **{scores['ra_touch']:.1f}**/10" in v.description
-    assert f"smooth · judge **{scores['baseline']:.1f}**/10" in v.description
+    assert f"soft and grainy · judge **{scores['ra_touch']:.1f}**/10" in _plain(v.description)
+    assert "soft</mark>" in v.description  # a word its neighbours carry, marked
+    assert f"smooth · judge **{scores['baseline']:.1f}**/10" in _plain(v.description)
     assert any(t.name == "ground truth" for t in v.plot.data)
     assert "test example #7" in v.status
     assert "out of range" in handlers.load_example(world, 10_000)[-1]
@@ -122,18 +129,18 @@ def test_query_view_marks_neighbours_that_modes_share(fake, pair_files):
 
     visual = handlers.upload_visual(str(pair_files[0]))[0]
     v = handlers.run_query(fake, _thumb, visual, str(pair_files[1]), None, None, None, None, 5)
-    caps = {m: [c for _, c in g] for m, g in
-            zip(("image", "tactile", "joint"), (v.gallery_image, v.gallery_tactile,
-                                                v.gallery_joint))}
-    assert all(len(c) == 5 for c in caps.values())
-    assert caps["image"][0] == "1. 0.900 · class0 · soft, grainy 0"  # id 0: image only
-    assert caps["image"][1] == "2. 0.890 ◆ · class1 · soft, grainy 1 · shared by I·J"
-    assert caps["image"][2].startswith("3. 0.880 ◆◆ · class2")  # id 2: all three
-    assert caps["image"][2].endswith("shared by I·T·J")
-    assert "shared by T·J" in caps["tactile"][-2] and "◆" not in caps["tactile"][-1]  # 5, 6
+    strips = dict(zip(("image", "tactile", "joint"), (v.gallery_image, v.gallery_tactile,
+                                                       v.gallery_joint)))
+    assert all(s.count("<figure") == 5 for s in strips.values())
+    assert "Image query" in strips["image"] and "Joint query" in strips["joint"]
+    assert "<span class='ra-badge'>1 · 0.90</span>" in strips["image"]  # id 0: image only
+    assert "also found by the joint query" in strips["image"]  # id 1: image and joint
+    assert ">I·T·J</span>" in strips["image"]  # id 2: all three
     assert v.table_joint.count("◆◆ I·T·J") == 3
     assert {t.name for t in v.plot.data} >= {"image query", "joint neighbours"}
-    assert "RA-Touch (with retrieval):** soft and grainy" in v.description
+    assert "RA-Touch (with retrieval):** <mark class='ra-carried'" in v.description
+    assert "What retrieval did:" in v.description and "Read most" in v.description
+    assert strips["joint"].count("ra-attended") == 3  # the three it read most, outlined
     assert "total 3 ms" in v.timings and v.raw["box"] == [48, 48, 81, 81]
 
 
@@ -142,7 +149,9 @@ def test_no_tactile_image_gives_an_honest_image_only_view(fake, pair_files):
 
     visual = handlers.upload_visual(str(pair_files[0]))[0]
     v = handlers.run_query(fake, _thumb, visual, None, None, None, None, None, 5)
-    assert len(v.gallery_image) == 5 and v.gallery_tactile == [] == v.gallery_joint
+    assert v.gallery_image.count("<figure") == 5 and "<figure" not in v.gallery_joint
+    assert "not available" in v.gallery_tactile
+    assert v.status.startswith("**Image-only query** (no tactile image)")
     assert "image-only retrieval" in v.status and "not available" in v.table_tactile
     assert "needs a tactile image" in v.description
     assert "judge" not in v.description  # no label, no scores
@@ -170,10 +179,10 @@ def test_bad_uploads_give_messages_not_exceptions(fake, pair_files, tmp_path):
     tiny = _bytes_file(tmp_path, "tiny.png", _png(np.zeros((4, 4, 3), np.uint8)))
     for path in (text, truncated, tiny):
         state, preview, *fields, note = handlers.upload_visual(path)
-        assert state is None and preview is None and note.startswith("⛔"), (path, note)
+        assert state is None and preview is None and note.startswith("✖"), (path, note)
     assert "4x4" in handlers.upload_visual(tiny)[-1]
     # a bad tactile file, a missing upload, bad boxes: the query view says why
-    cases = [(good, text, (None,) * 4, "notes.png (tactile image) as an image"),
+    cases = [(good, text, (None,) * 4, "tactile image notes.png as an image"),
              (good, str(pair_files[1]), (50, 50, 10, 10), "empty or inverted"),
              (good, str(pair_files[1]), (10, 10, 10, 40), "empty or inverted"),
              (good, str(pair_files[1]), (500, 500, 600, 600), "outside"),
@@ -181,8 +190,8 @@ def test_bad_uploads_give_messages_not_exceptions(fake, pair_files, tmp_path):
              (None, str(pair_files[1]), (None,) * 4, "upload a visual image")]
     for visual, tactile, box, expected in cases:
         v = handlers.run_query(fake, _thumb, visual, tactile, *box, 5)
-        assert v.status.startswith("**⛔") and expected in v.status, (box, v.status)
-        assert v.gallery_image == [] and v.raw is None
+        assert v.status.startswith("**✖") and expected in v.status, (box, v.status)
+        assert v.gallery_image == "" and v.raw is None
     assert "outside" in handlers.typed_box(good, 500, 500, 600, 600)[-1]
 
 
@@ -209,7 +218,7 @@ def test_awkward_but_valid_images_are_accepted(fake, tmp_path):
         assert visual is not None and visual.size == size, (path, note)
         assert max(preview.shape[:2]) == 512 and preview.shape[2] == 3
         v = handlers.run_query(fake, _thumb, visual, path, None, None, None, None, 2)
-        assert not v.status.startswith("**⛔"), v.status
+        assert not v.status.startswith("**✖"), v.status
     # the query is decoded from the original, not from the preview
     assert fake.calls[-1]["box"] == list(tvl_contact_box(5472, 3648))
 
@@ -280,7 +289,7 @@ def test_failure_table_filters_and_views():
     assert list(v.cases["#"]) == [3] and "Showing 1 of 1" in v.status
     assert set(v.summary["condition"]) == {"natural"}
     assert handlers.failure_view(TABLE, "indoor", "all", VIEWS["ra_lowest"]).status \
-        .startswith("⛔")
+        .startswith("✖")
     none = handlers.failure_view(None, "all", "all", VIEWS["ra_lowest"])
     assert "not been computed" in none.status and none.cases is None
 
@@ -374,8 +383,8 @@ def test_a_case_shows_the_judge_score_of_its_table_row():
         visual, _, tactile, bg, *box, _ = handlers.open_case(WorldConfig(), clicked)
         pipe = _Answering({"ra_touch": r["ra_touch"], "baseline": r["baseline"]})
         v = handlers.run_query(pipe, _thumb, visual, tactile, *box, 5, judge=judge)
-        assert f"{r['ra_touch']} · judge **{r['ra_score']:.1f}**/10" in v.description
-        assert f"{r['baseline']} · judge **{r['baseline_score']:.1f}**/10" in v.description
+        assert f"{r['ra_touch']} · judge **{r['ra_score']:.1f}**/10" in _plain(v.description)
+        assert f"{r['baseline']} · judge **{r['baseline_score']:.1f}**/10" in _plain(v.description)
         assert failures.judge_scores(r["label"], v.raw["description"], judge,
                                      handlers.judged_descriptions(visual)) == \
             {"ra_touch": r["ra_score"], "baseline": r["baseline_score"]}
@@ -427,7 +436,14 @@ def test_benchmarks_tab_without_and_with_a_report(tmp_path):
     assert " missing " in report and "[web](https://x.org/a)" in report
     assert [u["visible"] for u in slots] == [True, True, False]
     assert slots[0]["value"].layout.title.text == "speed vs accuracy"
-    assert slots[0]["label"] == "tradeoff" and "broken.json (" in note
+    assert slots[0]["label"].startswith("tradeoff — made ") and "broken.json (" in note
+    assert slots[0]["value"].layout.width is None  # it takes the container's width
+    # each figure says which weights and date it comes from
+    old = view.figure_provenance(("2026-11-23", "a7d8ae0"), ("2026-11-26", "b4e551b"))
+    assert old == ("made 2026-11-23 (commit a7d8ae0), on weights older than the shipped "
+                   "ones of 2026-11-26 (b4e551b): not regenerated since")
+    assert "on the shipped weights" in view.figure_provenance(("2026-11-27", None),
+                                                              ("2026-11-26", "b4e551b"))
     report, note, *slots = handlers.benchmarks(tmp_path, 1)  # more figures than slots
     assert "only 1 figures are shown" in note
 
@@ -473,7 +489,7 @@ def test_the_app_serves_while_the_pipeline_loads(fake, pair_files):
     threading.Timer(0.2, go.set).start()
     v = handlers.run_query(pending, _thumb, visual, str(pair_files[1]), None, None, None,
                            None, 5)  # waits for the models, then answers
-    assert not v.status.startswith("**⛔") and pending.ready()
+    assert not v.status.startswith("**✖") and pending.ready()
     assert "corpus of 60" in _header(pending)
 
     def broken():
@@ -481,7 +497,7 @@ def test_the_app_serves_while_the_pipeline_loads(fake, pair_files):
 
     failed = BackgroundPipeline(broken, "fake-enc")
     failed._done.wait(5)
-    assert "⛔ failed: assets/generator is missing" in _header(failed)
+    assert "✖ failed: assets/generator is missing" in _header(failed)
     v = handlers.run_query(failed, _thumb, visual, None, None, None, None, None, 5)
     assert "failed to load: assets/generator is missing" in v.status
 
@@ -591,7 +607,7 @@ def test_query_api_bad_input_is_a_clear_error_and_the_server_keeps_serving(serve
     url, pipe, _ = served
     client = Client(url, verbose=False)
     junk = _bytes_file(tmp_path, "junk.png", b"not an image at all")
-    with pytest.raises(Exception, match=r"junk.png \(visual image\)") as e:
+    with pytest.raises(Exception, match=r"visual image junk.png as an image") as e:
         client.predict(handle_file(junk), None, None, None, None, None, 5, api_name="/query")
     assert "Traceback" not in str(e.value) and "/tmp/gradio" not in str(e.value)
     with pytest.raises(Exception, match="empty or inverted"):
@@ -610,7 +626,7 @@ def test_real_pipeline_example_query(real_pipeline, world):
     thumb = lambda i: real_pipeline.corpus.thumbnail(i, 64)  # noqa: E731
     visual, _, tactile, bg, *box, _ = handlers.load_example(world, 60)
     v = handlers.run_query(real_pipeline, thumb, visual, tactile, *box, 5)
-    assert not v.status.startswith("**⛔"), v.status
+    assert not v.status.startswith("**✖"), v.status
     # one gallery item per distinct caption, the raw top-5 in the JSON and the tables
     for mode, g in zip(("image", "tactile", "joint"),
                        (v.gallery_image, v.gallery_tactile, v.gallery_joint)):
@@ -644,9 +660,9 @@ def test_real_failure_cases_show_their_table_scores(real_pipeline):
         v = handlers.run_query(real_pipeline, thumb, visual, tactile, *box, 5, judge=judge,
                                background=bg)
         assert v.raw["description"]["ra_touch"] == r["ra_touch"]
-        assert f"{r['ra_touch']} · judge **{r['ra_score']:.1f}**/10" in v.description
+        assert f"{r['ra_touch']} · judge **{r['ra_score']:.1f}**/10" in _plain(v.description)
         if v.raw["description"]["baseline"] == r["baseline"]:
-            assert f"{r['baseline']} · judge **{r['baseline_score']:.1f}**/10" in v.description
+            assert f"{r['baseline']} · judge **{r['baseline_score']:.1f}**/10" in _plain(v.description)
 
 
 # ------------------------------------------------------------------------- load
@@ -808,12 +824,12 @@ def test_unreadable_tactile_upload_is_named_and_clears_old_results(fake, pair_fi
     tactile, *view_out = handlers.upload_tactile({"path": text, "orig_name": "notes.png"})
     v = handlers.QueryView(*view_out)
     assert tactile is None  # the unusable file is removed from the input
-    assert "notes.png (tactile image)" in v.status and v.status.startswith("**⛔")
-    assert v.gallery_joint == [] and v.description == "" and v.raw is None
+    assert "tactile image notes.png" in v.status and v.status.startswith("**✖")
+    assert v.gallery_joint == "" and v.description == "" and v.raw is None
     # a bad visual upload also clears the results, and says which file and role
     out = handlers.visual_uploaded({"path": text})
     v = handlers.QueryView(*out[7:])
-    assert out[0] is None and "notes.png (visual image)" in v.status and v.gallery_image == []
+    assert out[0] is None and "visual image notes.png" in v.status and v.gallery_image == ""
     # a good tactile upload leaves everything as it is
     assert handlers.upload_tactile({"path": str(pair_files[1])})[1] == gr_update()
 
@@ -857,9 +873,13 @@ def test_trust_is_shown_above_the_descriptions():
                                     "no_contact": True, "background": False}}}
     md = view.description_md(result, None)
     assert md.index("**Trust:**") < md.index("RA-Touch (with retrieval)")
-    assert "⛔ no contact" in md and "⚠️ unfamiliar" in md and "✓ familiar" in md
+    assert "✖ no contact" in md and "⚠ unfamiliar" in md and "✓ familiar" in md
     assert "**no contact detected**: nothing is pressed" in md
-    assert "> ⚠️ **no contact detected" in md
+    assert "<span class='ra-warn'>⚠ no contact detected" in md
+    # each warning once: the status shows the others, folded into one line
+    status = view.status_md("x", [*result["warnings"], "no contact box given: used TVL's"],
+                            None, result)
+    assert "no contact detected" not in status and "⚠ 1 note: no contact box given" in status
 
 
 def test_header_says_what_the_corpus_is(fake):

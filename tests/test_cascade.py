@@ -173,3 +173,34 @@ def test_model_choice_builds_the_cascade_from_its_own_models(debug_pipeline, tmp
     assert loads == [name]  # its stages are the choice's own model, loaded once
     assert choice.model("cascade").stages == [pipeline, pipeline]
     assert choice.model(name) is pipeline and loads == [name]
+
+
+def test_models_are_prepared_in_the_background_while_the_default_answers():
+    """`prepare` loads the other models in a thread; while one loads, its state says so and
+    the default model is served at once (no lock held across a load)."""
+    import threading
+    import time
+
+    from ratouch.serve.models import ModelChoice
+
+    release = threading.Event()
+
+    def load(name):
+        if name == "slow":
+            release.wait(10)
+        return f"model {name}"
+
+    choice = ModelChoice("fast", ["fast", "slow"], load=load)
+    assert choice.state("slow") == ("not prepared", None)
+    thread = choice.prepare(["slow"])
+    for _ in range(100):
+        if choice.state("slow")[0] == "preparing":
+            break
+        time.sleep(0.01)
+    state, seconds = choice.state("slow")
+    assert state == "preparing" and seconds >= 0
+    t0 = time.perf_counter()
+    assert choice.model("fast") == "model fast" and time.perf_counter() - t0 < 0.5
+    release.set()
+    thread.join(5)
+    assert choice.state("slow") == ("ready", None) and choice.model("slow") == "model slow"

@@ -56,6 +56,21 @@ def test_bad_boxes_get_a_clear_message(pipeline, world, box):
         pipeline.query(s.visual, s.tactile, box=box)
 
 
+def test_the_box_used_is_whole_pixels_clipped_to_the_image(world):
+    """The box a request carries (and the result reports) is the one cropped: fractions
+    widened to whole pixels, a box reaching outside clipped, each said once."""
+    s = world.sample("test", 150)  # a 128x128 render
+    r = QueryRequest.decode(s.visual, s.tactile, box=(10.5, 20.2, 100.7, 120.1))
+    assert r.box == (10, 20, 101, 121)
+    assert r.warnings == ("contact box [10.5, 20.2, 100.7, 120.1] used as [10, 20, 101, 121] "
+                          "(whole pixels)",)
+    r = QueryRequest.decode(s.visual, s.tactile, box=(-50, 0, 64, 64))
+    assert r.box == (0, 0, 64, 64)
+    assert r.warnings == ("contact box [-50, 0, 64, 64] used as [0, 0, 64, 64] (whole pixels, "
+                          "clipped to the image)",)
+    assert QueryRequest.decode(s.visual, s.tactile, box=(1, 2, 30, 40)).warnings == ()
+
+
 def test_cli_query_json(tmp_path, shipped_corpus, world, capsys):
     from ratouch.cli import main
 

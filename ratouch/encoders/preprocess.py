@@ -393,8 +393,13 @@ def _oriented(img: Image.Image, what: str) -> tuple[int, int]:
     return (img.height, img.width) if orientation in (5, 6, 7, 8) else (img.width, img.height)
 
 
-def _clip_box(box: Sequence[float], width: int, height: int) -> tuple[int, int, int, int]:
-    """A box as whole pixels clipped to a ``width`` x ``height`` image (see :func:`crop_box`)."""
+def clip_box(box: Sequence[float], width: int, height: int) -> tuple[int, int, int, int]:
+    """The box that :func:`crop_box` crops: whole pixels (x0/y0 floored, x1/y1 ceiled),
+    clipped to a ``width`` x ``height`` image.
+
+    Raises:
+        DataError: the box is malformed, empty, inverted or entirely outside the image.
+    """
     try:
         values = [float(v) for v in box]
     except (TypeError, ValueError) as e:
@@ -444,10 +449,10 @@ def crop_box(image: ImageLike, box: Sequence[float], max_side: int | None = None
     """
     if max_side is None or isinstance(image, np.ndarray):
         arr = to_rgb_array(image, name)
-        cx0, cy0, cx1, cy1 = _clip_box(box, arr.shape[1], arr.shape[0])
+        cx0, cy0, cx1, cy1 = clip_box(box, arr.shape[1], arr.shape[0])
         return fit_within(arr[cy0:cy1, cx0:cx1].copy(), max_side)
     width, height = oriented_size(image, name or "image")
-    cx0, cy0, cx1, cy1 = _clip_box(box, width, height)
+    cx0, cy0, cx1, cy1 = clip_box(box, width, height)
     factor = min(1.0, max_side / max(cx1 - cx0, cy1 - cy0))
     arr = to_rgb_array(image, name, max_side=max(MIN_SIDE, math.ceil(max(width, height) * factor)))
     sx, sy = arr.shape[1] / width, arr.shape[0] / height

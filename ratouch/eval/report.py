@@ -8,7 +8,7 @@ import subprocess
 from pathlib import Path
 
 from ratouch.files import write_atomic
-from ratouch.paths import REPO
+from ratouch.paths import ASSETS, REPO
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +42,24 @@ def git_commit() -> str:
         return out.stdout.strip() + ("+changes" if dirty else "") or "unknown"
     except (OSError, subprocess.SubprocessError):
         return "unknown"
+
+
+def last_commit(*paths: Path) -> tuple[str, str] | None:
+    """(date YYYY-MM-DD, short commit) of the last commit that touched any of `paths`; None
+    when none is tracked (or git is not there). A figure says with it when it was made."""
+    try:
+        out = subprocess.run(["git", "log", "-1", "--format=%cs %h", "--", *map(str, paths)],
+                             capture_output=True, text=True, cwd=REPO, timeout=10).stdout
+    except (OSError, subprocess.SubprocessError):
+        return None
+    parts = out.split()
+    return (parts[0], parts[1]) if len(parts) == 2 else None
+
+
+def weights_commit() -> tuple[str, str] | None:
+    """(date, commit) of the shipped weights: the last commit that changed assets/'s
+    encoders, retrievers or generators."""
+    return last_commit(*(ASSETS / d for d in ("encoders", "retriever", "generator")))
 
 
 def write_plotly_js(folder: Path) -> None:

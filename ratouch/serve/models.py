@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
+import time
 from collections.abc import Sequence
 from typing import Callable
 
@@ -61,20 +62,54 @@ class ModelChoice:
         self.default = default
         self._corpus = corpus
         self._load = load or self._load_shared
-        self._lock = threading.RLock()  # re-entered when the cascade loads its stages
+        self._lock = threading.Lock()  # guards the two dicts below, never held while loading
         self._models: dict[str, Model] = {}
+        self._loading: dict[str, tuple[threading.Lock, float]] = {}  # name: (lock, started)
         self.model(default)  # loaded now (the cascade loads its stages as models too)
 
     def model(self, name: str | None = None) -> Model:
-        """The model called `name` (default: the default one), loaded on first use."""
+        """The model called `name` (default: the default one), loaded on first use; a model
+        being loaded (by a request or by `prepare`) is waited for, the others answer."""
         name = name or self.default
         if name not in self.names:
             raise ConfigError(f"unknown model {name!r}: one of {', '.join(self.names)}")
-        with self._lock:  # one load at a time; concurrent first requests wait for it
-            if name not in self._models:
-                log.info("loading model %s on its first request ...", name)
-                self._models[name] = self._load(name)
-            return self._models[name]
+        with self._lock:
+            if name in self._models:
+                return self._models[name]
+            lock, _ = self._loading.setdefault(name, (threading.Lock(), time.perf_counter()))
+        with lock:  # one load per model; concurrent first requests wait for it
+            with self._lock:
+                if name in self._models:
+                    return self._models[name]
+            log.info("preparing model %s ...", name)
+            model = self._load(name)
+            with self._lock:
+                self._models[name] = model
+            return model
+
+    def state(self, name: str) -> tuple[str, float | None]:
+        """("ready", None), ("preparing", seconds since it started) or ("not prepared",
+        None) for model `name`; never waits."""
+        with self._lock:
+            if name in self._models:
+                return "ready", None
+            if name in self._loading:
+                return "preparing", time.perf_counter() - self._loading[name][1]
+        return "not prepared", None
+
+    def prepare(self, names: Sequence[str] | None = None) -> threading.Thread:
+        """Load `names` (default: every model offered) one after another in a daemon thread,
+        so that a model's first query does not wait for its loading (its corpus embeddings
+        built on first use included); a query for a model being prepared waits for it."""
+        def run() -> None:
+            for name in names if names is not None else self.names:
+                try:
+                    self.model(name)
+                except RATouchError as e:  # its first query will report it
+                    log.warning("could not prepare model %s: %s", name, e)
+        thread = threading.Thread(target=run, daemon=True, name="prepare-models")
+        thread.start()
+        return thread
 
     def _load_shared(self, name: str) -> Model:
         """`load_model`, but the cascade's stages are the models of the same names."""

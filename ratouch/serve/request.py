@@ -19,6 +19,7 @@ from PIL import Image
 
 from ratouch.encoders.preprocess import (
     QUERY_MAX_SIDE,
+    clip_box,
     crop_box,
     oriented_size,
     to_rgb_array,
@@ -52,7 +53,8 @@ class QueryRequest:
             `QUERY_MAX_SIDE`.
         frame: the tactile frame, (h, w, 3) uint8 (reduced), or None: image-only retrieval.
         background: the tactile sensor's no-contact frame (same size as the frame), or None.
-        box: the contact box used, (x0, y0, x1, y1) in pixels of the visual image.
+        box: the contact box used, (x0, y0, x1, y1) in whole pixels of the visual image,
+            clipped to it (`clip_box`: what was cropped, whatever was given).
         k: neighbours per query mode.
         label: the ground-truth tactile caption, when known (plotted in the PCA).
         model: the model that should answer (an encoder set or "cascade"), for a server that
@@ -101,13 +103,27 @@ class QueryRequest:
         k = check_k(k)
         width, height = oriented_size(visual, "visual image")
         warnings: list[str] = []
+        used = clip_box(tvl_contact_box(width, height) if box is None else box, width, height)
         if box is None:
-            box = tvl_contact_box(width, height)
-            warnings.append(f"no contact box given: used TVL's centred crop {list(box)}")
-        crop = crop_box(visual, box, max_side=QUERY_MAX_SIDE, name="visual image")
+            warnings.append(f"no contact box given: used TVL's centred crop {list(used)}")
+        elif used != tuple(box):
+            warnings.append(f"contact box {_plain(box)} used as {list(used)} (whole pixels"
+                            + (", clipped to the image)" if _clipped(box, width, height)
+                               else ")"))
+        crop = crop_box(visual, used, max_side=QUERY_MAX_SIDE, name="visual image")
         frame, bg = _tactile_inputs(tactile, background, warnings)
-        return cls(crop, frame, bg, box, k, label, model, tuple(warnings),
+        return cls(crop, frame, bg, used, k, label, model, tuple(warnings),
                    round((time.perf_counter() - t0) * 1000, 2))
+
+
+def _plain(box) -> list:
+    """A box as typed: whole numbers without ".0"."""
+    return [int(v) if float(v).is_integer() else float(v) for v in box]
+
+
+def _clipped(box, width: int, height: int) -> bool:
+    x0, y0, x1, y1 = (float(v) for v in box)
+    return x0 < 0 or y0 < 0 or x1 > width or y1 > height
 
 
 def _tactile_inputs(tactile: Any, background: Any, warnings: list[str]
