@@ -15,12 +15,21 @@ from ratouch.cli.judge import make_judge
 from ratouch.eval import stress as S
 from ratouch.eval.controls import format_controls, run_controls
 from ratouch.eval.families import evaluate_families, format_families
+from ratouch.eval.frames import (
+    digit_frames,
+    format_frames,
+    frames_in,
+    read_frames,
+    summarise,
+    taxim_frames,
+)
 from ratouch.eval.judge import format_stats, format_summary, read_records
 from ratouch.eval.photos import (
     evaluate_photos,
     evaluate_reference_tactile,
     format_photos,
     format_reference_tactile,
+    reference_dir,
 )
 from ratouch.eval.premise import format_premise, run_premise, why_ignored
 from ratouch.eval.retrieval import evaluate_retrieval, format_retrieval_eval
@@ -46,6 +55,8 @@ def run(args: argparse.Namespace) -> int:
         return _eval_premise(args)
     if args.eval_cmd == "photos":
         return _eval_photos(args)
+    if args.eval_cmd == "frames":
+        return _eval_frames(args)
     if args.eval_cmd == "families":
         r = evaluate_families(RATouchPipeline.load(args.encoder, generators=False), n=args.n,
                               seed=args.seed)
@@ -70,6 +81,20 @@ def _eval_premise(args: argparse.Namespace) -> int:
     say = (lambda m: print(m, file=sys.stderr)) if args.json else print
     r = run_premise(args.encoder, runs=args.runs, n=args.n, k=args.k, progress=say)
     print(json.dumps(r, indent=1) if args.json else format_premise(r))
+    return 0
+
+
+def _eval_frames(args: argparse.Namespace) -> int:
+    if (args.folder is None) == (not args.real):
+        raise usage("ratouch eval frames: give a folder of frames, or --real (not both)")
+    if args.real:
+        frames = [*taxim_frames("gelsight"), *taxim_frames("gelsight_mini"),
+                  *digit_frames(reference_dir())]
+    else:
+        frames = frames_in(args.folder, args.background)
+    rows = read_frames(RATouchPipeline.load(args.encoder), frames, k=args.k)
+    print(json.dumps({"frames": rows, "summary": summarise(rows)}, indent=1) if args.json
+          else format_frames(rows))
     return 0
 
 

@@ -269,7 +269,20 @@ def _add_eval(sub) -> None:
     fa.add_argument("--n", type=_pos_int, default=600, help="validation renders")
     fa.add_argument("--seed", type=_nonneg_int, default=0, help="world seed")
     fa.add_argument("--json", action="store_true")
-    for p in (r, t, st, tt, c, pr, ph, fa):
+    fr = esub.add_parser("frames", help="real tactile frames read for what they are: per frame "
+                                        "its sensor family, contact reading, touch-only "
+                                        "reading and the tactile query's neighbours")
+    fr.add_argument("folder", nargs="?", help="a folder of your own sensor frames (png, jpg, "
+                                              "...); omit with --real")
+    fr.add_argument("--background", help="the sensor's no-contact frame, read against every "
+                                         "frame of the folder")
+    fr.add_argument("--real", action="store_true",
+                    help="instead: the real frames the project can see (Taxim's 72 presses "
+                         "and 2 backgrounds, the reference DIGIT frames)")
+    fr.add_argument("--encoder", default=DEFAULT_ENCODER)
+    fr.add_argument("--k", type=_pos_int, default=5, help="neighbours per frame")
+    fr.add_argument("--json", action="store_true")
+    for p in (r, t, st, tt, c, pr, ph, fa, fr):
         p.set_defaults(module="eval")
 
 

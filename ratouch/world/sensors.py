@@ -272,7 +272,7 @@ def _look(frame: np.ndarray) -> np.ndarray:
 @lru_cache(maxsize=1)
 def _family_looks() -> tuple[np.ndarray, np.ndarray]:
     """(families, 6) mean looks of each family's unit backgrounds, and the looks' spread."""
-    looks = {n: [] for n in FAMILIES}
+    looks: dict[str, list[np.ndarray]] = {n: [] for n in FAMILIES}
     for s in range(N_SENSORS):
         field = (unit_field(s, (128, 96)) * 255 + 0.5).astype(np.uint8)
         looks[sensor_family(s)].append(_look(field))

@@ -161,7 +161,8 @@ def sensor_unit(sensor: int, hw: tuple[int, int]) -> SensorUnit:
         darkness = float(rng.uniform(0.6, 0.8))
     background = field
     if len(markers):
-        background = field * (1 - darkness * marker_shadow(markers, radius, hw))[..., None]
+        shadow = (1 - darkness * marker_shadow(markers, radius, hw))[..., None]
+        background = (field * shadow).astype(np.float32)
     for arr in (field, background, markers):
         arr.setflags(write=False)
     return SensorUnit(int(sensor), name, field, background, markers, radius, darkness)
