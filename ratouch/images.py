@@ -22,10 +22,15 @@ The encoders' input tensors (CLIP and TVL normalisation) are built from these ar
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import logging
 import math
 import os
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from functools import lru_cache
 from typing import Any, Union
 
 import numpy as np
@@ -241,10 +246,65 @@ def _compact(img: Image.Image, max_side: int, what: str) -> Image.Image:
     return Image.fromarray(np.concatenate(parts))
 
 
+#: An upload of more pixels than this is "large": decoding it waits for one of
+#: `DECODE_SLOTS`, so that a burst of huge uploads (the app batches up to 16 queries) costs
+#: `DECODE_SLOTS` decodes' memory at once, not 16; smaller ones (every camera frame and world
+#: render) never wait.
+LARGE_PIXELS = 4_000_000
+#: Large uploads decoded at once in one process (each at most about 200 MB at the pixel limit).
+DECODE_SLOTS = 4
+
+
+class DecodeSlots:
+    """At most `n` large uploads decoded at once in this process (re-entrant per thread), and
+    the C heap given back to the system after each (glibc keeps freed image buffers of a
+    few MB otherwise: a burst's memory would stay)."""
+
+    def __init__(self, n: int) -> None:
+        self._slots = threading.BoundedSemaphore(n)
+        self._held = threading.local()
+
+    @contextmanager
+    def hold(self, img: Image.Image) -> Iterator[None]:
+        if img.width * img.height <= LARGE_PIXELS or getattr(self._held, "on", False):
+            yield
+            return
+        with self._slots:
+            self._held.on = True
+            try:
+                yield
+            finally:
+                self._held.on = False
+        _trim_heap()
+
+
+LARGE_DECODES = DecodeSlots(DECODE_SLOTS)
+
+
+@lru_cache(maxsize=1)
+def _malloc_trim():
+    """glibc's `malloc_trim`, or None where there is none (another C library, not Linux)."""
+    try:
+        return ctypes.CDLL(ctypes.util.find_library("c") or None).malloc_trim
+    except (OSError, AttributeError):
+        return None
+
+
+def _trim_heap() -> None:
+    trim = _malloc_trim()
+    if trim is not None:
+        trim(0)
+
+
 def _pil_to_rgb(img: Image.Image, what: str, max_side: int | None = None) -> np.ndarray:
     """Normalise a PIL image of any mode to ``(H, W, 3)`` ``uint8`` (EXIF orientation applied),
     reduced to ``max_side`` (when given) before any per-pixel conversion."""
     _check_size(img.width, img.height, what)
+    with LARGE_DECODES.hold(img):
+        return _decode_pil(img, what, max_side)
+
+
+def _decode_pil(img: Image.Image, what: str, max_side: int | None) -> np.ndarray:
     if max_side is not None and getattr(img, "format", None) == "JPEG":
         img.draft("RGB", (max_side, max_side))  # JPEG: decode at a reduced scale directly
     try:
@@ -345,7 +405,8 @@ def to_rgb_array(image: ImageLike, name: str | None = None,
     """
     if isinstance(image, (str, os.PathLike)):
         what = name or f"image {os.fspath(image)}"
-        with _open_image(image, name or "image") as img:
+        img = _open_image(image, name or "image")
+        with LARGE_DECODES.hold(img), img:  # closed (its pixels freed) before the slot is
             return fit_within(_pil_to_rgb(img, what, max_side), max_side)
     what = name or "image"
     if isinstance(image, Image.Image):
@@ -369,7 +430,8 @@ def oriented_size(image: ImageLike, name: str = "image") -> tuple[int, int]:
         DataNotFoundError / DataError: as :func:`to_rgb_array` for unusable images.
     """
     if isinstance(image, (str, os.PathLike)):
-        with _open_image(image, name) as img:
+        img = _open_image(image, name)
+        with LARGE_DECODES.hold(img), img:  # a PNG's EXIF may follow its pixels: it loads
             return _oriented(img, name)
     if isinstance(image, Image.Image):
         return _oriented(image, name)
@@ -460,7 +522,8 @@ def crop_box(image: ImageLike, box: Sequence[float], max_side: int | None = None
         cx0, cy0, cx1, cy1 = clip_box(box, arr.shape[1], arr.shape[0])
         return fit_within(arr[cy0:cy1, cx0:cx1].copy(), max_side)
     if isinstance(image, (str, os.PathLike)):
-        with _open_image(image, name or "image") as img:
+        img = _open_image(image, name or "image")
+        with LARGE_DECODES.hold(img), img:  # closed (its pixels freed) before the slot is
             return _crop_pil(img, box, max_side, name or f"image {os.fspath(image)}")
     if isinstance(image, Image.Image):
         return _crop_pil(image, box, max_side, name or "image")
@@ -474,11 +537,12 @@ def _crop_pil(img: Image.Image, box: Sequence[float], max_side: int, what: str) 
     width, height = _oriented(img, what)
     cx0, cy0, cx1, cy1 = clip_box(box, width, height)
     if getattr(img, "format", None) != "JPEG" and _orientation(img) == 1:
-        try:
-            region = img.crop((cx0, cy0, cx1, cy1))
-        except (OSError, ValueError, SyntaxError) as e:  # truncated or corrupt file data
-            raise DataError(f"cannot decode {what}: {e}") from e
-        return to_rgb_array(region, what, max_side=max_side)
+        with LARGE_DECODES.hold(img):
+            try:
+                region = img.crop((cx0, cy0, cx1, cy1))
+            except (OSError, ValueError, SyntaxError) as e:  # truncated or corrupt file data
+                raise DataError(f"cannot decode {what}: {e}") from e
+            return to_rgb_array(region, what, max_side=max_side)
     factor = min(1.0, max_side / max(cx1 - cx0, cy1 - cy0))
     arr = to_rgb_array(img, what, max_side=max(MIN_SIDE, math.ceil(max(width, height) * factor)))
     sx, sy = arr.shape[1] / width, arr.shape[0] / height
