@@ -470,10 +470,11 @@ def clip_box(box: Sequence[float], width: int, height: int) -> tuple[int, int, i
     except (TypeError, ValueError, OverflowError) as e:
         raise DataError(f"box must be four numbers (x0, y0, x1, y1), got {box!r}") from e
     if len(values) != 4:
-        raise DataError(f"box must be four numbers (x0, y0, x1, y1), got {box!r}")
+        raise DataError(f"box must be four finite numbers (x0, y0, x1, y1), got {box!r}")
     for name, v in zip(("x0", "y0", "x1", "y1"), values):
         if not math.isfinite(v):
-            raise DataError(f"box {name}={v} is not a finite number (box {list(box)})")
+            raise DataError(f"box must be four finite numbers (x0, y0, x1, y1): {name}={v} is "
+                            f"not finite (box {list(box)})")
         if abs(v) > MAX_COORDINATE:
             raise DataError(f"box {name}={v:g} is beyond the 64-bit range (box {list(box)})")
     x0, y0, x1, y1 = values
