@@ -3,7 +3,7 @@
 The app shows a preview of the visual image (longest side `PREVIEW_SIDE` px) and keeps the
 original for the query; clicks arrive in preview pixels and are mapped back to image pixels.
 A box is (x0, y0, x1, y1) in pixels of the (EXIF-rotated) image, x1/y1 exclusive, as
-`ratouch.encoders.preprocess.crop_box` takes it. Pure PIL/numpy: no gradio here.
+`ratouch.images.crop_box` takes it. Pure PIL/numpy: no gradio here.
 """
 
 from __future__ import annotations
@@ -15,9 +15,8 @@ from typing import Sequence
 import numpy as np
 from PIL import Image, ImageDraw
 
-from ratouch.encoders.preprocess import clip_box, to_rgb_array, tvl_contact_box
 from ratouch.errors import DataError
-from ratouch.images import resize_array
+from ratouch.images import clip_box, oriented_size, resize_array, to_rgb_array, tvl_contact_box
 
 PREVIEW_SIDE = 512
 MARKED = (230, 30, 30)     # a box the user marked or typed
@@ -55,8 +54,9 @@ def load_visual(source: str | np.ndarray, title: str, label: str | None = None) 
     Raises:
         DataError / DataNotFoundError: the image cannot be used (the library's message).
     """
-    image = to_rgb_array(source, name="visual image")
-    h, w = image.shape[:2]
+    w, h = oriented_size(source, "visual image")  # a file's from its header
+    # decoded no larger than the preview: an upload's memory is bounded by it, not the file
+    image = to_rgb_array(source, name="visual image", max_side=PREVIEW_SIDE)
     scale = PREVIEW_SIDE / max(w, h)
     size = (max(1, round(w * scale)), max(1, round(h * scale)))
     # small (world) images are upscaled with NEAREST so their pixels stay visible for clicking

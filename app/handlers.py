@@ -23,10 +23,10 @@ from PIL import Image
 from app import box as boxes
 from app import view
 from app.plot import pca_figure
-from ratouch.encoders.preprocess import QUERY_MAX_SIDE, to_rgb_array
 from ratouch.errors import DataError, RATouchError
 from ratouch.eval import failures
 from ratouch.eval.report import last_commit, weights_commit
+from ratouch.images import QUERY_MAX_SIDE, to_rgb_array
 from ratouch.serve.request import QueryRequest, answer_one
 from ratouch.serve.trace import trace_retrieval
 

@@ -7,7 +7,9 @@ sees half a file and an interrupted write leaves the old file (or nothing) behin
   are built on it.
 * `staged` and `publish`: several files (a checkpoint, a corpus, a data set, a shard) written
   into a hidden folder first and moved into place in a given order, the last one (a manifest)
-  marking completion; `replace_folder` swaps a whole folder in.
+  marking completion; `replace_folder` swaps a whole folder in. A staging folder's name carries
+  the writing process's id, so `clean_stale_staging` can remove the ones a killed job left
+  behind without touching a running job's.
 """
 
 from __future__ import annotations
@@ -78,10 +80,12 @@ def write_npy_atomic(path: str | os.PathLike, array) -> Path:
 @contextmanager
 def staged(folder: str | os.PathLike, prefix: str = ".partial-") -> Iterator[Path]:
     """A hidden temporary folder inside `folder` (created) to write several files into before
-    `publish` moves them into place; removed, with anything left in it, when the block ends."""
+    `publish` moves them into place; removed, with anything left in it, when the block ends.
+    Its name is ``<prefix><pid>-<random>``; a process killed before the block ends leaves it
+    behind, for `clean_stale_staging` to find."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=prefix, dir=folder))
+    tmp = Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-", dir=folder))
     try:
         yield tmp
     finally:
@@ -110,3 +114,41 @@ def replace_folder(staging: str | os.PathLike, folder: str | os.PathLike) -> Non
     if folder.exists():
         shutil.rmtree(folder)
     os.replace(staging, folder)
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process with this id runs now (on this machine)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # it runs, as another user
+        return True
+    return True
+
+
+def staging_owner(path: Path, prefix: str) -> int | None:
+    """The process id in a `staged` folder's name (None: not a name `staged` gives)."""
+    head = path.name[len(prefix):].split("-", 1)[0]
+    return int(head) if path.name.startswith(prefix) and head.isdigit() else None
+
+
+def clean_stale_staging(folder: str | os.PathLike, prefix: str = ".partial-") -> list[Path]:
+    """Remove the `staged` folders (names starting with `prefix`) in `folder` whose writer no
+    longer runs: what a killed job left behind. A folder whose name carries no process id (an
+    older version's) counts as stale too. Returns the folders removed."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    removed = []
+    for p in sorted(folder.glob(f"{prefix}*")):
+        if not p.is_dir():
+            continue
+        owner = staging_owner(p, prefix)
+        if owner is not None and (owner == os.getpid() or pid_alive(owner)):
+            continue  # a job running now: its staging is not stale
+        shutil.rmtree(p, ignore_errors=True)
+        removed.append(p)
+    return removed

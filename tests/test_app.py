@@ -17,8 +17,8 @@ import pytest
 from PIL import Image
 
 from conftest import HAVE_ASSETS, FakePipeline, free_port
-from ratouch.encoders.preprocess import tvl_contact_box
 from ratouch.errors import DataError
+from ratouch.images import tvl_contact_box
 
 # the user's cache as it was before conftest isolated the tests from it (read at collection):
 # the real-app load test serves the real default corpus from there

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from ratouch.encoders.preprocess import QUERY_MAX_SIDE, to_rgb_array
 from ratouch.errors import DataError
+from ratouch.images import QUERY_MAX_SIDE, to_rgb_array
 from ratouch.model.trust import ContactModel, Novelty, TrustCalibration, contact_features
 from ratouch.paths import REPO, trust_calibration
 from ratouch.serve.request import QueryRequest
@@ -201,7 +201,7 @@ def test_calibration_is_reproducible(tmp_path):
 
 def test_huge_visual_crop_matches_the_full_resolution_crop(tmp_path):
     """A crop reduced inside PIL (bounded work) shows what the full-resolution crop shows."""
-    from ratouch.encoders.preprocess import crop_box, fit_within
+    from ratouch.images import crop_box, fit_within
 
     rng = np.random.default_rng(0)
     small = rng.integers(0, 256, (60, 80, 3), dtype=np.uint8)

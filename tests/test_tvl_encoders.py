@@ -32,8 +32,9 @@ import torchvision.transforms.functional as TF
 from PIL import Image
 from safetensors.torch import save_file
 
-from ratouch.encoders import preprocess as pp
-from ratouch.encoders.preprocess import (
+from ratouch.encoders import tvl_input as pp
+from ratouch.encoders.tvl import TVLConfig, TVLEncoders, load_tvl, resolve_tactile_arch
+from ratouch.encoders.tvl_input import (
     CLIP_MEAN,
     CLIP_STD,
     TAC_MEAN,
@@ -41,13 +42,10 @@ from ratouch.encoders.preprocess import (
     TAC_STD,
     TAC_STD_BG,
     clip_rgb_tensor,
-    crop_box,
-    to_rgb_array,
-    tvl_contact_box,
     tvl_tactile_tensor,
 )
-from ratouch.encoders.tvl import TVLConfig, TVLEncoders, load_tvl, resolve_tactile_arch
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.images import crop_box, to_rgb_array, tvl_contact_box
 
 MINI_ARCH = "ratouch-test-ViT-mini"
 MINI_DIM = 64

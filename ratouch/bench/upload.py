@@ -13,8 +13,7 @@ import time
 import numpy as np
 from PIL import Image
 
-from ratouch.encoders.preprocess import QUERY_MAX_SIDE, to_rgb_array
-from ratouch.images import resize_array
+from ratouch.images import QUERY_MAX_SIDE, resize_array, to_rgb_array
 from ratouch.serve.batcher import QueryBatcher
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.serve.request import QueryRequest, answer_one

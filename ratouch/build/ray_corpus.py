@@ -564,7 +564,8 @@ def build_corpus_ray(out: str | os.PathLike, size: int | str = "10k", seed: int 
     out = Path(out)
     check_writable(out)
     if (out / MANIFEST).is_file() and not (out / SHARD_DIR).is_dir():
-        raise ConfigError(f"{out} already holds a corpus; choose another folder")
+        raise ConfigError(f"{out} already holds a finished corpus; run `ratouch corpus build` "
+                          f"with --overwrite to replace it, or choose another --out")
     t0 = time.perf_counter()
     table = plan_table(n, seed, image_list)
     model = create_model(encoder)

@@ -16,6 +16,7 @@ from ratouch.bench.index import (
     format_bench,
     format_real,
 )
+from ratouch.bench.memory import bench_memory, format_memory
 from ratouch.bench.query import bench_query, bench_world
 from ratouch.bench.towers import TOWERS, bench_towers, format_towers, write_towers
 from ratouch.bench.tradeoff import bench_tradeoff, format_tradeoff, tradeoff_figure
@@ -83,6 +84,13 @@ def run(args: argparse.Namespace) -> int:
         with intra_op_threads(1):  # as `ratouch query` and the app serve (ratouch.threads)
             r = bench_query(args.encoder, args.corpus, n=args.n)
         print(json.dumps(r, indent=None if args.json else 1))
+        return 0
+    if args.bench_cmd == "memory":
+        try:
+            r = bench_memory(args.side, args.burst, tuple(_csv(args.modes)), args.box_side)
+        except ValueError as e:
+            raise usage(f"--modes: {e}") from e
+        print(json.dumps(r, indent=1) if args.json else format_memory(r))
         return 0
     if args.bench_cmd == "upload":
         print(json.dumps(bench_upload(args.encoder, args.corpus, args.side, args.repeats),

@@ -1,28 +1,64 @@
 """`ratouch corpus build`: recaption, sample and embed ImageNet-T, in one process or on Ray.
+
+Run again with the same `--out`, the command finishes what a killed run left: a corpus that is
+the one asked for is kept, its embeddings resume where they stopped and missing indexes are
+built (it says so on stderr); `--overwrite` replaces whatever corpus the folder holds, and
+`--reindex` builds the encoder's indexes again (after one was refused as corrupt).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
+import sys
+from pathlib import Path
 
 from ratouch.cli.common import usage
-from ratouch.corpus.imagenet_t import build_corpus
+from ratouch.corpus.embed import EMBED_MANIFEST, embedding_progress, embeddings_dir
+from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
 from ratouch.corpus.recaption import RecaptionConfig
+from ratouch.search.retrieval import index_folder
 from ratouch.search.retrieval_side import embed_and_index
 
 
 def run(args: argparse.Namespace) -> int:
     rc = RecaptionConfig(backend=args.captioner, endpoint=args.endpoint, model=args.model)
+    out = Path(args.out)
+    if args.overwrite and (out / MANIFEST).is_file():
+        shutil.rmtree(out)
+        print(f"removed the corpus in {out} (--overwrite)", file=sys.stderr)
     if args.engine == "ray":
         return _run_corpus_ray(args, rc)
-    manifest = build_corpus(args.out, args.size, seed=args.seed, recaption=rc,
-                            image_list=args.from_list)
+    resumed = (out / MANIFEST).is_file()
+    manifest = build_corpus(out, args.size, seed=args.seed, recaption=rc,
+                            image_list=args.from_list, resume=True)
+    if resumed:
+        print(f"{out} already holds this corpus ({manifest['size']} entries): kept",
+              file=sys.stderr)
     if not args.no_embed:
-        manifest = {**manifest, **embed_and_index(args.out, args.encoder, args.index,
+        _say_embedding_state(out, args)
+        manifest = {**manifest, **embed_and_index(out, args.encoder, args.index,
                                                   workers=args.workers)}
-    print(json.dumps(manifest))
+    print(json.dumps({**manifest, "resumed": resumed}))
     return 0
+
+
+def _say_embedding_state(out: Path, args: argparse.Namespace) -> None:
+    """Say what of an earlier run is resumed or redone: embeddings, indexes."""
+    done = embedding_progress(out, args.encoder)
+    if done is not None:
+        print(f"resuming the {args.encoder} embeddings of {out} at {done[0]} / {done[1]}",
+              file=sys.stderr)
+    if args.reindex:
+        for key in ("image", "text"):
+            folder = index_folder(out, args.encoder, key, args.index)
+            if folder.exists():
+                shutil.rmtree(folder)
+                print(f"removed the index {folder} (--reindex): built again", file=sys.stderr)
+    elif (embeddings_dir(out, args.encoder) / EMBED_MANIFEST).is_file():
+        print(f"the {args.encoder} embeddings of {out} are finished: checked, not redone",
+              file=sys.stderr)
 
 
 def _run_corpus_ray(args: argparse.Namespace, rc) -> int:

@@ -6,6 +6,7 @@ nothing of the model side, so `ratouch --help` and usage errors stay fast.
 from __future__ import annotations
 
 import argparse
+import math
 
 from ratouch.encoders.factory import CHAIN_SETS, DEFAULT_ENCODER, DEFAULT_SETS, OTHER_SETS
 from ratouch.eval.catalog import EXPERIMENT_HELP, SYSTEMS
@@ -21,23 +22,45 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _nonneg_int(text: str) -> int:
+#: The largest magnitude a number typed on the command line may have (64-bit signed).
+MAX_INT = 2**63 - 1
+
+
+def _int(text: str) -> int:
+    """A whole number within the 64-bit range (one-line errors naming the value)."""
     try:
         v = int(text)
     except ValueError as e:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from e
+    if abs(v) > MAX_INT:
+        raise argparse.ArgumentTypeError(f"{text!r} is beyond the 64-bit range")
+    return v
+
+
+def _nonneg_int(text: str) -> int:
+    v = _int(text)
     if v < 0:
         raise argparse.ArgumentTypeError(f"{text!r} must be >= 0")
     return v
 
 
 def _pos_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from e
+    v = _int(text)
     if v <= 0:
         raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
+    return v
+
+
+def _number(text: str) -> float:
+    """A finite number within the 64-bit range (inf, NaN and 1e308 are refused by name)."""
+    try:
+        v = float(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from e
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    if abs(v) > MAX_INT:
+        raise argparse.ArgumentTypeError(f"{text!r} is beyond the 64-bit range")
     return v
 
 
@@ -80,15 +103,15 @@ def _add_world(sub) -> None:
 
 def _add_stress(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("stress knobs")
-    g.add_argument("--object-scale", type=float, help="object side / frame side, 0.1..1")
+    g.add_argument("--object-scale", type=_number, help="object side / frame side, 0.1..1")
     g.add_argument("--clutter", type=int, help="number of distractors")
-    g.add_argument("--background-dominance", type=float, help="0..1")
-    g.add_argument("--tactile-noise", type=float, help="sensor noise std, 0..0.3")
-    g.add_argument("--tactile-blur", type=float, help="gel blur sigma, pixels")
-    g.add_argument("--tactile-rotation", type=float, help="texture rotation, degrees")
-    g.add_argument("--box-offset", type=float, default=0.0, help="box shift / box side")
+    g.add_argument("--background-dominance", type=_number, help="0..1")
+    g.add_argument("--tactile-noise", type=_number, help="sensor noise std, 0..0.3")
+    g.add_argument("--tactile-blur", type=_number, help="gel blur sigma, pixels")
+    g.add_argument("--tactile-rotation", type=_number, help="texture rotation, degrees")
+    g.add_argument("--box-offset", type=_number, default=0.0, help="box shift / box side")
     g.add_argument("--missing", choices=("none", "visual", "tactile"), default="none")
-    g.add_argument("--no-contact", type=float, default=0.0, help="no-contact frame rate")
+    g.add_argument("--no-contact", type=_number, default=0.0, help="no-contact frame rate")
 
 
 def _add_corpus(sub) -> None:
@@ -97,7 +120,9 @@ def _add_corpus(sub) -> None:
     csub = corpus.add_subparsers(dest="corpus_cmd", required=True)
     b = csub.add_parser("build", help="recaption and sample a corpus")
     b.add_argument("--size", default="10k", help="10k, 50k, 100k, 150k or a count")
-    b.add_argument("--out", required=True, help="corpus folder (must not hold a corpus)")
+    b.add_argument("--out", required=True,
+                   help="corpus folder; one holding this corpus (a killed run's) is finished, "
+                        "not rebuilt")
     b.add_argument("--seed", type=_nonneg_int, default=0)
     b.add_argument("--captioner", choices=("offline", "llm"), default="offline")
     b.add_argument("--endpoint", help="OpenAI-compatible base URL for --captioner llm "
@@ -109,6 +134,10 @@ def _add_corpus(sub) -> None:
     b.add_argument("--index", choices=KINDS, default="flat",
                    help="with --engine ray, ivfflat/ivfpq are built from the shards on disk")
     b.add_argument("--no-embed", action="store_true", help="only recaption and sample")
+    b.add_argument("--overwrite", action="store_true",
+                   help="replace the corpus --out holds (another size, seed, source...)")
+    b.add_argument("--reindex", action="store_true",
+                   help="build the encoder's --index again (one refused as corrupt)")
     b.add_argument("--workers", type=_pos_int, default=2,
                    help="render processes (local) or embedding actors (ray)")
     b.add_argument("--engine", choices=("local", "ray"), default="local",
@@ -120,7 +149,7 @@ def _add_corpus(sub) -> None:
     b.add_argument("--shard-size", type=_pos_int, default=1000, help="entries per shard")
     b.add_argument("--llm-concurrency", type=_pos_int, default=8,
                    help="LLM requests in flight at once (ray)")
-    b.add_argument("--llm-rate", type=float, default=50.0,
+    b.add_argument("--llm-rate", type=_number, default=50.0,
                    help="LLM requests per second, 0 for no limit (ray)")
 
 
@@ -161,7 +190,7 @@ def _add_train(sub) -> None:
                                        "the world's validation renders")
     tr.add_argument("--encoder", default=DEFAULT_ENCODER)
     tr.add_argument("--seed", type=_nonneg_int, default=0)
-    tr.add_argument("--false-alarm", type=float, default=0.02,
+    tr.add_argument("--false-alarm", type=_number, default=0.02,
                     help="share of in-distribution validation inputs each signal may flag")
     tr.add_argument("--out", default=None,
                     help="calibration JSON (default: assets/trust/ENCODER.json)")
@@ -209,7 +238,7 @@ def _add_eval(sub) -> None:
                          "box_offset, missing, paper_failure)")
     st.add_argument("--values", action="append", metavar="KNOB=V1,V2",
                     help="other sweep values for a knob (repeatable)")
-    st.add_argument("--drop", type=float, default=0.8,
+    st.add_argument("--drop", type=_number, default=0.8,
                     help="break point: quality below this fraction of the unperturbed value")
     st.add_argument("--no-collapse", action="store_true",
                     help="skip the collapse diagnostic (it trains an align-only retriever once)")
@@ -319,13 +348,14 @@ def _add_judge(sub) -> None:
 
 def _box(text: str) -> tuple[int, int, int, int]:
     parts = text.split(",")
-    try:
-        box = tuple(int(round(float(v))) for v in parts)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(f"{text!r} is not x0,y0,x1,y1") from e
-    if len(box) != 4:
+    if len(parts) != 4:
         raise argparse.ArgumentTypeError(f"{text!r} must have 4 numbers: x0,y0,x1,y1")
-    return box
+    try:
+        values = [_number(v) for v in parts]
+    except argparse.ArgumentTypeError as e:
+        raise argparse.ArgumentTypeError(f"box {text!r}: {e}") from e
+    x0, y0, x1, y1 = (int(round(v)) for v in values)
+    return x0, y0, x1, y1
 
 
 def _id_list(text: str) -> list[int]:
@@ -413,6 +443,14 @@ def _add_bench(sub) -> None:
     up.add_argument("--corpus", default=None)
     up.add_argument("--side", type=_pos_int, default=6000, help="side of the square PNG")
     up.add_argument("--repeats", type=_pos_int, default=3)
+    mem = bsub.add_parser("memory", help="peak memory of a huge upload per image mode "
+                                         "(16-bit, 1-bit, 8-bit, palette, CMYK, float) through "
+                                         "the query's decode path, and of many at once")
+    mem.add_argument("--side", type=_pos_int, default=7000, help="side of the square image")
+    mem.add_argument("--burst", type=_pos_int, default=16, help="16-bit uploads at once")
+    mem.add_argument("--modes", default="I;16,1,L,P,RGB,CMYK,F", help="PIL modes measured")
+    mem.add_argument("--box-side", type=_pos_int, default=512, help="the contact box's side")
+    mem.add_argument("--json", action="store_true", help="print JSON")
     tw = bsub.add_parser("towers", help="vision towers (the render CNN, EfficientNet-Lite0/2 "
                                         "at several input sizes): material probe and P@5 "
                                         "against single-crop latency on validation renders; "

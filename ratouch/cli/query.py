@@ -16,6 +16,8 @@ from ratouch.threads import intra_op_threads
 def run(args: argparse.Namespace) -> int:
     for role, path in (("visual image", args.vision), ("tactile image", args.tactile),
                        ("background image", args.background)):
+        if path is not None and Path(path).is_dir():
+            raise usage(f"{role} {path} is a directory, not an image file")
         if path is not None and not Path(path).is_file():
             raise usage(f"{role} file {path} does not exist")
     swap = _neighbours_file(args.neighbours_from) if args.neighbours_from else None

@@ -25,9 +25,9 @@ from ratouch.corpus.imagenet_t import (
     parse_world_source,
     render_world_images,
 )
-from ratouch.encoders.preprocess import to_rgb_array
 from ratouch.errors import DataError, DataNotFoundError
 from ratouch.files import write_json_atomic
+from ratouch.images import to_rgb_array
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 
@@ -153,6 +153,16 @@ def embed_corpus(corpus: str | os.PathLike, encoders, batch: int = 500, workers:
     return emb_manifest
 
 
+def embedding_progress(corpus: str | os.PathLike, encoder_name: str) -> tuple[int, int] | None:
+    """(entries done, entries) of an interrupted embedding of `corpus`, None when none is."""
+    state_path = embeddings_dir(corpus, encoder_name) / "progress.json"
+    try:
+        state = json.loads(state_path.read_text())
+        return int(state["done"]), int(state["count"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def write_embeddings_manifest(folder: Path, encoder: str, weights: str | None, dim: int,
                               count: int, corpus_sha256: str) -> dict:
     """Finish a corpus's embeddings in `folder` (``image.npy`` and ``text.npy`` in place): the
@@ -186,7 +196,9 @@ def load_embeddings(corpus: str | os.PathLike, encoder_name: str, dim: int | Non
     mpath = out / EMBED_MANIFEST
     if not mpath.is_file():
         raise DataNotFoundError(f"no finished embeddings of {corpus} for encoder "
-                                f"{encoder_name!r} (run `ratouch corpus build` or embed_corpus)")
+                                f"{encoder_name!r}: run `ratouch corpus build --out {corpus} "
+                                f"--encoder {encoder_name}` (with the options that built it; "
+                                f"it keeps the corpus and finishes the embeddings)")
     try:
         manifest = json.loads(mpath.read_text())
     except json.JSONDecodeError as e:

@@ -25,11 +25,12 @@ import numpy as np
 
 from ratouch.corpus.recaption import RecaptionConfig, create_recaptioner
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
-from ratouch.files import json_text, publish, staged
+from ratouch.files import clean_stale_staging, json_text, publish, staged
 from ratouch.images import resize_array
+from ratouch.processes import worker_pool
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
-from ratouch.world.dataset import _fork_context, check_writable, world_for
+from ratouch.world.dataset import check_writable, world_for
 from ratouch.world.generator import CORPUS_MAX_PER_CLASS, CORPUS_POOL_PER_CLASS, World
 from ratouch.world.material import MATERIALS
 from ratouch.world.objects import OBJECT_CLASSES
@@ -201,11 +202,15 @@ def stratified_rows(rows: Sequence[tuple[str, str, str]], size: int, seed: int
 
 def build_corpus(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
                  recaption: RecaptionConfig | None = None, image_list: str | None = None,
-                 world_cfg: WorldConfig | None = None, progress: bool = True) -> dict:
+                 world_cfg: WorldConfig | None = None, progress: bool = True,
+                 resume: bool = False) -> dict:
     """Build an ImageNet-T corpus folder: `metadata.jsonl` and `manifest.json`.
 
-    Written to a temporary folder first and moved into place at the end, so a failure leaves
-    nothing half-written. Refuses to overwrite an existing corpus.
+    Written to a temporary folder first and moved into place at the end (the manifest last),
+    so a failure or a kill leaves nothing a reader trusts; the staging a killed build left is
+    removed by the next build into the folder. Refuses to overwrite an existing corpus; with
+    `resume`, an existing corpus that is the one asked for (same size, seed, source and
+    captioner) is kept and its manifest returned, and a different one is refused.
 
     Args:
         out: corpus folder.
@@ -215,6 +220,7 @@ def build_corpus(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
         image_list: CSV of (path, class, caption) for a real corpus; None for the world.
         world_cfg: world config for the default source.
         progress: show progress bars.
+        resume: keep an existing corpus that is the one asked for (see above).
 
     Returns:
         The manifest.
@@ -224,7 +230,14 @@ def build_corpus(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
     out = Path(out)
     check_writable(out)
     if (out / MANIFEST).exists():
+        asked = {"seed": seed, "source": "world" if image_list is None else str(image_list),
+                 "captioner": recaption.backend}
+        existing = existing_corpus(out, asked, n)
+        if resume:
+            return existing
         raise ConfigError(f"{out} already holds a corpus; choose another folder")
+    for p in clean_stale_staging(out, ".partial-corpus-"):
+        log.warning("removed the staging folder %s of a killed corpus build", p)
     t0 = time.perf_counter()
     if image_list is None:
         world = World(world_cfg or WorldConfig(seed=seed))
@@ -253,6 +266,22 @@ def build_corpus(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
         "build_seconds": round(time.perf_counter() - t0, 2),
     }
     return write_corpus_metadata(out, entries, manifest)
+
+
+def existing_corpus(out: Path, asked: dict, n: int) -> dict:
+    """The manifest of the corpus in `out` when it is the one `asked` for (its seed, source
+    and captioner, and `n` entries, or all of a shorter real list); a ConfigError naming the
+    difference, and the way to replace it, when it is another."""
+    manifest = json.loads((out / MANIFEST).read_text())
+    diff = {k: (manifest.get(k), v) for k, v in asked.items() if manifest.get(k) != v}
+    if manifest.get("size") != n and not (asked["source"] != "world"
+                                          and manifest.get("size", n + 1) < n):
+        diff["size"] = (manifest.get("size"), n)
+    if diff:
+        said = ", ".join(f"{k} {have!r} (asked {want!r})" for k, (have, want) in diff.items())
+        raise ConfigError(f"{out} already holds another corpus: {said}; run `ratouch corpus "
+                          f"build` with --overwrite to replace it, or choose another --out")
+    return manifest
 
 
 def write_corpus_metadata(out: Path, entries: list[CorpusEntry], manifest: dict) -> dict:
@@ -323,7 +352,6 @@ def render_world_images(ids: Sequence[tuple[int, int]], cfg: WorldConfig, worker
                         chunk: int = 200, thumb: int = 0, progress: bool = True):
     """Render world corpus images (class index, instance) in parallel, yielding them in order
     in chunks of `chunk` images as (n, S, S, 3) uint8 arrays."""
-    from concurrent.futures import ProcessPoolExecutor
 
 
     jobs = [(cfg, list(ids[k:k + chunk]), thumb) for k in range(0, len(ids), chunk)]
@@ -335,7 +363,7 @@ def render_world_images(ids: Sequence[tuple[int, int]], cfg: WorldConfig, worker
             yield np.stack(imgs)
     else:
         world_for(cfg).warm()
-        with ProcessPoolExecutor(workers, mp_context=_fork_context()) as pool:
+        with worker_pool(workers) as pool:
             for imgs in pool.map(_render_chunk, jobs):
                 bar.update(len(imgs))
                 yield np.stack(imgs)

@@ -40,9 +40,8 @@ import numpy as np
 import torch
 
 from ratouch.checkpoint import load_into, read_foreign_weights, sha256_file
-from ratouch.encoders.preprocess import to_rgb_array
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
-from ratouch.images import resize_array
+from ratouch.images import resize_array, to_rgb_array
 from ratouch.world.objects import CLASS_INDEX, OBJECT_CLASSES
 
 if TYPE_CHECKING:  # timm is imported where a tower is built

@@ -52,14 +52,9 @@ from ratouch.checkpoint import (
     load_into,
     read_foreign_weights,
 )
-from ratouch.encoders.preprocess import (
-    CLIP_MEAN,
-    CLIP_STD,
-    as_image_list,
-    clip_rgb_tensor,
-    tvl_tactile_tensor,
-)
+from ratouch.encoders.tvl_input import CLIP_MEAN, CLIP_STD, clip_rgb_tensor, tvl_tactile_tensor
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.images import as_image_list
 
 log = logging.getLogger(__name__)
 

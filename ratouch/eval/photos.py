@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from ratouch.encoders.preprocess import QUERY_MAX_SIDE, crop_box, tvl_contact_box
 from ratouch.encoders.prior import imagenet_names, load_prior
 from ratouch.errors import ConfigError, DataNotFoundError
+from ratouch.images import QUERY_MAX_SIDE, crop_box, tvl_contact_box
 from ratouch.paths import REPO
 from ratouch.search.index import top_k
 

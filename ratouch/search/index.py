@@ -505,7 +505,7 @@ class VectorIndex:
         manifest_path, index_path = folder / MANIFEST_FILE, folder / INDEX_FILE
         if not manifest_path.is_file():
             raise DataError(f"index {str(folder)!r} has no {MANIFEST_FILE}; it is incomplete "
-                            "or not an index folder (rebuild it explicitly)")
+                            "or not an index folder (delete it and build it again)")
         try:
             manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
             kind, dim, count = manifest["kind"], int(manifest["dim"]), int(manifest["count"])
@@ -518,7 +518,7 @@ class VectorIndex:
             raise DataError(f"index {str(folder)!r} has no {INDEX_FILE}")
         if sha256_file(index_path) != checksum:
             raise DataError(f"index {str(folder)!r} is corrupt: checksum mismatch of "
-                            f"{INDEX_FILE} (rebuild it explicitly)")
+                            f"{INDEX_FILE} (delete it and build it again)")
         if expected_dim is not None and dim != expected_dim:
             raise DataError(f"index {str(folder)!r} was built for dimension {dim}, the "
                             f"encoder gives {expected_dim}")

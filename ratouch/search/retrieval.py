@@ -91,8 +91,13 @@ class CorpusIndex:
     def _index(self, key: str, emb: np.ndarray) -> VectorIndex:
         folder = index_folder(self.folder, self.encoder_name, key, self.cfg.kind)
         if (folder / "manifest.json").is_file():
-            index, meta = VectorIndex.load(folder, expected_dim=self.dim,
-                                           expected_encoder=self.encoder_name)
+            try:
+                index, meta = VectorIndex.load(folder, expected_dim=self.dim,
+                                               expected_encoder=self.encoder_name)
+            except DataError as e:
+                raise DataError(f"{e}; `ratouch corpus build --out {self.folder} --encoder "
+                                f"{self.encoder_name} --index {self.cfg.kind} --reindex` "
+                                f"builds it again") from e
             if meta.get("corpus_sha256") != self.manifest["metadata_sha256"]:
                 raise DataError(f"index {folder} was built for another version of the corpus")
             built_from = meta.get("embeddings_sha256")  # absent in indexes of older versions

@@ -17,7 +17,8 @@ from typing import Any, Protocol, TypeVar
 import numpy as np
 from PIL import Image
 
-from ratouch.encoders.preprocess import (
+from ratouch.errors import ConfigError, DataError
+from ratouch.images import (
     QUERY_MAX_SIDE,
     clip_box,
     crop_box,
@@ -25,7 +26,6 @@ from ratouch.encoders.preprocess import (
     to_rgb_array,
     tvl_contact_box,
 )
-from ratouch.errors import ConfigError, DataError
 
 Box = tuple[int, int, int, int]
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import cast, overload
 
@@ -28,9 +27,10 @@ from ratouch.errors import ConfigError
 from ratouch.files import write_npz_atomic
 from ratouch.images import resize_array
 from ratouch.paths import cache_dir
+from ratouch.processes import worker_pool
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
-from ratouch.world.dataset import _fork_context, world_for
+from ratouch.world.dataset import world_for
 from ratouch.world.scarcity import ScarceRegime
 from ratouch.world.tactile import TOUCH_VERSION
 
@@ -144,7 +144,7 @@ def render_training_data(tc: TrainConfig, vsize, tsize, progress: bool = True,
     ids = stratified_world_ids(tc.n_corpus, tc.seed)
     corpus_jobs = [(wcfg, ids[k:k + 250], vsize, psize) for k in range(0, len(ids), 250)]
     crops, pcrops, tacs, tacs_bg, labels, mats, cimgs, pcimgs, crecs = ([] for _ in range(9))
-    with ProcessPoolExecutor(tc.workers, mp_context=_fork_context()) as pool:
+    with worker_pool(tc.workers) as pool:
         bar = progress_bar(total=tc.n_pairs + len(ids), desc="render training data",
                            progress=progress)
         for c, pc, t, tb, lab, m in pool.map(_pair_chunk, pair_jobs):

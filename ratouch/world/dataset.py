@@ -5,6 +5,13 @@ TVL (public repository Max-Fu/tvl, `tvl_enc/tacvis.py`) keeps one folder per sub
 rows of (vision path, tactile path, background path, caption), paths relative to that folder.
 `write_split` writes the world in that layout (plus a `meta_<split>.jsonl` sidecar with the
 world's ground truth, row for row); `read_tvl` reads both it and the real TVL data set.
+
+A split is written atomically as far as a reader can tell: everything is rendered into a
+staging folder (``.partial-<split>-<pid>-*``, never listed by the reader), then a journal
+(``.publishing-<split>.json``) is written at the root, the files are moved into place, and the
+journal is removed last. A reader refuses a split whose journal is present (a build was killed
+while publishing) and names the command that finishes it; the same command, run again,
+removes the staging a killed build left, publishes the split again and says so.
 """
 
 from __future__ import annotations
@@ -15,7 +22,6 @@ import json
 import logging
 import os
 import shutil
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -25,7 +31,14 @@ import numpy as np
 from PIL import Image
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
-from ratouch.files import publish, staged
+from ratouch.files import (
+    clean_stale_staging,
+    pid_alive,
+    publish,
+    staged,
+    write_json_atomic,
+)
+from ratouch.processes import worker_pool
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.generator import TEST_SIZE, World
@@ -86,13 +99,6 @@ def _write_chunk(args: tuple[WorldConfig, str, Sequence[int], str]) -> list[tupl
     return rows
 
 
-def _fork_context():
-    """Fork where the platform has it (workers inherit warmed tiles), else the default."""
-    import multiprocessing as mp
-
-    return mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-
-
 def check_writable(out: Path) -> None:
     """Fail early, with the folder named, if `out` cannot be created or written."""
     probe_dir = out
@@ -109,7 +115,9 @@ def write_split(cfg: WorldConfig, out: str | os.PathLike, split: str, n: int | N
     """Generate a split of the world and write it in the TVL layout under `out`.
 
     Everything is first written to a temporary folder inside `out` and moved into place only
-    when the whole split succeeded, so a failure or an interrupt leaves nothing half-written.
+    when the whole split succeeded, under a journal that readers respect, so a failure or a
+    kill at any moment leaves nothing a reader trusts; run again, it cleans up after the
+    killed run and writes the split (see the module's docstring).
 
     Args:
         cfg: world config.
@@ -122,7 +130,8 @@ def write_split(cfg: WorldConfig, out: str | os.PathLike, split: str, n: int | N
             are written (file names keep the world's sample index); None writes samples 0..n-1.
 
     Returns:
-        Number of samples written per subset.
+        Number of samples written per subset. What was cleaned up after a killed earlier
+        build (staging folders removed, an interrupted publish redone) is logged as warnings.
     """
     if split not in WRITABLE_SPLITS:
         raise ConfigError(f"split={split!r} must be one of {WRITABLE_SPLITS}")
@@ -139,6 +148,7 @@ def write_split(cfg: WorldConfig, out: str | os.PathLike, split: str, n: int | N
     out = Path(out)
     check_writable(out)
     created_out = not out.exists()
+    recover(out, split)
     with contextlib.ExitStack() as stack:
         try:
             tmp = stack.enter_context(staged(out, prefix=f".partial-{split}-"))
@@ -148,13 +158,56 @@ def write_split(cfg: WorldConfig, out: str | os.PathLike, split: str, n: int | N
             indices = regime.train_indices(n) if regime is not None and split == "train" \
                 else list(range(n))
             counts = _write_into(cfg, tmp, split, indices, workers, progress)
-            publish(tmp, out)
+            _publish_split(tmp, out, split)
         except BaseException:
             stack.close()  # the staging folder goes first
             if created_out and not any(out.iterdir()):
                 out.rmdir()
             raise
     return counts
+
+
+def journal_path(root: Path, split: str) -> Path:
+    """The journal that marks a split of `root` as being published (present: not readable)."""
+    return root / f".publishing-{split}.json"
+
+
+def recover(out: Path, split: str) -> list[str]:
+    """Clean up after a killed build of `split` into `out`: remove its stale staging folders
+    and note an interrupted publish (the journal stays until this build publishes again).
+    Returns one line per thing done, for the caller to show."""
+    journal = journal_path(out, split)
+    if journal.is_file():
+        owner = _journal_owner(journal)
+        if owner is not None and owner != os.getpid() and pid_alive(owner):
+            raise ConfigError(f"another world build (pid {owner}) is publishing the {split} "
+                              f"split into {out} now; wait for it to end")
+    done = [f"removed the staging folder {p} of a killed build"
+            for p in clean_stale_staging(out, f".partial-{split}-")]
+    if journal.is_file():
+        done.append(f"the publish of the {split} split into {out} was interrupted; this "
+                    f"build publishes it again")
+    for line in done:
+        log.warning("%s", line)
+    return done
+
+
+def _journal_owner(journal: Path) -> int | None:
+    try:
+        return int(json.loads(journal.read_text())["pid"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _publish_split(staging: Path, out: Path, split: str) -> None:
+    """Move a staged split into `out`: the journal first, the images, then the sidecars and
+    the CSVs (what a reader opens first) last, then the journal removed."""
+    names = [str(p.relative_to(staging)) for p in sorted(staging.rglob("*")) if p.is_file()]
+    names.sort(key=lambda n: (n.endswith(".csv"), n.endswith(".jsonl"), n))
+    journal = journal_path(out, split)
+    write_json_atomic(journal, {"pid": os.getpid(), "split": split, "files": names})
+    publish(staging, out, names)
+    journal.unlink()
 
 
 def _write_into(cfg: WorldConfig, root: Path, split: str, indices: list[int], workers: int,
@@ -173,7 +226,7 @@ def _write_into(cfg: WorldConfig, root: Path, split: str, indices: list[int], wo
             results.extend(_write_chunk(job))
             bar.update(len(job[2]))
     else:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=_fork_context()) as pool:
+        with worker_pool(workers) as pool:
             for rows in pool.map(_write_chunk, jobs):
                 results.extend(rows)
                 bar.update(len(rows))
@@ -202,9 +255,24 @@ def _write_into(cfg: WorldConfig, root: Path, split: str, indices: list[int], wo
 # reading
 
 def subset_dirs(root: Path, split: str) -> list[Path]:
-    """Folders under `root` (root included) that hold the split's CSV, sorted."""
+    """Folders under `root` (root included) that hold the split's CSV, sorted; nothing inside
+    a staging folder (a ``.partial*`` folder at any depth) is listed."""
     name = "test.csv" if split == "test" else "train.csv"
-    return sorted(p.parent for p in root.rglob(name) if not p.parent.name.startswith(".partial"))
+    return sorted(p.parent for p in root.rglob(name)
+                  if not any(part.startswith(".partial")
+                             for part in p.parent.relative_to(root).parts))
+
+
+def check_published(root: Path, split: str) -> None:
+    """Refuse a split whose build was killed while publishing it (its journal is present in
+    `root` or a folder above), naming the command that finishes it."""
+    for folder in (root, *root.parents):
+        journal = journal_path(folder, split)
+        if journal.is_file():
+            raise DataError(f"the {split} split in {folder} is incomplete: a world build was "
+                            f"killed while publishing it ({journal.name} is present); run "
+                            f"`ratouch world build --out {folder} --split {split}` (with the "
+                            f"same options) again to finish it")
 
 
 def read_tvl(root: str | os.PathLike, split: str = "test") -> list[PairRecord]:
@@ -222,6 +290,7 @@ def read_tvl(root: str | os.PathLike, split: str = "test") -> list[PairRecord]:
     root = Path(root)
     if not root.is_dir():
         raise DataNotFoundError(f"data set folder {root} does not exist")
+    check_published(root.resolve(), split)
     dirs = subset_dirs(root, split)
     if not dirs:
         raise DataNotFoundError(f"no {split}.csv under {root}: not a TVL-layout data set")

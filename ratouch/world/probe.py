@@ -8,7 +8,6 @@ Designed ambiguity should show: vision confuses look-alike groups, touch the fee
 
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,8 +19,9 @@ from tqdm import tqdm
 
 from ratouch.errors import ConfigError
 from ratouch.images import resize_array
+from ratouch.processes import worker_pool
 from ratouch.world.config import WorldConfig
-from ratouch.world.dataset import _fork_context, world_for
+from ratouch.world.dataset import world_for
 from ratouch.world.material import MATERIAL_INDEX, MATERIALS, groups
 
 
@@ -133,7 +133,7 @@ def _collect(cfg: WorldConfig, start: int, n: int, workers: int, progress: bool)
             bar.update(len(c[2]))
     else:
         world_for(cfg).warm()
-        with ProcessPoolExecutor(workers, mp_context=_fork_context()) as pool:
+        with worker_pool(workers) as pool:
             for part in pool.map(_features_chunk, chunks):
                 rows.extend(part)
                 bar.update(len(part))

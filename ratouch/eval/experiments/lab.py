@@ -10,6 +10,7 @@ import importlib
 import json
 import logging
 import multiprocessing as mp
+import os
 import time
 from dataclasses import asdict
 from functools import cached_property
@@ -31,6 +32,7 @@ from ratouch.model.integrator import (
     TextureAwareIntegrator,
 )
 from ratouch.paths import cache_dir, generator_weights, retriever_weights
+from ratouch.processes import bind_to_parent
 from ratouch.search.index import exact_topk
 from ratouch.search.retrieval import mode_query
 from ratouch.serve.pipeline import RATouchPipeline
@@ -190,7 +192,9 @@ class Lab:
         jobs = [(self.stage1_for(v.withheld), self.train_for(v.withheld), self.test, self.cfg,
                  v, self._inputs(v)) for v in variants]
         if self.cfg.workers > 1 and len(jobs) > 1:
-            with mp.get_context("fork").Pool(min(self.cfg.workers, len(jobs))) as pool:
+            with mp.get_context("fork").Pool(min(self.cfg.workers, len(jobs)),
+                                             initializer=bind_to_parent,
+                                             initargs=(os.getpid(),)) as pool:
                 return pool.map(_run_variant, jobs)
         return [_run_variant(job) for job in jobs]
 
