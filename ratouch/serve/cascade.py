@@ -11,7 +11,7 @@ retrieves, without labels:
 
 Which measure and which threshold are set on the world's validation renders (training-split
 renders beyond any training run's pairs, as the trust calibration's), never on the test split:
-`ratouch train cascade` (`ratouch.eval.cascade`) writes the calibration, a small JSON file
+`ratouch train cascade` (`ratouch.ship.cascade`) writes the calibration, a small JSON file
 shipped beside the weights (`ratouch.paths.cascade_calibration`).
 
 `Cascade` is an `Answerer` (`ratouch.serve.request`) over its stages' pipelines, and a model
