@@ -191,7 +191,9 @@ _BUILTIN_NAMES = frozenset(m.name for m in _BUILTIN)
 
 #: Every query mode, in the order galleries, columns and series show them.
 QUERY_MODES = QueryModes(_BUILTIN)
-#: The mode whose neighbours RA-Touch reads (its prompt, "take retrieval apart", the cascade).
-RA_TOUCH_MODE = _BUILTIN[-1].name
+#: The mode whose neighbours RA-Touch reads (its prompt, "take retrieval apart", the cascade):
+#: the Tactile-Guided Retriever's, by definition of the method, wherever new rows go.
+RA_TOUCH_MODE = "joint"
 #: The mode every query has, whose neighbours stand in for a missing frame's modes.
-IMAGE_MODE = _BUILTIN[0].name
+IMAGE_MODE = "image"
+assert {RA_TOUCH_MODE, IMAGE_MODE} <= _BUILTIN_NAMES and not QUERY_MODES[IMAGE_MODE].needs_touch
