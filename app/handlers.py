@@ -346,7 +346,7 @@ def regenerate(pipe, visual: boxes.Visual | None, tactile: Any, x0, y0, x1, y1,
     answered with; the tactile frame is read against `background` as the query read it."""
     tactile, background = upload_path(tactile), upload_path(background)
     try:
-        if visual is None or not result or not result.get("neighbours", {}).get("joint"):
+        if visual is None or not result or not result.get("neighbours", {}).get(view.RA_TOUCH_MODE):
             raise DataError("run a query with a tactile image first")
         kept = [int(i) for i in (kept or [])]
         box = boxes.fields_to_box(x0, y0, x1, y1)

@@ -1,4 +1,4 @@
-"""The PCA plot of one query: the three query embeddings, their neighbours' caption
+"""The PCA plot of one query: each query mode's embedding, their neighbours' caption
 embeddings coloured by mode, and the ground-truth caption, in the pipeline's fixed frame."""
 
 from __future__ import annotations
@@ -7,8 +7,11 @@ import plotly.graph_objects as go
 
 from app.view import MODE_COLOUR, MODE_TITLE, MODES
 
-# neighbours of several modes sit on the same point: decreasing sizes keep all rings visible
-_NEIGHBOUR_SIZE = {"image": 17, "tactile": 12, "joint": 7}
+
+def _neighbour_size(mode: str) -> int:
+    """Neighbours of several modes sit on the same point: sizes decreasing in the modes' order
+    (17, 12, 7, ...) keep every ring visible."""
+    return max(17 - 5 * list(MODES).index(mode), 4)
 
 
 def pca_figure(result: dict, label: str | None = None) -> go.Figure:
@@ -22,7 +25,7 @@ def pca_figure(result: dict, label: str | None = None) -> go.Figure:
             fig.add_trace(go.Scatter(
                 x=[p["x"] for p in nb], y=[p["y"] for p in nb], mode="markers",
                 name=f"{mode} neighbours",
-                marker=dict(size=_NEIGHBOUR_SIZE[mode], color=MODE_COLOUR[mode], opacity=0.75,
+                marker=dict(size=_neighbour_size(mode), color=MODE_COLOUR[mode], opacity=0.75,
                             line=dict(width=1, color="white")),
                 text=[_hover(info.get((mode, p.get("id")))) for p in nb], hoverinfo="text"))
     for mode in MODES:

@@ -15,14 +15,13 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 from PIL import Image
 
-from ratouch.search.retrieval import QUERY_MODES
+from ratouch.search.modes import QUERY_MODES, RA_TOUCH_MODE
 from ratouch.serve.trace import RetrievalTrace, marked_segments
 
 MODES = QUERY_MODES
-MODE_TITLE = {"image": "Image query", "tactile": "Tactile query",
-              "joint": "Joint query (Tactile-Guided Retriever)"}
-MODE_COLOUR = {"image": "#1f77b4", "tactile": "#ff7f0e", "joint": "#2ca02c"}
-MODE_LETTER = {"image": "I", "tactile": "T", "joint": "J"}
+MODE_TITLE = QUERY_MODES.field("title")  # live views of the registry's rows
+MODE_COLOUR = QUERY_MODES.field("colour")
+MODE_LETTER = QUERY_MODES.field("letter")
 
 
 def shared_modes(neighbours: dict[str, list[dict]]) -> dict[int, list[str]]:
@@ -102,7 +101,7 @@ def neighbour_strip(result: dict, mode: str, thumbnail: Callable[[int], np.ndarr
         hover = (f"#{rank} of {len(rows)} · similarity {n['score']:.3f}"
                  + (f" · {count} of the top {len(rows)} share this caption" if count > 1 else "")
                  + f" · {n['class_name']} (corpus id {n['id']}){held}\n{n['caption']}")
-        cls = "ra-tile ra-attended" if mode == "joint" and n["caption"] in read else "ra-tile"
+        cls = "ra-tile ra-attended" if mode == RA_TOUCH_MODE and n["caption"] in read else "ra-tile"
         badges = f"<span class='ra-badge'>{rank} · {n['score']:.2f}</span>"
         if count > 1:
             badges += f"<span class='ra-count'>×{count}</span>"
@@ -260,7 +259,8 @@ def status_md(title: str, warnings: list[str], box: list[int] | None = None,
     """The status line after a query: what was queried, with which box (the one used) and
     which model (and for the cascade, why that one), then the warnings that the trust block
     does not show already (each warning is shown once)."""
-    image_only = not (result or {}).get("neighbours", {}).get("tactile")
+    found = (result or {}).get("neighbours", {})
+    image_only = not any(found.get(m) for m in QUERY_MODES.needing_touch())
     what = "**Image-only query** (no tactile image)" if result and image_only else "**Queried:**"
     lines = [f"{what} {title}" + (f" · contact box {box}" if box else "")
              + model_note(result or {})]
@@ -479,7 +479,7 @@ def neighbour_choices(result: dict | None) -> list[tuple[str, int]]:
         return []
     att = result.get("attention") or {}
     out = []
-    for j, n in enumerate(result.get("neighbours", {}).get("joint", [])):
+    for j, n in enumerate(result.get("neighbours", {}).get(RA_TOUCH_MODE, [])):
         a_img, a_txt = ((att.get("image") or [None] * (j + 1))[j],
                         (att.get("text") or [None] * (j + 1))[j])
         share = (f" · attention image {a_img:.2f} / text {a_txt:.2f}"
@@ -492,7 +492,7 @@ def neighbour_choices(result: dict | None) -> list[tuple[str, int]]:
 def regenerated_md(original: dict, regenerated: dict, kept: Sequence[int],
                    score: float | None, original_score: float | None) -> str:
     """RA-Touch's description read with the kept neighbours, beside the original."""
-    ids = [n["id"] for n in original["neighbours"]["joint"]]
+    ids = [n["id"] for n in original["neighbours"][RA_TOUCH_MODE]]
     dropped = [i for i in ids if i not in set(kept)]
     added = [i for i in kept if i not in set(ids)]
     what = (f"{len(kept)} of the {len(ids)} neighbours"

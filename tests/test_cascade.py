@@ -1,5 +1,5 @@
 """The encoder cascade (`ratouch.serve.cascade`), its calibration rule
-(`ratouch.eval.cascade`) and the per-query model choice (`ratouch.serve.models`); the
+(`ratouch.ship.cascade`) and the per-query model choice (`ratouch.serve.models`); the
 serving ones over the debug pipeline (the real query path, untrained weights)."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
-from ratouch.eval.cascade import choose_thresholds
 from ratouch.serve.cascade import Cascade, CascadeCalibration, joint_confidence
 from ratouch.serve.models import ModelChoice
 from ratouch.serve.request import QueryRequest, answer_one
+from ratouch.ship.cascade import choose_thresholds
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

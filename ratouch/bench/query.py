@@ -19,6 +19,7 @@ from ratouch.corpus.imagenet_t import (
 )
 from ratouch.model.decoder import generate_together
 from ratouch.model.fastpath import GreedyStack, StackCache
+from ratouch.search.modes import RA_TOUCH_MODE
 from ratouch.search.retrieval_side import default_corpus
 from ratouch.serve.cascade import CASCADE, Cascade
 from ratouch.serve.models import Model, load_model
@@ -120,7 +121,7 @@ def bench_regenerate(model: Model, samples: list, k: int = 5) -> dict:
     times = []
     for s in samples:
         request = QueryRequest.decode(s.visual, s.tactile, box=s.box, k=k)
-        ids = [n["id"] for n in answer_one(model, request).neighbours["joint"]]
+        ids = [n["id"] for n in answer_one(model, request).neighbours[RA_TOUCH_MODE]]
         times.append(model.regenerate(request, ids[1:])["timings_ms"]["total"])
     return {"p50": round(float(np.median(times)), 1),
             "p95": round(float(np.percentile(times, 95)), 1), "target": 50}

@@ -1,5 +1,6 @@
 """Which vision tower (`ratouch bench towers`): speed against accuracy of the render-trained CNN
-and the frozen ImageNet priors (EfficientNet-Lite0/Lite2) at several input sizes.
+and every frozen ImageNet prior of the registry (`ratouch.encoders.prior_registry.PRIORS`) at
+several input sizes.
 
 Everything is measured on **validation renders only**: the world's train split from index
 ``VALIDATION_START + 200_000`` on (no training run reads these indices; same distribution as
@@ -50,6 +51,7 @@ from ratouch.corpus.imagenet_t import stratified_world_ids
 from ratouch.encoders.default import vision_tensor
 from ratouch.encoders.factory import create_model, shipped_weights
 from ratouch.encoders.prior import load_prior
+from ratouch.encoders.prior_registry import PRIORS, prior_spec
 from ratouch.errors import ConfigError, DataError, RATouchError, ServiceError
 from ratouch.eval.report import png_bytes, write_plotly_js
 from ratouch.eval.retrieval import material_precision
@@ -62,11 +64,15 @@ from ratouch.world.generator import World
 
 log = logging.getLogger(__name__)
 
-#: The towers `bench_towers` knows.
-TOWERS = ("cnn", "lite0", "lite2")
-#: Input sizes (pixels, square) per prior tower, by default.
-DEFAULT_SIZES: dict[str, tuple[int, ...]] = {"lite0": (96, 128, 160, 224),
-                                             "lite2": (96, 128, 160, 224, 260)}
+#: The render-trained CNN's name among the towers; the others are the registry's priors.
+CNN = "cnn"
+#: One colour per tower in the chart, in the towers' order.
+_PALETTE = ("#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf")
+
+
+def tower_names() -> tuple[str, ...]:
+    """The towers `bench_towers` knows: the CNN, then every registered prior."""
+    return (CNN, *PRIORS)
 #: How far below the best probe accuracy the chosen tower may be.
 TOLERANCE = 0.02
 RULE = (f"the fastest tower/size (single-crop p50 latency) whose probe accuracy is within "
@@ -153,7 +159,7 @@ class CNNTower(_Tower):
         self.encoder = encoder
         self.random = weights is None
         h, w = model.cfg.vision_size
-        self.name, self.size, self.hw = "cnn", int(h), (h, w)
+        self.name, self.size, self.hw = CNN, int(h), (h, w)
         self.label = f"cnn@{h}" + (" (random weights)" if self.random else
                                    " (vision.* only)" if self.note else "")
 
@@ -254,12 +260,12 @@ def choose(points: Sequence[dict], tolerance: float = TOLERANCE) -> dict | None:
 
 def _sizes_for(tower: str, sizes: Sequence[int] | None) -> tuple[int, ...]:
     if sizes is None:
-        return DEFAULT_SIZES[tower]
+        return prior_spec(tower).sizes
     return tuple(int(s) for s in sizes)
 
 
 def bench_towers(n: int = 600, sizes: Sequence[int] | None = None,
-                 towers: Sequence[str] = TOWERS, seed: int = 0, encoder: str = "default-s",
+                 towers: Sequence[str] | None = None, seed: int = 0, encoder: str = "default-s",
                  gallery: int = 840, cnn_weights: str | None = "shipped",
                  cnn_partial: bool = True, threads: int = 2,
                  latency_reps: int = 30, batch: int = 64,
@@ -269,8 +275,9 @@ def bench_towers(n: int = 600, sizes: Sequence[int] | None = None,
     Args:
         n: renders (train split from ``VALIDATION_START + 200_000``) for the probe and as
             retrieval queries.
-        sizes: input sizes for the prior towers; None: :data:`DEFAULT_SIZES` (lite2 also 260).
-        towers: any of :data:`TOWERS`.
+        sizes: input sizes for the prior towers; None: each row's `PriorSpec.sizes` (the usual
+            ones below its own input size, and its own).
+        towers: any of `tower_names()` (None: all).
         seed: the probe folds' shuffle and the gallery sample.
         encoder: whose render-trained CNN is the ``cnn`` tower.
         gallery: corpus entries (class-stratified) searched by the precision@5.
@@ -294,9 +301,10 @@ def bench_towers(n: int = 600, sizes: Sequence[int] | None = None,
         "settings": {...}}.
     """
     say = progress or (lambda line: None)
-    unknown = [t for t in towers if t not in TOWERS]
+    towers = tower_names() if towers is None else towers
+    unknown = [t for t in towers if t not in tower_names()]
     if unknown:
-        raise ConfigError(f"unknown tower(s) {unknown}; choose from {list(TOWERS)}")
+        raise ConfigError(f"unknown tower(s) {unknown}; choose from {list(tower_names())}")
     if n < 4:
         raise ConfigError(f"n={n}: the 2-fold probe needs at least 4 renders")
     if sizes is not None and any(not 32 <= int(s) <= 1024 for s in sizes):
@@ -370,13 +378,13 @@ def bench_towers(n: int = 600, sizes: Sequence[int] | None = None,
 def _towers(name: str, sizes, encoder: str, cnn_weights, cnn_partial: bool,
             skipped: list[dict[str, str]], say) -> Iterator[_Tower]:
     """The towers to measure for `name`, one at a time; failures to load become `skipped`."""
-    if name == "cnn":
+    if name == CNN:
         try:
             cnn = CNNTower(encoder, cnn_weights, cnn_partial)
         except (RATouchError, OSError, ImportError) as e:
             reason = (f"encoder {encoder!r} with weights {cnn_weights!r} did not load: "
                       f"{type(e).__name__}: {e}")
-            skipped.append({"tower": "cnn", "reason": reason})
+            skipped.append({"tower": CNN, "reason": reason})
             say(f"skipped cnn: {reason}")
             return
         if cnn.note:
@@ -424,9 +432,9 @@ def tower_figure(result: dict):
     import plotly.graph_objects as go
 
     fig = go.Figure()
-    colours = {"cnn": "#d62728", "lite0": "#1f77b4", "lite2": "#2ca02c"}
+    colours = dict(zip(tower_names(), _PALETTE * 2))
     pts = result["points"]
-    for tower in TOWERS:
+    for tower in tower_names():
         sel = [p for p in pts if p["tower"] == tower]
         if sel:
             fig.add_scatter(

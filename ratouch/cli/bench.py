@@ -18,7 +18,7 @@ from ratouch.bench.index import (
 )
 from ratouch.bench.memory import bench_memory, format_memory
 from ratouch.bench.query import bench_query, bench_world
-from ratouch.bench.towers import TOWERS, bench_towers, format_towers, write_towers
+from ratouch.bench.towers import bench_towers, format_towers, tower_names, write_towers
 from ratouch.bench.tradeoff import bench_tradeoff, format_tradeoff, tradeoff_figure
 from ratouch.bench.upload import bench_upload
 from ratouch.cli.common import usage
@@ -52,10 +52,10 @@ def _bench_tradeoff(args: argparse.Namespace) -> int:
 
 
 def _bench_towers(args: argparse.Namespace) -> int:
-    towers = _csv(args.towers)
-    bad = set(towers) - set(TOWERS)
+    towers = _csv(args.towers) if args.towers else list(tower_names())
+    bad = set(towers) - set(tower_names())
     if bad or not towers:
-        raise usage(f"--towers: unknown tower(s) {sorted(bad)}; use {', '.join(TOWERS)}")
+        raise usage(f"--towers: unknown tower(s) {sorted(bad)}; use {', '.join(tower_names())}")
     sizes = _csv(args.sizes, int) if args.sizes else None
     r = bench_towers(n=args.n, sizes=sizes, towers=towers, encoder=args.encoder,
                      gallery=args.gallery, threads=args.threads, latency_reps=args.reps,

@@ -451,14 +451,17 @@ def _add_bench(sub) -> None:
     mem.add_argument("--modes", default="I;16,1,L,P,RGB,CMYK,F", help="PIL modes measured")
     mem.add_argument("--box-side", type=_pos_int, default=512, help="the contact box's side")
     mem.add_argument("--json", action="store_true", help="print JSON")
-    tw = bsub.add_parser("towers", help="vision towers (the render CNN, EfficientNet-Lite0/2 "
+    tw = bsub.add_parser("towers", help="vision towers (the render CNN and every registered "
+                                        "visual prior, "
                                         "at several input sizes): material probe and P@5 "
                                         "against single-crop latency on validation renders; "
                                         "one chart and the chosen tower")
     tw.add_argument("--n", type=_pos_int, default=600, help="validation renders")
-    tw.add_argument("--towers", default="cnn,lite0,lite2")
+    tw.add_argument("--towers", default=None,
+                    help="comma-separated: cnn and visual priors (default: all of them)")
     tw.add_argument("--sizes", default=None,
-                    help="prior input sizes (default: 96,128,160,224; lite2 also 260)")
+                    help="prior input sizes (default: 96,128,160,224 below each prior's own "
+                         "input size, and its own)")
     tw.add_argument("--encoder", default=DEFAULT_ENCODER, help="whose render-trained CNN")
     tw.add_argument("--gallery", type=_pos_int, default=840,
                     help="corpus entries searched by the precision@5")

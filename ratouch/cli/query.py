@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 from ratouch.cli.common import usage
+from ratouch.search.modes import RA_TOUCH_MODE
 from ratouch.serve.models import load_model
 from ratouch.serve.request import QueryRequest, answer_one
 from ratouch.threads import intra_op_threads
@@ -31,7 +32,8 @@ def _query(args: argparse.Namespace, swap: list[int] | None) -> int:
                                   label=args.label, background=args.background)
     result = answer_one(model, request).to_dict()
     if args.drop is not None or swap is not None:
-        ids = swap if swap is not None else [n["id"] for n in result["neighbours"]["joint"]]
+        ids = swap if swap is not None else [n["id"] for n in
+                                             result["neighbours"][RA_TOUCH_MODE]]
         drop = set(args.drop or ())
         if drop - set(ids):
             raise usage(f"--drop: {sorted(drop - set(ids))} are not among the neighbours {ids}")
@@ -51,8 +53,8 @@ def _neighbours_file(path: str) -> list[int]:
     if isinstance(data, dict):
         data = data.get("regenerated", data)
         nb = data.get("neighbours") if isinstance(data, dict) else None
-        if isinstance(nb, dict):  # a query's output: {"image"|"tactile"|"joint": [...]}
-            nb = nb.get("joint")
+        if isinstance(nb, dict):  # a query's output: {mode: [...]}
+            nb = nb.get(RA_TOUCH_MODE)
         data = [n.get("id") if isinstance(n, dict) else n for n in nb] \
             if isinstance(nb, list) else None
     if not isinstance(data, list) or not all(isinstance(i, int) and not isinstance(i, bool)

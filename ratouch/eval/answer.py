@@ -24,6 +24,7 @@ import numpy as np
 from ratouch.errors import ConfigError, DataError
 from ratouch.eval.catalog import BASELINE, RA_TOUCH, SYSTEMS
 from ratouch.eval.judge import RESPONSE_KEY, judge_results
+from ratouch.search.modes import RA_TOUCH_MODE
 from ratouch.search.retrieval import mode_query
 from ratouch.vocabulary import TVL_QUESTION
 
@@ -31,9 +32,9 @@ __all__ = ["BASELINE", "RA_TOUCH", "SYSTEMS", "Answers", "answer_split",
            "describe", "judge_answers", "records_for", "retrieve"]
 
 
-def retrieve(pipeline, V: np.ndarray, T: np.ndarray, k: int, mode: str = "joint",
+def retrieve(pipeline, V: np.ndarray, T: np.ndarray, k: int, mode: str = RA_TOUCH_MODE,
              key: str = "text") -> np.ndarray:
-    """(N, k) corpus ids for a query mode (image / tactile / joint) against a key index."""
+    """(N, k) corpus ids for a query mode (a name of `QUERY_MODES`) against a key index."""
     return pipeline.corpus.search(key, mode_query(mode, V, T, pipeline.joint_query), k)[1]
 
 
@@ -104,7 +105,8 @@ class Answers:
     summary: dict = field(default_factory=dict)
 
 
-def answer_split(pipeline, split, system: str = RA_TOUCH, *, k: int = 5, mode: str = "joint",
+def answer_split(pipeline, split, system: str = RA_TOUCH, *, k: int = 5,
+                 mode: str = RA_TOUCH_MODE,
                  ids: np.ndarray | None = None,
                  neighbours: tuple[np.ndarray, np.ndarray] | None = None, generator=None,
                  name: str | None = None, judge=None, batch: int = 128) -> Answers:

@@ -2,7 +2,7 @@
 
 For every (condition, test sample): the no-retrieval baseline's and RA-Touch's descriptions and
 their offline-judge scores, and the material precision@K of the neighbours that each query mode
-(image / tactile / joint) retrieves. Two questions are asked of the table:
+(`ratouch.search.modes.QUERY_MODES`) retrieves. Two questions are asked of the table:
 
 - where does RA-Touch score lowest (and how far below the baseline, `ra_delta`)?
 - where does the joint (Tactile-Guided Retriever) query retrieve worse neighbours than the best
@@ -40,7 +40,7 @@ from ratouch.paths import (
     generator_weights,
     retriever_weights,
 )
-from ratouch.search.retrieval import QUERY_MODES
+from ratouch.search.modes import QUERY_MODES, RA_TOUCH_MODE
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
 from ratouch.world.generator import TEST_SIZE, World
@@ -166,9 +166,9 @@ def failure_cases(pipeline, world: WorldConfig | None = None, k: int = 5,
     Returns:
         Rows {"condition", "index", "subset", "material", "object_scale", "label",
         "baseline", "ra_touch", "baseline_score", "ra_score", "ra_delta",
-        "precision_image", "precision_tactile", "precision_joint", "best_unimodal",
-        "joint_gap", "joint_loses"}; precisions are material precision@K of each mode's
-        neighbours, `joint_gap` = best unimodal precision - joint precision.
+        "precision_<mode>" per query mode (`QUERY_MODES`), "best_unimodal", "joint_gap",
+        "joint_loses"}; precisions are material precision@K of each mode's neighbours,
+        `joint_gap` = the best other mode's precision - that of the mode RA-Touch reads.
     """
     conditions = _check_conditions(conditions)
     if not 1 <= int(k) <= len(pipeline.corpus.entries):
@@ -196,14 +196,13 @@ def failure_cases(pipeline, world: WorldConfig | None = None, k: int = 5,
         ra = answer_split(pipeline, split, RA_TOUCH, k=k, judge=judge)
         step(f"{cond}: retrieval quality and judging")
         assert ra.ids is not None  # RA-Touch read the joint query's neighbours
-        prec = {"joint": material_precision(ra.ids, split.materials, entry_mats)}
-        for mode in ("image", "tactile"):
-            prec[mode] = material_precision(retrieve(pipeline, split.V, split.T, k, mode),
-                                            split.materials, entry_mats)
+        prec = {mode: material_precision(ra.ids if mode == RA_TOUCH_MODE else
+                                         retrieve(pipeline, split.V, split.T, k, mode),
+                                         split.materials, entry_mats) for mode in MODES}
         s_base, s_ra = base.scores, ra.scores
         for j, idx in enumerate(split.indices):
-            best = max(float(prec["image"][j]), float(prec["tactile"][j]))
-            pj = float(prec["joint"][j])
+            best = max(float(prec[m][j]) for m in MODES if m != RA_TOUCH_MODE)
+            pj = float(prec[RA_TOUCH_MODE][j])
             rows.append({
                 "condition": cond, "index": int(idx), "subset": split.subsets[j],
                 "material": split.materials[j], "object_scale": round(split.object_scale[j], 3),

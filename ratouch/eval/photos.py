@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ratouch.encoders.prior import imagenet_names, load_prior
+from ratouch.encoders.prior_registry import DEFAULT_PRIOR
 from ratouch.errors import ConfigError, DataNotFoundError
 from ratouch.images import QUERY_MAX_SIDE, crop_box, tvl_contact_box
 from ratouch.paths import REPO
@@ -123,12 +124,12 @@ def _encoders(pipeline):
 
 def _prior_and_size(pipeline, prior=None, size: int | None = None):
     """The visual prior to classify crops with and the side it reads them at: the pipeline's
-    encoders' own prior, else lite0; at the prior's own input size (what the photo route
+    encoders' own prior, else `DEFAULT_PRIOR`; at the prior's own input size (what the photo route
     reads), unless `size` is given."""
     if prior is None:
         prior = getattr(_encoders(pipeline), "visual_prior", None)
     if prior is None:
-        prior = load_prior("lite0")
+        prior = load_prior(DEFAULT_PRIOR)
     return prior, int(size or prior.spec.input_size)
 
 
@@ -164,7 +165,7 @@ def evaluate_photos(pipeline, k: int = 5, names: list[str] | None = None, prior=
         k: neighbours per photo.
         names: photos to query (default: the scikit-image photos of :func:`photo_set`).
         prior: the visual prior whose ImageNet classifier reads each crop (default: the
-            pipeline's encoders' prior, else lite0).
+            pipeline's encoders' prior, else `DEFAULT_PRIOR`).
         prior_size: the side it reads crops at (default: the prior's own input size, the
             size the photo route reads).
 

@@ -9,7 +9,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ratouch.search.retrieval import CorpusSearch, mode_query
+from ratouch.search.retrieval import CorpusSearch
 from ratouch.vocabulary import parse_adjectives
 from ratouch.world.config import WorldConfig
 from ratouch.world.generator import TEST_SIZE, World
@@ -71,9 +71,7 @@ def evaluate_retrieval(retriever: CorpusSearch, world_cfg: WorldConfig | None = 
     """
     world_cfg = world_cfg or WorldConfig()
     q = queries or split_queries(world_cfg)
-    emb = retriever.embed_queries(q["crops"], q["tactiles"], q["backgrounds"])
-    if joint_fn is not None:
-        emb["joint"] = mode_query("joint", emb["image"], emb["tactile"], joint_fn)
+    emb = retriever.embed_queries(q["crops"], q["tactiles"], q["backgrounds"], joint_fn)
     kmax = max(ks)
     results = retriever.retrieve(emb, kmax)
     entries = retriever.corpus.entries

@@ -380,7 +380,7 @@ class TrustCalibration:
             T: (1, D) tactile embedding, or None (no tactile image).
             frame: the tactile frame (uint8), or None.
             background: the sensor's no-contact frame, or None.
-            prior: (1, 1280) the visual prior's features of the crop, or None.
+            prior: (1, F) the visual prior's features of the crop, or None.
             sensor: which sensor family the frame was read as ({"family", "source"}), or None.
 
         Returns:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 from PIL import Image
@@ -20,35 +20,22 @@ from ratouch.corpus.embed import check_encoder_weights, load_embeddings
 from ratouch.corpus.imagenet_t import CorpusEntry, load_corpus, parse_world_source
 from ratouch.errors import ConfigError, DataError
 from ratouch.search.index import IndexConfig, VectorIndex
+from ratouch.search.modes import QUERY_MODES, JointQuery
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
 
-#: The three query modes: the visual crop's embedding, the tactile frame's, and the
-#: Tactile-Guided Retriever's joint query made from both.
-QUERY_MODES = ("image", "tactile", "joint")
+
+def mode_query(mode: str, V: np.ndarray, T: np.ndarray, joint_query: JointQuery) -> np.ndarray:
+    """A query mode's (N, D) C-contiguous float32 query vectors from the visual embeddings `V`,
+    the tactile ones `T` and the Tactile-Guided Retriever's `joint_query` (e.g.
+    `RATouchPipeline.joint_query`), as its row in `QUERY_MODES` makes them."""
+    return QUERY_MODES[mode].vectors(V, T, joint_query)
 
 
-
-def mode_query(mode: str, V: np.ndarray, T: np.ndarray,
-               joint_query: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
-    """The one place a query mode becomes its query vectors: (N, D) C-contiguous float32 --
-    the visual embeddings `V` for "image", the tactile ones `T` for "tactile", and
-    ``joint_query(V, T)`` (the Tactile-Guided Retriever's, e.g. `RATouchPipeline.joint_query`)
-    for "joint", computed only for that mode."""
-    if mode not in QUERY_MODES:
-        raise ConfigError(f"mode must be one of {QUERY_MODES}, got {mode!r}")
-    q = V if mode == "image" else T if mode == "tactile" else joint_query(V, T)
-    return np.ascontiguousarray(q, np.float32)
-
-
-#: The paper's five retrieval settings (Table 4): query mode -> key modality.
-SETTINGS: dict[str, tuple[str, str]] = {
-    "image_image": ("image", "image"),
-    "image_text": ("image", "text"),
-    "tactile_image": ("tactile", "image"),
-    "tactile_text": ("tactile", "text"),
-    "joint_text": ("joint", "text"),
-}
+def retrieval_settings() -> dict[str, tuple[str, str]]:
+    """The retrieval settings, "<mode>_<key>" -> (query mode, key modality): every mode against
+    each key its row names (the paper's five of Table 4 for the built-in modes)."""
+    return {f"{m}_{key}": (m, key) for m, row in QUERY_MODES.items() for key in row.keys}
 
 
 @dataclass(frozen=True)
@@ -152,34 +139,38 @@ class CorpusSearch:
 
     def embed_queries(self, images: Sequence[np.ndarray] | None = None,
                       tactiles: Sequence[np.ndarray] | None = None,
-                      backgrounds: Sequence[np.ndarray | None] | None = None
-                      ) -> dict[str, np.ndarray]:
-        """Query embeddings: images are visual crops (the contact box), tactiles frames."""
-        out = {}
-        if images is not None:
-            out["image"] = self.encoders.encode_image(list(images))
-        if tactiles is not None:
-            out["tactile"] = self.encoders.encode_tactile(list(tactiles), backgrounds)
-        return out
+                      backgrounds: Sequence[np.ndarray | None] | None = None,
+                      joint_query: JointQuery | None = None) -> dict[str, np.ndarray]:
+        """Query vectors of every mode (`QUERY_MODES`) whose inputs are given: images are
+        visual crops (the contact box), tactiles frames, `joint_query` the Tactile-Guided
+        Retriever (modes that need it are left out without it)."""
+        V = None if images is None else self.encoders.encode_image(list(images))
+        T = None if tactiles is None else self.encoders.encode_tactile(list(tactiles),
+                                                                      backgrounds)
+        have = {name for name, x in (("image", V), ("tactile", T), ("retriever", joint_query))
+                if x is not None}
+        return {m: row.vectors(V, T, joint_query) for m, row in QUERY_MODES.items()
+                if row.available(have)}
 
     def retrieve(self, queries: dict[str, np.ndarray], k: int = 5,
                  settings: Sequence[str] | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Top-k (scores, ids) per setting, batched over queries.
 
         Args:
-            queries: {"image": (Q, D), "tactile": (Q, D), "joint": (Q, D)}, any subset.
+            queries: {mode: (Q, D)} for any of `QUERY_MODES`.
             k: neighbours per query.
-            settings: names from SETTINGS; default every setting whose query is given.
+            settings: names from `retrieval_settings()`; default every setting whose query is given.
         """
         if k < 1 or k > len(self.corpus):
             raise ConfigError(f"K={k} must lie in [1, {len(self.corpus)}] (the corpus size)")
-        names = list(settings) if settings else [s for s, (q, _) in SETTINGS.items()
+        known = retrieval_settings()
+        names = list(settings) if settings else [s for s, (q, _) in known.items()
                                                 if q in queries]
         out = {}
         for name in names:
-            if name not in SETTINGS:
-                raise ConfigError(f"unknown retrieval setting {name!r}; known: {list(SETTINGS)}")
-            q, key = SETTINGS[name]
+            if name not in known:
+                raise ConfigError(f"unknown retrieval setting {name!r}; known: {list(known)}")
+            q, key = known[name]
             if q not in queries:
                 raise ConfigError(f"setting {name!r} needs a {q} query")
             out[name] = self.corpus.search(key, queries[q], k)

@@ -11,7 +11,7 @@ retrieves, without labels:
 
 Which measure and which threshold are set on the world's validation renders (training-split
 renders beyond any training run's pairs, as the trust calibration's), never on the test split:
-`ratouch train cascade` (`ratouch.eval.cascade`) writes the calibration, a small JSON file
+`ratouch train cascade` (`ratouch.ship.cascade`) writes the calibration, a small JSON file
 shipped beside the weights (`ratouch.paths.cascade_calibration`).
 
 `Cascade` is an `Answerer` (`ratouch.serve.request`) over its stages' pipelines, and a model
@@ -34,6 +34,7 @@ import numpy as np
 from ratouch import paths
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
+from ratouch.search.modes import RA_TOUCH_MODE
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.serve.request import QueryRequest, QueryResult, all_answered, slots_for
 from ratouch.timing import Laps
@@ -182,10 +183,10 @@ class Cascade:
         """Stage `stage`'s confidence in each encoded request's joint query (NaN without
         one); `encoded` is what that stage's `RATouchPipeline.encode` made."""
         conf = np.full(len(encoded), np.nan)
-        rows = [j for j, e in enumerate(encoded) if "joint" in e.queries]
+        rows = [j for j, e in enumerate(encoded) if RA_TOUCH_MODE in e.queries]
         if rows:
             scores, ids = self.stages[stage].corpus.search(
-                "text", np.concatenate([encoded[j].queries["joint"] for j in rows]),
+                "text", np.concatenate([encoded[j].queries[RA_TOUCH_MODE] for j in rows]),
                 self.calibration.k)
             conf[rows] = joint_confidence(scores, ids, self._classes, self.calibration.measure)
         return conf

@@ -7,8 +7,8 @@ decoded `QueryRequest`s, one or several at once (batched encoders, one index sea
 generation), and returns a `QueryResult` each, whose `to_dict()` is what `ratouch query`
 prints and the app shows. `query` is the convenience for one call.
 
-The three galleries are the three query modes (`QUERY_MODES`), each against the corpus's
-text embeddings (Table 4's x->text settings).
+A result's neighbours are those of each query mode (`ratouch.search.modes.QUERY_MODES`),
+each against the corpus's text embeddings (Table 4's x->text settings).
 """
 
 from __future__ import annotations
@@ -30,8 +30,9 @@ from ratouch.model.neighbour_tokens import KIND as NEIGHBOUR_TOKENS
 from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
 from ratouch.model.trust import TrustCalibration
 from ratouch.paths import generator_weights, trust_calibration
+from ratouch.search.modes import IMAGE_MODE, QUERY_MODES, RA_TOUCH_MODE
 from ratouch.search.pca import PCA2D
-from ratouch.search.retrieval import QUERY_MODES, CorpusSearch
+from ratouch.search.retrieval import CorpusSearch
 from ratouch.search.retrieval_side import (
     RetrievalSide,
     default_corpus,
@@ -88,14 +89,19 @@ class Encoded:
     """One request as `RATouchPipeline.encode` leaves it for `respond`.
 
     Attributes:
-        queries: {mode: (1, D) query}: "image", and "tactile" and "joint" with a frame.
-        prior: (1, 1280) the visual prior's features of the crop, or None (no prior).
+        V: (1, D) the crop's image embedding.
+        T: (1, D) the frame's tactile embedding, or None (no frame).
+        queries: {mode: (1, D) query}: every mode of `QUERY_MODES` in its order, those that
+            need a tactile frame only with one.
+        prior: (1, F) the visual prior's features of the crop, or None (no prior).
         photo: the photo route's query where it answered the crop (its image neighbours
             are then the route's ranking, not a search), else None.
         warnings: what encoding adds to the request's warnings (the photo route's note).
     """
 
-    queries: dict[str, np.ndarray]
+    V: np.ndarray
+    T: np.ndarray | None = None
+    queries: dict[str, np.ndarray] = field(default_factory=dict)
     prior: np.ndarray | None = None
     photo: PhotoQuery | None = None
     warnings: list[str] = field(default_factory=list)
@@ -185,13 +191,18 @@ class RATouchPipeline(RetrievalSide):
         return all_answered(out)
 
     def encode(self, requests: Sequence[QueryRequest], clock: Laps) -> list[Encoded]:
-        """Step 1: the image queries of the crops, the tactile queries of the frames and the
-        Tactile-Guided Retriever's joint queries."""
+        """Step 1: the crops' image embeddings, the frames' tactile ones, and from them each
+        query mode's vectors (`QUERY_MODES`; a mode that needs a frame only where there is
+        one)."""
         V, P, photos = self.encode_images([r.crop for r in requests])
-        encoded = []
-        for j, photo in enumerate(photos):
-            encoded.append(Encoded({"image": V[j:j + 1]}, None if P is None else P[j:j + 1],
-                                   photo, [] if photo is None else [photo.note]))
+        encoded = [Encoded(V[j:j + 1], None, {}, None if P is None else P[j:j + 1], photo,
+                           [] if photo is None else [photo.note])
+                   for j, photo in enumerate(photos)]
+        for mode in QUERY_MODES.values():
+            if not mode.needs_touch:
+                q = mode.vectors(V, None, self.joint_query)
+                for j, e in enumerate(encoded):
+                    e.queries[mode.name] = q[j:j + 1]
         clock.lap("encode_image")
         touch = [j for j, r in enumerate(requests) if r.frame is not None]
         if touch:
@@ -199,10 +210,16 @@ class RATouchPipeline(RetrievalSide):
             T = self.encoders.encode_tactile([requests[j].frame for j in touch],
                                              bgs if any(b is not None for b in bgs) else None)
             clock.lap("encode_tactile")
-            J = self.joint_query(V[touch], T)
             for r, j in enumerate(touch):
-                encoded[j].queries["tactile"], encoded[j].queries["joint"] = T[r:r + 1], J[r:r + 1]
+                encoded[j].T = T[r:r + 1]
+            for mode in QUERY_MODES.values():
+                if mode.needs_touch:
+                    q = mode.vectors(V[touch], T, self.joint_query)
+                    for r, j in enumerate(touch):
+                        encoded[j].queries[mode.name] = q[r:r + 1]
             clock.lap("retriever")
+        for e in encoded:  # the modes' order, whichever were made first
+            e.queries = {m: e.queries[m] for m in QUERY_MODES if m in e.queries}
         return encoded
 
     def respond(self, requests: Sequence[QueryRequest], encoded: Sequence[Encoded],
@@ -213,7 +230,7 @@ class RATouchPipeline(RetrievalSide):
         found = self._search(requests, encoded)
         clock.lap("search")
         # a frame without contact has no material to describe: no generation for it
-        touch = [j for j, (e, t) in enumerate(zip(encoded, trust)) if "tactile" in e.queries
+        touch = [j for j, (e, t) in enumerate(zip(encoded, trust)) if e.T is not None
                  and not (t and (t["tactile"] or {}).get("no_contact"))]
         ra, base, attention = self._generate(requests, encoded, found, touch, clock)
         points = self._project(requests, encoded, found)
@@ -243,7 +260,7 @@ class RATouchPipeline(RetrievalSide):
             name, distance = guess_family(request.frame)
             sensor = {"family": name, "source": "guessed from the frame's colours",
                       "distance": round(distance, 3)}
-        return self.trust.assess(encoded.queries["image"], encoded.queries.get("tactile"),
+        return self.trust.assess(encoded.V, encoded.T,
                                  request.frame, request.background, encoded.prior, sensor)
 
     def _trust_warnings(self, trust: dict | None) -> list[str]:
@@ -263,7 +280,7 @@ class RATouchPipeline(RetrievalSide):
             if e.photo is not None:
                 assert self.photos is not None   # only the route makes a PhotoQuery
                 sc, ii = self.photos.neighbours(e.photo, requests[j].k)
-                found[j]["image"] = (sc[None], ii[None])
+                found[j][IMAGE_MODE] = (sc[None], ii[None])
         rows = [(j, m) for j, e in enumerate(encoded) for m in QUERY_MODES
                 if m in e.queries and m not in found[j]]
         if not rows:
@@ -285,14 +302,14 @@ class RATouchPipeline(RetrievalSide):
         attention: dict[int, dict] = {}
         if not touch:
             return ra, base, attention
-        V = np.concatenate([encoded[j].queries["image"] for j in touch])
-        T = np.concatenate([encoded[j].queries["tactile"] for j in touch])
+        V = np.concatenate([encoded[j].V for j in touch])
+        T = np.concatenate([encoded[j].T for j in touch])
         by_k: dict[int, list[int]] = {}
         for r, j in enumerate(touch):
             by_k.setdefault(requests[j].k, []).append(r)
         p_ra: list = [None] * len(touch)
         for rows in by_k.values():
-            nb = np.concatenate([found[touch[r]]["joint"][1] for r in rows])
+            nb = np.concatenate([found[touch[r]][RA_TOUCH_MODE][1] for r in rows])
             prefix, weights = self.ra_prefix(V[rows], T[rows], nb)
             for n, r in enumerate(rows):
                 p_ra[r] = prefix[n]
@@ -324,7 +341,7 @@ class RATouchPipeline(RetrievalSide):
 
     def encode_images(self, crops: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray | None,
                                                                  list[PhotoQuery | None]]:
-        """Image queries of visual crops: (N, D) V, the prior's (N, 1280) features (None
+        """Image queries of visual crops: (N, D) V, the prior's (N, F) features (None
         without a prior) and, per crop, the photo route's query where it answered it.
 
         A crop the trust calibration finds novel in the prior's feature space (a real

@@ -170,10 +170,11 @@ class QueryResult:
     app's `/query` API returns and the page shows).
 
     Attributes:
-        neighbours: {"image"|"tactile"|"joint": [{"id", "score", "class_name", "caption",
-            "description", "source"}]}, best first (the modes the request allows).
+        neighbours: {mode: [{"id", "score", "class_name", "caption", "description",
+            "source"}]}, best first, per query mode (`ratouch.search.modes.QUERY_MODES`, in
+            its order) that the request allows (those needing a frame only with one).
         description: {"ra_touch", "baseline"} ("" where not generated).
-        attention: {"image"|"text": [RA-Touch's integrator weight per joint neighbour]}.
+        attention: {"image"|"text": [RA-Touch's integrator weight per neighbour it read]}.
         pca: {"points": [{"role", "x", "y", "id"?}], "explained": [..]}.
         timings_ms: {stage: ms, ..., "total": ms, "batch_size", "decode": this request's
             decoding, done before it was answered}; the stages are the batch's, shared by its

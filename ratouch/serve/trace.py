@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ratouch.errors import DataError
+from ratouch.search.modes import RA_TOUCH_MODE
 from ratouch.serve.request import QueryResult
 from ratouch.vocabulary import parse_adjectives
 
@@ -95,7 +96,7 @@ def trace_retrieval(result: QueryResult | Mapping[str, Any], top: int = 3
         raise DataError(f"top must be at least 1 (attended neighbours to show), got {top!r}")
     res = result.to_dict() if isinstance(result, QueryResult) else result
     description = res.get("description") or {}
-    joint = (res.get("neighbours") or {}).get("joint") or []
+    joint = (res.get("neighbours") or {}).get(RA_TOUCH_MODE) or []
     ra_text = description.get("ra_touch") or ""
     if not ra_text or not joint:
         return None

@@ -1,5 +1,5 @@
 """The reproducible training recipes behind `ratouch train retriever|generator` (and the
-steps of `ratouch train all`, `ratouch.eval.retrain`): they wire cached data, frozen encoders,
+steps of `ratouch train all`, `ratouch.ship.retrain`): they wire cached data, frozen encoders,
 the retrieval side and the trainers together, and save the weights shipped in `assets/`."""
 
 from __future__ import annotations

@@ -8,14 +8,16 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from ratouch.errors import ConfigError
+from ratouch.search.modes import RA_TOUCH_MODE
+from ratouch.search.retrieval import retrieval_settings
 
 if TYPE_CHECKING:
     import plotly.graph_objects as go
 
 SUBSET_NAMES = {"SSVTP": "structured", "HCT": "wild"}
 CAPTION_TYPES = ("class_name", "visual_description", "tactile_caption")
-QUERY_KEY = (("image", "image"), ("image", "text"), ("tactile", "image"), ("tactile", "text"),
-             ("joint", "text"))
+#: Table 4's (query mode, key modality) settings: the built-in modes' `retrieval_settings`.
+QUERY_KEY = tuple(retrieval_settings().values())
 INTEGRATIONS = ("image", "text", "both")
 
 
@@ -28,7 +30,7 @@ class Variant:
     """
 
     retrieval: bool = True
-    mode: str = "joint"            # query: image / tactile / joint (Tactile-Guided Retriever)
+    mode: str = RA_TOUCH_MODE      # query: a name of QUERY_MODES (default: the joint query)
     key: str = "text"              # key: image / text embeddings of the corpus
     caption: str = "tactile_caption"  # what the corpus text embeddings encode (Table 3)
     integration: str = "both"      # image / text / both (Table 5) / sum (Table 2)

@@ -6,9 +6,8 @@ from __future__ import annotations
 import math
 
 from ratouch.eval.answer import SYSTEMS
-from ratouch.search.retrieval import QUERY_MODES
+from ratouch.search.modes import QUERY_MODES
 
-_MODE_COLOURS = {"image": "#1f77b4", "tactile": "#ff7f0e", "joint": "#2ca02c"}
 _SYSTEM_COLOURS = dict(zip(SYSTEMS, ("#7f7f7f", "#d62728")))
 
 
@@ -49,8 +48,8 @@ def figures(result: dict):
         first = j == 0
         for m in QUERY_MODES:
             common = dict(x=xs, mode="lines+markers", legendgroup=m, showlegend=first, text=text,
-                          marker=dict(symbol=symbols, size=9, color=_MODE_COLOURS[m]),
-                          line=dict(color=_MODE_COLOURS[m]))
+                          marker=dict(symbol=symbols, size=9, color=QUERY_MODES[m].colour),
+                          line=dict(color=QUERY_MODES[m].colour))
             quality.add_trace(go.Scatter(y=[p["retrieval"][m]["material_precision"] for p in pts],
                                          name=f"P@{k} {m}", **common), row=r, col=c,
                               secondary_y=False)

@@ -15,7 +15,7 @@ from ratouch.eval.report import png_bytes, write_plotly_js
 from ratouch.eval.stress.charts import figures
 from ratouch.eval.stress.sweeps import PAIR_FIXED, PAPER_FAILURE, PER_SAMPLE
 from ratouch.files import write_atomic
-from ratouch.search.retrieval import QUERY_MODES
+from ratouch.search.modes import QUERY_MODES, RA_TOUCH_MODE
 
 
 def _f(v, nd: int = 3) -> str:
@@ -25,18 +25,22 @@ def _f(v, nd: int = 3) -> str:
 def format_table(result: dict) -> str:
     """The compact console table and the break points."""
     k = result["k"]
+    heads = [f"P@{k} {m}" if i == 0 else m for i, m in enumerate(QUERY_MODES)]
+    widths = [max(7, len(h) + 2) for h in heads]
+    ovl = len(RA_TOUCH_MODE) + 6
     lines = [f"stress sweep: n={result['n']} test samples, K={k}, encoder {result['encoder']}, "
              f"{result['seconds']:.0f} s",
-             f"{'knob':<21}{'value':<16}{'P@' + str(k) + ' img':>9}{'tac':>7}{'joint':>7}"
-             f"{'ovl joint':>10}{'judge base':>11}{'RA':>7}"]
+             f"{'knob':<21}{'value':<16}"
+             + "".join(f"{h:>{w}}" for h, w in zip(heads, widths))
+             + f"{'ovl ' + RA_TOUCH_MODE:>{ovl}}{'judge base':>11}{'RA':>7}"]
     for knob, kr in result["knobs"].items():
         for p in kr["points"]:
             r, g = p["retrieval"], p["generators"]
-            lines.append(f"{knob:<21}{p['label']:<16}{r['image']['material_precision']:>9.3f}"
-                         f"{r['tactile']['material_precision']:>7.3f}"
-                         f"{r['joint']['material_precision']:>7.3f}"
-                         f"{r['joint']['topk_overlap']:>10.3f}{g[BASELINE]['judge']:>11.2f}"
-                         f"{g[RA_TOUCH]['judge']:>7.2f}")
+            lines.append(f"{knob:<21}{p['label']:<16}"
+                         + "".join(f"{r[m]['material_precision']:>{w}.3f}"
+                                   for m, w in zip(QUERY_MODES, widths))
+                         + f"{r[RA_TOUCH_MODE]['topk_overlap']:>{ovl}.3f}"
+                         f"{g[BASELINE]['judge']:>11.2f}{g[RA_TOUCH]['judge']:>7.2f}")
     lines.append("")
     lines.append(f"break points (first value below {result['drop']:.0%} of the unperturbed):")
     series = [f"P@{k} {m}" for m in QUERY_MODES] + [f"judge {s}" for s in SYSTEMS]
@@ -69,10 +73,11 @@ def _reference_text(keys: Sequence[str]) -> str:
 
 
 def _md_point_table(kr: dict, k: int) -> list[str]:
-    head = (f"| value | P@{k} image | P@{k} tactile | P@{k} joint | overlap image "
-            f"| overlap tactile | overlap joint | judge baseline | judge RA-Touch "
-            f"| identical base / RA | adj-Jaccard base / RA | paired labels |")
-    lines = [head, "|" + "---|" * 12]
+    head = ("| value " + "".join(f"| P@{k} {m} " for m in QUERY_MODES)
+            + "".join(f"| overlap {m} " for m in QUERY_MODES)
+            + "| judge baseline | judge RA-Touch "
+            "| identical base / RA | adj-Jaccard base / RA | paired labels |")
+    lines = [head, "|" + "---|" * (6 + 2 * len(QUERY_MODES))]
     for p in kr["points"]:
         r, g = p["retrieval"], p["generators"]
         lines.append(
@@ -86,12 +91,11 @@ def _md_point_table(kr: dict, k: int) -> list[str]:
             f"| {p['paired_labels']:.2f} |")
         if "retrieval_no_fallback" in p:
             nf = p["retrieval_no_fallback"]
-            lines.append(f"| ↳ {p['label']}, no fallback (no-contact frame as the query) | — "
-                         + "".join(f"| {nf[m]['material_precision']:.3f} "
-                                   for m in ("tactile", "joint"))
-                         + "| — " + "".join(f"| {nf[m]['topk_overlap']:.3f} "
-                                            for m in ("tactile", "joint"))
-                         + "| | | | | |")
+            cells = [(f"{nf[m]['material_precision']:.3f}" if m in nf else "—")
+                     for m in QUERY_MODES]
+            cells += [(f"{nf[m]['topk_overlap']:.3f}" if m in nf else "—") for m in QUERY_MODES]
+            lines.append(f"| ↳ {p['label']}, no fallback (no-contact frame as the query) "
+                         + "".join(f"| {c} " for c in cells) + "| | | | | |")
     return lines
 
 
@@ -158,12 +162,12 @@ def _md_natural(ref: dict, k: int) -> list[str]:
     for s in SYSTEMS:
         out.append(f"| {s} | {ref['generators'][s]['judge']:.2f} |")
     out += ["", "### Quality per object-scale bin (natural split; wild samples by scale)", "",
-            f"| bin | n | P@{k} image | P@{k} tactile | P@{k} joint | judge baseline "
-            f"| judge RA-Touch |",
-            "|---|---|---|---|---|---|---|"]
+            "| bin | n " + "".join(f"| P@{k} {m} " for m in QUERY_MODES)
+            + "| judge baseline | judge RA-Touch |",
+            "|---|---|" + "---|" * (len(QUERY_MODES) + 2)]
     for row in ref["scale_bins"]:
         if row["n"] == 0:
-            out.append(f"| {row['bin']} | 0 | — | — | — | — | — |")
+            out.append(f"| {row['bin']} | 0 |" + " — |" * (len(QUERY_MODES) + 2))
             continue
         out.append(f"| {row['bin']} | {row['n']} "
                    + "".join(f"| {row['retrieval'][m]['material_precision']:.3f} "

@@ -11,7 +11,7 @@ import numpy as np
 
 from ratouch.eval.answer import SYSTEMS, answer_split, judge_answers, retrieve
 from ratouch.eval.retrieval import entry_materials, retrieval_metrics
-from ratouch.search.retrieval import QUERY_MODES
+from ratouch.search.modes import IMAGE_MODE, QUERY_MODES, RA_TOUCH_MODE
 from ratouch.vocabulary import parse_adjectives
 from ratouch.world.splits import TestSplit
 
@@ -34,10 +34,11 @@ def answers(pipeline, split: TestSplit, k: int, fallback_image: bool) -> dict:
     """Neighbour ids per mode and both systems' descriptions."""
     ids = {m: retrieve(pipeline, split.V, split.T, k, m) for m in QUERY_MODES}
     raw = None
-    if fallback_image:  # missing tactile: the tactile and joint modes fall back to the image
-        raw = {m: ids[m] for m in ("tactile", "joint")}
-        ids["tactile"] = ids["joint"] = ids["image"]
-    desc = {s: answer_split(pipeline, split, s, ids=ids["joint"]).responses for s in SYSTEMS}
+    if fallback_image:  # missing tactile: the modes that need a frame fall back to the image
+        raw = {m: ids[m] for m in QUERY_MODES.needing_touch()}
+        ids.update({m: ids[IMAGE_MODE] for m in raw})
+    desc = {s: answer_split(pipeline, split, s, ids=ids[RA_TOUCH_MODE]).responses
+            for s in SYSTEMS}
     return {"ids": ids, "raw_ids": raw, "desc": desc}
 
 

@@ -4,7 +4,7 @@ calibration, the language prior and both generators), then the cascade calibrate
 chain's pipelines.
 
 It sits above serving and training: the cascade is calibrated by answering validation renders
-with the loaded pipelines (`ratouch.eval.cascade`). Each step is a training recipe
+with the loaded pipelines (`ratouch.ship.cascade`). Each step is a training recipe
 (`ratouch.train.recipes`) or a calibration that can also run alone (`ratouch train ...`).
 """
 
@@ -13,10 +13,10 @@ from __future__ import annotations
 import shutil
 
 from ratouch.encoders.factory import CHAIN_SETS, ENCODER_ONLY_SETS, create_model, shipped_weights
-from ratouch.eval.cascade import CascadeConfig, calibrate_cascade
 from ratouch.paths import cascade_calibration, generator_weights, trust_calibration
 from ratouch.search.retrieval_side import default_corpus
 from ratouch.serve.pipeline import RATouchPipeline
+from ratouch.ship.cascade import CascadeConfig, calibrate_cascade
 from ratouch.timing import Laps
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
 from ratouch.train.recipes import generator_recipe, retriever_recipe
