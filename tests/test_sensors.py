@@ -21,7 +21,6 @@ from ratouch.world.config import StressConfig, WorldConfig
 from ratouch.world.generator import World
 from ratouch.world.material import MATERIALS, Material, material
 from ratouch.world.sensors import SensorFamily, family, has_markers
-from ratouch.world.taxim_optics import real_presses
 from ratouch.world.tactile import (
     FAMILIES,
     N_SENSORS,
@@ -32,6 +31,7 @@ from ratouch.world.tactile import (
     sensor_family,
     sensor_unit,
 )
+from ratouch.world.taxim_optics import real_presses
 
 N_FRAMES = 60
 

@@ -13,8 +13,8 @@ from ratouch.errors import DataNotFoundError
 from ratouch.world.config import WorldConfig
 from ratouch.world.generator import World
 from ratouch.world.material import material
-from ratouch.world.taxim_optics import calibration_dir, optics, real_presses
 from ratouch.world.tactile import family_sensors, gel_surface, plan_tactile
+from ratouch.world.taxim_optics import calibration_dir, optics, real_presses
 
 
 def _ball(hw=(96, 128), radius_mm=4.0, press_mm=1.0, pixmm=0.0295 * 640 / 128):

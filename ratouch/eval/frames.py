@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import gaussian_filter, label
 
-from ratouch.images import to_rgb_array
 from ratouch.errors import ConfigError, DataNotFoundError
 from ratouch.eval.judge.lexicon import MEMBERS
+from ratouch.images import to_rgb_array
 from ratouch.vocabulary import parse_adjectives
 
 #: Image files `frames_in` reads from a folder.
