@@ -222,7 +222,7 @@ def retrieval_md(trace: RetrievalTrace) -> str:
     return "\n".join(lines)
 
 
-TRUST_WORDS = ("no contact detected", "unlike the")
+TRUST_WORDS = ("no contact detected", "contact uncertain", "unlike the")
 
 
 def is_trust_warning(warning: str) -> bool:
@@ -245,10 +245,17 @@ def trust_lines(result: dict) -> list[str]:
         mark = "⚠ unfamiliar" if t["novel"] else "✓ familiar"
         cells.append(f"{mode} novelty {t['novelty']:.2f} (flag > {t['threshold']:.2f}) {mark}")
         if "contact" in t:
-            mark = "✖ no contact" if t["no_contact"] else "✓ contact"
+            state = t.get("state") or ("no contact" if t["no_contact"] else "contact")
+            mark = {"no contact": "✖ no contact", "uncertain": "? contact uncertain"}.get(
+                state, "✓ contact")
             against = ", vs background" if t.get("background") else ""
-            cells.append(f"contact {t['contact']:.2f} (flag < {t['contact_threshold']:.2f}"
+            score = "n/a" if t["contact"] is None else f"{t['contact']:.2f}"
+            cells.append(f"contact {score} (flag < {t['contact_threshold']:.2f}"
                          f"{against}) {mark}")
+            sensor = t.get("sensor")
+            if sensor:
+                cells.append(f"sensor read as {escape(sensor['family'])} "
+                             f"({escape(sensor['source'])})")
     line = "**Trust:** " + " · ".join(cells)
     # its warnings on the same line, marked but not shouting: the answer stays in view
     return [line + "".join(f"<br><span class='ra-warn'>⚠ {escape(w)}</span>" for w in warned)]

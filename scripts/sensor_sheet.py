@@ -16,9 +16,11 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
+from ratouch.eval.sensors import real
 from ratouch.world.config import WorldConfig
 from ratouch.world.generator import World
 from ratouch.world.material import material
+from ratouch.world.sensors import canonical
 from ratouch.world.tactile import (
     FAMILIES,
     UNITS_PER_FAMILY,
@@ -52,12 +54,15 @@ def sensor_sheet(world: World | None = None, units: int = UNITS_PER_FAMILY,
     world = world or World(WorldConfig())
     h, w = (d * scale for d in world.cfg.tactile_hw)
     pad, text = 6, 14
-    refs = []
-    if reference_dir is not None and Path(reference_dir).is_dir():
-        for p in sorted(Path(reference_dir).glob("*.png")):
-            im = Image.open(p).convert("RGB")
-            refs.append((p.stem.replace("digit_", "")[:16], im.resize((w, h), Image.BILINEAR)))
-    cols = max(units, len(materials)) + (2 if refs else 0)  # a gap, then the real frames
+    # per family the real frames the project can see: a background, then two presses
+    refs = {}
+    if reference_dir is not None:
+        for family in FAMILIES:
+            found = real(family)
+            if found is not None:
+                refs[family] = ([found[1][0]], found[0][:2])
+    n_real = 2 if refs else 0
+    cols = max(units, len(materials)) + (1 + n_real if refs else 0)  # a gap, then real frames
     row_h = h + text + pad
     sheet = Image.new("RGB", (cols * (w + pad) + pad + 70, 2 * len(FAMILIES) * row_h + pad),
                       (245, 245, 245))
@@ -73,13 +78,14 @@ def sensor_sheet(world: World | None = None, units: int = UNITS_PER_FAMILY,
                 sheet.paste(Image.fromarray(img).resize((w, h), Image.NEAREST), (x, y))
                 draw.text((x, y + h + 1), name, fill=(40, 40, 40))
                 x += w + pad
-            if family == "digit" and refs:
-                # the no-contact reference beside the units, the pressed one beside the frames
+            if family in refs:
+                # the real no-contact frame beside the units, real presses beside the frames
                 x = 70 + (max(units, len(materials)) + 1) * (w + pad)
-                name, im = next(((n, i) for n, i in refs if ("bg" in n) == (row is bgs)),
-                                refs[0] if row is bgs else refs[-1])
-                sheet.paste(im, (x, y))
-                draw.text((x, y + h + 1), f"real: {name}", fill=(160, 20, 20))
+                for im in refs[family][0 if row is bgs else 1]:
+                    im = Image.fromarray(canonical(np.asarray(im))).resize((w, h), Image.BILINEAR)
+                    sheet.paste(im, (x, y))
+                    draw.text((x, y + h + 1), "real", fill=(160, 20, 20))
+                    x += w + pad
             y += row_h
     return sheet
 

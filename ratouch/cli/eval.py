@@ -33,6 +33,7 @@ from ratouch.eval.photos import (
 )
 from ratouch.eval.premise import format_premise, run_premise, why_ignored
 from ratouch.eval.retrieval import evaluate_retrieval, format_retrieval_eval
+from ratouch.eval.sensors import compare_sensors, format_sensors
 from ratouch.eval.tvl import format_ttest, paired_ttest, run_tvl
 from ratouch.files import write_json_atomic
 from ratouch.paths import retriever_weights
@@ -57,6 +58,10 @@ def run(args: argparse.Namespace) -> int:
         return _eval_photos(args)
     if args.eval_cmd == "frames":
         return _eval_frames(args)
+    if args.eval_cmd == "sensors":
+        r = compare_sensors(n=args.n)
+        print(json.dumps(r, indent=1) if args.json else format_sensors(r))
+        return 0
     if args.eval_cmd == "families":
         r = evaluate_families(RATouchPipeline.load(args.encoder, generators=False), n=args.n,
                               seed=args.seed)

@@ -311,7 +311,12 @@ def _add_eval(sub) -> None:
     fr.add_argument("--encoder", default=DEFAULT_ENCODER)
     fr.add_argument("--k", type=_pos_int, default=5, help="neighbours per frame")
     fr.add_argument("--json", action="store_true")
-    for p in (r, t, st, tt, c, pr, ph, fa, fr):
+    se = esub.add_parser("sensors", help="rendered sensor frames against real ones in numbers "
+                                         "(mean and spread of frame - background, spatial "
+                                         "frequencies, contact area), per family")
+    se.add_argument("--n", type=_pos_int, default=60, help="renders per family")
+    se.add_argument("--json", action="store_true")
+    for p in (r, t, st, tt, c, pr, ph, fa, fr, se):
         p.set_defaults(module="eval")
 
 
