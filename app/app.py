@@ -94,8 +94,8 @@ Every pair of the world's test split (46 structured close-ups + 356 wild scenes)
 stress conditions, described by the no-retrieval baseline and by RA-Touch, each description
 scored by the offline judge (1–10) against the ground-truth label, and the material
 precision@K of the neighbours that the image, tactile and joint queries retrieve. The table
-is computed once per pipeline (a few minutes on a CPU) and cached; it is never computed at
-start-up. Conditions:
+is computed once per pipeline (about half a minute on a 2-core CPU, with a progress bar) and
+cached; it is never computed at start-up. Conditions:
 """
 
 
@@ -212,10 +212,11 @@ def _layout(pipeline, world, conditions, models: list[str] | None) -> SimpleName
             ui.fail_status = gr.Markdown(elem_id="fail-status")
             ui.fail_summary = gr.Dataframe(label="per condition and subset (means)",
                                            interactive=False, elem_id="fail-summary",
-                                           max_height=260)
+                                           max_height=260, visible=False)
             ui.cases = gr.Dataframe(label="worst cases — click a row to open it in Explore",
                                     interactive=False, wrap=True, elem_id="fail-cases",
-                                    max_height=600, column_widths=view.CASE_WIDTHS)
+                                    max_height=600, column_widths=view.CASE_WIDTHS,
+                                    visible=False)
         with gr.Tab("Benchmarks", id="benchmarks", elem_id="tab-benchmarks") as ui.bench_tab:
             with gr.Row():
                 ui.fig_note = gr.Markdown(elem_id="bench-note")
@@ -365,8 +366,11 @@ def _wire(demo: gr.Blocks, ui: SimpleNamespace, pipeline, world, thumbnail, opti
                                   encoder=(model or None) if choice else None)
 
     def failures_tab(subset, condition, view_label, compute, progress=None):
-        return tuple(handlers.failures_tab(pipeline, options, shared, compute, subset,
-                                           condition, view_label, FAILURE_ROWS, progress))
+        shown = handlers.failures_tab(pipeline, options, shared, compute, subset, condition,
+                                      view_label, FAILURE_ROWS, progress)
+        # a table not computed yet is hidden, not an empty grid headed "1 2 3"
+        return (shown.status, *(gr.update(value=t, visible=t is not None)
+                                for t in (shown.summary, shown.cases)))
 
     def show_failures(subset, condition, view_label):
         return failures_tab(subset, condition, view_label, False)

@@ -430,7 +430,8 @@ def failure_view(table: dict | None, subset: str, condition: str, view_label: st
     """The filtered, sorted worst cases of a table (None: not computed yet)."""
     if table is None:
         return FailureView("The failure-case table has not been computed for this pipeline "
-                           "yet: press **Compute** (a few minutes on a CPU; cached afterwards).",
+                           "yet: press **Compute** (about half a minute on a 2-core CPU; cached "
+                           "afterwards).",
                            None, None)
     view_key = next((k for k, v in failures.VIEWS.items() if v == view_label), view_label)
     try:

@@ -32,8 +32,8 @@ FRAME_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 #: The plain visual image beside every frame: mid-grey, so that touch alone answers.
 GREY = 128
 #: Words that make a reading "soft" or "hard" (the offline judge's groups, full members).
-SOFT_WORDS = frozenset(w for w, v in MEMBERS["soft"].items() if v >= 0.7)
-HARD_WORDS = frozenset(w for w, v in MEMBERS["hard"].items() if v >= 1.0)
+SOFT_WORDS = frozenset(w for w, groups in MEMBERS.items() if groups.get("soft", 0) >= 0.7)
+HARD_WORDS = frozenset(w for w, groups in MEMBERS.items() if groups.get("hard", 0) >= 1.0)
 
 
 @dataclass(frozen=True)
