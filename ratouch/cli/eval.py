@@ -41,6 +41,7 @@ from ratouch.search.retrieval_side import default_corpus, open_retriever
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import check_writable
+from ratouch.world.taxim_optics import CALIBRATIONS
 
 
 def run(args: argparse.Namespace) -> int:
@@ -93,8 +94,8 @@ def _eval_frames(args: argparse.Namespace) -> int:
     if (args.folder is None) == (not args.real):
         raise usage("ratouch eval frames: give a folder of frames, or --real (not both)")
     if args.real:
-        frames = [*taxim_frames("gelsight"), *taxim_frames("gelsight_mini"),
-                  *digit_frames(reference_dir())]
+        frames = [f for name in CALIBRATIONS for f in taxim_frames(name)]
+        frames += digit_frames(reference_dir())
     else:
         frames = frames_in(args.folder, args.background)
     rows = read_frames(RATouchPipeline.load(args.encoder), frames, k=args.k)

@@ -69,7 +69,7 @@ class Sample:
 
     @property
     def family(self) -> str:
-        """The tactile sensor's family: "digit", "gelsight" or "mini"."""
+        """The tactile sensor's family (a key of `world.sensors.SENSOR_FAMILIES`)."""
         return sensor_family(self.sensor)
 
     @property

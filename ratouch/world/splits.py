@@ -33,7 +33,7 @@ class TestSplit:
         indices: sample indices in the test split.
         object_scale: object size / frame side per sample (a failure-mode axis).
         world: the world config (seed and stress knobs) the split was rendered with.
-        families: the sensor family ("digit", "gelsight", "mini") of each tactile frame.
+        families: the sensor family (a key of `world.sensors.SENSOR_FAMILIES`) of each tactile frame.
     """
 
     V: np.ndarray
