@@ -150,6 +150,10 @@ def test_calibration_round_trips_and_rejects_other_files(tmp_path):
     assert back.contact_threshold == 2.0 and back.meta == {"seed": 0}
     no_prior = TrustCalibration("enc", nov, nov, plain, with_bg, 2.0, 3.0)
     assert TrustCalibration.load(no_prior.save(tmp_path / "n.json")).visual_prior is None
+    banded = TrustCalibration("enc", nov, nov, plain, with_bg, 2.0, 3.0, None, {}, 0.01,
+                              (1.0, 2.5))
+    back = TrustCalibration.load(banded.save(tmp_path / "b.json"))
+    assert back.noise_floor == 0.01 and back.uncertain == (1.0, 2.5)
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(DataError, match="not a trust calibration"):
         TrustCalibration.load(tmp_path / "bad.json")
