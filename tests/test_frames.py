@@ -57,8 +57,8 @@ def test_frames_in_reads_a_folder_and_leaves_the_background_out(tmp_path):
 
 @pytest.fixture(scope="module")
 def pipeline():
-    from ratouch.serve.pipeline import RATouchPipeline
     from ratouch.search.retrieval_side import default_corpus
+    from ratouch.serve.pipeline import RATouchPipeline
 
     return RATouchPipeline.load("default-s", default_corpus("default-s"))
 

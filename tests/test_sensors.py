@@ -20,7 +20,7 @@ from ratouch.errors import ConfigError
 from ratouch.world.config import StressConfig, WorldConfig
 from ratouch.world.generator import World
 from ratouch.world.material import MATERIALS, Material, material
-from ratouch.world.sensors import SensorFamily, family, has_markers
+from ratouch.world.sensors import LOOK_LIMIT, SensorFamily, family, guess_family, has_markers
 from ratouch.world.tactile import (
     FAMILIES,
     N_SENSORS,
@@ -365,3 +365,16 @@ def test_sensor_sheet_script_writes_a_sheet(tmp_path):
     assert im.size[0] > 2 * 96 and im.size[1] > 6 * 128
     assert np.asarray(im).std() > 10
     assert all(material(m) for m in sensor_sheet.MATERIALS)  # the names it shows exist
+
+
+def test_every_render_looks_like_its_own_family_within_the_look_limit():
+    w = World(WorldConfig(seed=0))
+    empty = World(WorldConfig(seed=0).with_stress(no_contact=1.0))
+    seen = []
+    for i in range(2_000_000, 2_000_060):  # renders the limit was not measured on
+        for world in (w, empty):
+            s = world.sample("train", i)
+            name, distance = guess_family(s.tactile)
+            assert name == s.family
+            seen.append(distance)
+    assert np.mean(np.array(seen) <= LOOK_LIMIT) >= 0.95

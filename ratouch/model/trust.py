@@ -39,6 +39,7 @@ from scipy.ndimage import gaussian_filter
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
 from ratouch.images import resize_array
+from ratouch.world.sensors import LOOK_LIMIT, guess_family
 
 log = logging.getLogger(__name__)
 
@@ -349,8 +350,10 @@ class TrustCalibration:
 
         With a background: a frame within sensor noise of it (`noise_floor`) is "no contact"
         by construction; otherwise the model decides at `contact_threshold_bg`. Without:
-        the model decides outside the `uncertain` band and says "uncertain" inside it. A
-        score that is not a finite number is never "contact": it is "uncertain".
+        a frame that looks like none of the sensor families the model was fitted on
+        (`sensors.LOOK_LIMIT`) is "uncertain", and so is one inside the `uncertain` band;
+        else the model decides. A score that is not a finite number is never "contact": it
+        is "uncertain".
         """
         if background is not None and background_change(frame, background) < self.noise_floor:
             return "no contact", float(self.contact_score(frame, background))
@@ -359,6 +362,8 @@ class TrustCalibration:
             return "uncertain", score
         if background is not None:
             return ("no contact" if score < self.contact_threshold_bg else "contact"), score
+        if guess_family(frame)[1] > LOOK_LIMIT:
+            return "uncertain", score
         if self.uncertain is not None and self.uncertain[0] <= score < self.uncertain[1]:
             return "uncertain", score
         return ("no contact" if score < self.contact_threshold else "contact"), score

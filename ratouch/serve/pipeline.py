@@ -48,7 +48,7 @@ from ratouch.serve.request import (
     slots_for,
 )
 from ratouch.timing import Laps
-from ratouch.world.sensors import guess_family
+from ratouch.world.sensors import LOOK_LIMIT, guess_family
 
 log = logging.getLogger(__name__)
 
@@ -258,8 +258,9 @@ class RATouchPipeline(RetrievalSide):
         sensor = None
         if request.frame is not None:
             name, distance = guess_family(request.frame)
-            sensor = {"family": name, "source": "guessed from the frame's colours",
-                      "distance": round(distance, 3)}
+            source = ("guessed from the frame's colours" if distance <= LOOK_LIMIT else
+                      "the nearest guess: the frame looks like none of the families' units")
+            sensor = {"family": name, "source": source, "distance": round(distance, 3)}
         return self.trust.assess(encoded.V, encoded.T,
                                  request.frame, request.background, encoded.prior, sensor)
 
