@@ -222,7 +222,7 @@ def retrieval_md(trace: RetrievalTrace) -> str:
     return "\n".join(lines)
 
 
-TRUST_WORDS = ("no contact detected", "contact uncertain", "unlike the")
+TRUST_WORDS = ("no contact detected", "contact uncertain", "unlike the", "looks like none")
 
 
 def is_trust_warning(warning: str) -> bool:

@@ -162,9 +162,9 @@ def test_calibration_round_trips_and_rejects_other_files(tmp_path):
 @pytest.mark.skipif(not REFERENCE.is_dir(), reason="no real reference frames beside the repo")
 def test_real_digit_frames_are_never_misread(pipeline):
     """The two real DIGIT frames (never used for calibration): the blank sensor is never
-    called a press and the pressed frame never "no contact"; a frame that looks like none of
-    the rendered sensors is "uncertain" without its background; against a background the
-    model decides, and the blank read against itself is no contact by construction."""
+    called a press and the pressed frame never "no contact"; against a background the model
+    decides, and the blank read against itself is no contact by construction. Without a
+    background both look like none of the rendered sensors, which the trust block says."""
     cal = pipeline.trust
     blank = to_rgb_array(Path(REFERENCE, "digit_tacto_bg_digit_240_320.png"),
                          max_side=QUERY_MAX_SIDE)
@@ -173,6 +173,10 @@ def test_real_digit_frames_are_never_misread(pipeline):
     assert cal.contact_state(blank, blank)[0] == "no contact"
     assert cal.contact_state(pressed)[0] in ("contact", "uncertain")
     assert cal.contact_state(pressed, blank)[0] == "contact"
+    enc = pipeline.encoders
+    out = cal.assess(enc.encode_image([pressed]), enc.encode_tactile([pressed]), pressed)
+    assert out["tactile"]["unfamiliar_sensor"]
+    assert any("looks like none of the sensors" in w for w in out["warnings"])
 
 
 @pytest.mark.skipif(not REFERENCE.is_dir(), reason="no real reference frames beside the repo")

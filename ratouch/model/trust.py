@@ -350,10 +350,9 @@ class TrustCalibration:
 
         With a background: a frame within sensor noise of it (`noise_floor`) is "no contact"
         by construction; otherwise the model decides at `contact_threshold_bg`. Without:
-        a frame that looks like none of the sensor families the model was fitted on
-        (`sensors.LOOK_LIMIT`) is "uncertain", and so is one inside the `uncertain` band;
-        else the model decides. A score that is not a finite number is never "contact": it
-        is "uncertain".
+        the model decides outside the `uncertain` band and says "uncertain" inside it (a
+        frame that looks like none of the rendered sensors is flagged by `assess`, not
+        here). A score that is not a finite number is never "contact": it is "uncertain".
         """
         if background is not None and background_change(frame, background) < self.noise_floor:
             return "no contact", float(self.contact_score(frame, background))
@@ -362,8 +361,6 @@ class TrustCalibration:
             return "uncertain", score
         if background is not None:
             return ("no contact" if score < self.contact_threshold_bg else "contact"), score
-        if guess_family(frame)[1] > LOOK_LIMIT:
-            return "uncertain", score
         if self.uncertain is not None and self.uncertain[0] <= score < self.uncertain[1]:
             return "uncertain", score
         return ("no contact" if score < self.contact_threshold else "contact"), score
@@ -410,6 +407,10 @@ class TrustCalibration:
                         "background": background is not None})
             if sensor is not None:
                 tac["sensor"] = sensor
+            # without a background the contact model reads the frame's own look: one unlike
+            # every rendered sensor makes its decision a guess
+            foreign = background is None and guess_family(frame)[1] > LOOK_LIMIT
+            tac["unfamiliar_sensor"] = bool(foreign)
             out["tactile"] = tac
             against = ", against the background frame" if background is not None else ""
             if tac["no_contact"]:
@@ -423,6 +424,12 @@ class TrustCalibration:
                 warnings.append(
                     "contact uncertain: give the sensor's no-contact frame (background); "
                     "the description below is a guess")
+            if foreign and not tac["uncertain"]:
+                warnings.append(
+                    f"the tactile frame looks like none of the sensors the contact check was "
+                    f"fitted on: '{state}' is a guess; give the sensor's no-contact frame "
+                    "(background)" + ("" if tac["no_contact"] else
+                                      ", and read the description below as a guess"))
             elif tac["novel"]:
                 warnings.append(
                     f"the tactile image is unlike the frames the encoders were trained on "
