@@ -56,14 +56,6 @@ def test_frames_in_reads_a_folder_and_leaves_the_background_out(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def pipeline():
-    from ratouch.search.retrieval_side import default_corpus
-    from ratouch.serve.pipeline import RATouchPipeline
-
-    return RATouchPipeline.load("default-s", default_corpus("default-s"))
-
-
-@pytest.fixture(scope="module")
 def mini_rows(pipeline):
     return read_frames(pipeline, taxim_frames("gelsight_mini"), k=3)
 
@@ -90,13 +82,13 @@ def test_a_not_a_number_score_is_never_contact(pipeline, monkeypatch):
     assert state == "uncertain"
 
 
-def test_eval_frames_cli_on_a_folder(tmp_path, capsys):
+def test_eval_frames_cli_on_a_folder(tmp_path, capsys, shipped_corpus):
     d = real_presses("gelsight")
     Image.fromarray(d["frames"][3]).save(tmp_path / "press.png")
     Image.fromarray(d["background"]).save(tmp_path / "blank.png")
     Image.fromarray(d["background"]).save(tmp_path / "bg.png")
     assert main(["eval", "frames", str(tmp_path), "--background", str(tmp_path / "bg.png"),
-                 "--json", "--k", "2"]) == 0
+                 "--json", "--k", "2", "--corpus", str(shipped_corpus)]) == 0
     out = json.loads(capsys.readouterr().out)
     rows = {r["frame"]: r for r in out["frames"]}
     assert set(rows) == {"press.png", "blank.png"}

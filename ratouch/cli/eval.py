@@ -98,7 +98,7 @@ def _eval_frames(args: argparse.Namespace) -> int:
         frames += digit_frames(reference_dir())
     else:
         frames = frames_in(args.folder, args.background)
-    rows = read_frames(RATouchPipeline.load(args.encoder), frames, k=args.k)
+    rows = read_frames(RATouchPipeline.load(args.encoder, args.corpus), frames, k=args.k)
     print(json.dumps({"frames": rows, "summary": summarise(rows)}, indent=1) if args.json
           else format_frames(rows))
     return 0

@@ -309,6 +309,7 @@ def _add_eval(sub) -> None:
                     help="instead: the real frames the project can see (Taxim's 72 presses "
                          "and 2 backgrounds, the reference DIGIT frames)")
     fr.add_argument("--encoder", default=DEFAULT_ENCODER)
+    fr.add_argument("--corpus", default=None, help="a built corpus (default: the embedded one)")
     fr.add_argument("--k", type=_pos_int, default=5, help="neighbours per frame")
     fr.add_argument("--json", action="store_true")
     se = esub.add_parser("sensors", help="rendered sensor frames against real ones in numbers "
