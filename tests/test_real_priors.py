@@ -22,6 +22,7 @@ from ratouch.encoders.prior import load_prior
 from ratouch.errors import ConfigError
 from ratouch.serve.photo import PhotoRoute
 from ratouch.world.objects import OBJECT_CLASSES
+from ratouch.world.sensors import family
 
 skimage_data = pytest.importorskip("skimage.data")
 
@@ -36,9 +37,16 @@ def test_tactile_input_normalises_contrast_and_keeps_it_as_a_channel(world):
     y = tactile_input(np.clip(faint, 0, 255).astype(np.uint8), (48, 64), bg)
     assert np.corrcoef(x[:3].ravel(), y[:3].ravel())[0, 1] > 0.95
     assert y[3, 0, 0] < x[3, 0, 0] - 1.0  # log contrast: about log(5) lower
-    # the background itself: nothing changed, the contrast sits at its floor
-    z = tactile_input(bg, (48, 64), bg)
-    assert np.allclose(z[:3], 0) and np.isclose(z[3, 0, 0], np.log(CONTRAST_FLOOR / 0.02))
+    # the background itself: nothing changed, the contrast sits at its floor, read against
+    # the family's typical press
+    z = tactile_input(bg, (48, 64), bg, s.family)
+    ref = family(s.family).press_contrast
+    assert np.allclose(z[:3], 0) and np.isclose(z[3, 0, 0], max(np.log(CONTRAST_FLOOR / 4 / ref), -3))
+    # a landscape frame is read turned to portrait: the same input as its transpose
+    wide = np.ascontiguousarray(s.tactile.transpose(1, 0, 2))
+    wide_bg = np.ascontiguousarray(bg.transpose(1, 0, 2))
+    assert np.allclose(tactile_input(wide, (48, 64), wide_bg, s.family),
+                       tactile_input(s.tactile, (48, 64), bg, s.family), atol=1e-5)
 
 
 def test_unknown_prior_is_a_config_error():
@@ -69,7 +77,7 @@ def test_prior_dropout_acts_in_training_only():
 def test_tactile_backgrounds_must_match_the_frames(world):
     enc = create_model("debug", pretrained=None)
     s = world.sample("test", 0)
-    with pytest.raises(ConfigError, match="1 backgrounds for 2 tactile frames"):
+    with pytest.raises(ConfigError, match="1 backgrounds and 2 sensor families for 2 tactile"):
         enc.encode_tactile([s.tactile, s.tactile], [world.background_image(s.sensor)])
 
 
