@@ -154,11 +154,7 @@ def contact_features(frame: np.ndarray, background: np.ndarray | None = None) ->
     f = _working(frame)
     colour = f.mean((0, 1))
     if background is not None:
-        if background.shape != frame.shape:
-            raise DataError(
-                f"background is {background.shape[1]}x{background.shape[0]} (WxH) but the "
-                f"tactile image is {frame.shape[1]}x{frame.shape[0]}; the background must be "
-                "the same sensor's no-contact frame at the same size")
+        _check_background(frame, background)
         f = f - _working(background, (f.shape[1], f.shape[0]))
     eps = 1e-4
     sigmas = sorted({x for b in CONTACT_BANDS for x in b} | {NOISE_SIGMA})
@@ -185,6 +181,15 @@ def contact_features(frame: np.ndarray, background: np.ndarray | None = None) ->
     return np.asarray(feats, np.float64)
 
 
+def _check_background(frame: np.ndarray, background: np.ndarray) -> None:
+    """Raise DataError, naming both sizes, unless the background has the frame's size."""
+    if background.shape != frame.shape:
+        raise DataError(
+            f"background is {background.shape[1]}x{background.shape[0]} (WxH) but the "
+            f"tactile image is {frame.shape[1]}x{frame.shape[0]}; the background must be "
+            "the same sensor's no-contact frame at the same size")
+
+
 def background_change(frame: np.ndarray, background: np.ndarray) -> float:
     """How much a frame differs from its sensor's no-contact frame beyond a global brightness
     drift: the 99th percentile of the lightly blurred |difference| (mean over channels, per
@@ -196,11 +201,7 @@ def background_change(frame: np.ndarray, background: np.ndarray) -> float:
     Raises:
         DataError: If the background's size differs from the frame's.
     """
-    if background.shape != frame.shape:
-        raise DataError(
-            f"background is {background.shape[1]}x{background.shape[0]} (WxH) but the "
-            f"tactile image is {frame.shape[1]}x{frame.shape[0]}; the background must be "
-            "the same sensor's no-contact frame at the same size")
+    _check_background(frame, background)
     f = _working(frame)
     d = f - _working(background, (f.shape[1], f.shape[0]))
     d = gaussian_filter(d - d.mean((0, 1)), (NOISE_SIGMA, NOISE_SIGMA, 0))
@@ -373,8 +374,8 @@ class TrustCalibration:
         return {**_novelty_block(self.visual, V), "space": "embedding"}
 
     def assess(self, V: np.ndarray, T: np.ndarray | None, frame: np.ndarray | None,
-               background: np.ndarray | None = None, prior: np.ndarray | None = None,
-               sensor: dict | None = None) -> dict:
+               background: np.ndarray | None = None, prior: np.ndarray | None = None
+               ) -> dict:
         """The trust block of one query.
 
         Args:
@@ -383,12 +384,12 @@ class TrustCalibration:
             frame: the tactile frame (uint8), or None.
             background: the sensor's no-contact frame, or None.
             prior: (1, F) the visual prior's features of the crop, or None.
-            sensor: which sensor family the frame was read as ({"family", "source"}), or None.
 
         Returns:
             {"visual": {"novelty", "threshold", "novel", "space"}, "tactile": {... plus
             "contact" (None when not a number), "contact_threshold", "state",
-            "no_contact", "uncertain", "background", "sensor"} or None,
+            "no_contact", "uncertain", "background", "sensor" (the family read, guessed from the
+            frame's colours), "unfamiliar_sensor"} or None,
             "warnings": [...]}
         """
         out: dict[str, Any] = {"visual": self.visual_novelty(V, prior), "tactile": None}
@@ -405,11 +406,15 @@ class TrustCalibration:
                         "contact_threshold": round(thr, 4), "state": state,
                         "no_contact": state == "no contact", "uncertain": state == "uncertain",
                         "background": background is not None})
-            if sensor is not None:
-                tac["sensor"] = sensor
+            # the family the frame was read as, guessed once from its colours
+            name, distance = guess_family(frame)
+            unlike = distance > LOOK_LIMIT
+            tac["sensor"] = {"family": name, "distance": round(distance, 3), "source": (
+                "the nearest guess: the frame looks like none of the families' units"
+                if unlike else "guessed from the frame's colours")}
             # without a background the contact model reads the frame's own look: one unlike
             # every rendered sensor makes its decision a guess
-            foreign = background is None and guess_family(frame)[1] > LOOK_LIMIT
+            foreign = background is None and unlike
             tac["unfamiliar_sensor"] = bool(foreign)
             out["tactile"] = tac
             against = ", against the background frame" if background is not None else ""

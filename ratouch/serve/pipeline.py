@@ -48,7 +48,6 @@ from ratouch.serve.request import (
     slots_for,
 )
 from ratouch.timing import Laps
-from ratouch.world.sensors import LOOK_LIMIT, guess_family
 
 log = logging.getLogger(__name__)
 
@@ -255,14 +254,8 @@ class RATouchPipeline(RetrievalSide):
         """Step 2: the trust block of one request (None: no calibration)."""
         if self.trust is None:
             return None
-        sensor = None
-        if request.frame is not None:
-            name, distance = guess_family(request.frame)
-            source = ("guessed from the frame's colours" if distance <= LOOK_LIMIT else
-                      "the nearest guess: the frame looks like none of the families' units")
-            sensor = {"family": name, "source": source, "distance": round(distance, 3)}
         return self.trust.assess(encoded.V, encoded.T,
-                                 request.frame, request.background, encoded.prior, sensor)
+                                 request.frame, request.background, encoded.prior)
 
     def _trust_warnings(self, trust: dict | None) -> list[str]:
         if trust is None:
