@@ -48,6 +48,11 @@ def trust_calibration(encoder: str) -> Path:
     return ASSETS / "trust" / f"{encoder}.json"
 
 
+def geometry_calibration() -> Path:
+    """The shipped geometry lookups (colour change to surface gradient, per sensor family)."""
+    return ASSETS / "geometry" / "lookups.json"
+
+
 def cascade_calibration(encoders: str = "default-tiny+default-s") -> Path:
     """The shipped cascade calibration (stages, confidence measure, thresholds)."""
     return ASSETS / "cascade" / f"{encoders}.json"

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from ratouch.cli.common import usage, world_cfg
 from ratouch.cli.judge import make_judge
+from ratouch.errors import DataNotFoundError
 from ratouch.eval import stress as S
 from ratouch.eval.controls import format_controls, run_controls
 from ratouch.eval.families import evaluate_families, format_families
@@ -32,13 +33,14 @@ from ratouch.eval.photos import (
     reference_dir,
 )
 from ratouch.eval.premise import format_premise, run_premise, why_ignored
+from ratouch.eval.presses import format_press_contact, press_contact
 from ratouch.eval.retrieval import evaluate_retrieval, format_retrieval_eval
 from ratouch.eval.sensors import compare_sensors, format_sensors
 from ratouch.eval.tvl import format_ttest, paired_ttest, run_tvl
 from ratouch.files import write_json_atomic
 from ratouch.paths import retriever_weights
 from ratouch.search.retrieval_side import default_corpus, open_retriever
-from ratouch.serve.pipeline import RATouchPipeline
+from ratouch.serve.pipeline import RATouchPipeline, load_trust
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import check_writable
 from ratouch.world.taxim_optics import CALIBRATIONS
@@ -59,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
         return _eval_photos(args)
     if args.eval_cmd == "frames":
         return _eval_frames(args)
+    if args.eval_cmd == "presses":
+        return _eval_presses(args)
     if args.eval_cmd == "sensors":
         r = compare_sensors(n=args.n)
         print(json.dumps(r, indent=1) if args.json else format_sensors(r))
@@ -87,6 +91,15 @@ def _eval_premise(args: argparse.Namespace) -> int:
     say = (lambda m: print(m, file=sys.stderr)) if args.json else print
     r = run_premise(args.encoder, runs=args.runs, n=args.n, k=args.k, progress=say)
     print(json.dumps(r, indent=1) if args.json else format_premise(r))
+    return 0
+
+
+def _eval_presses(args: argparse.Namespace) -> int:
+    trust = load_trust(args.encoder)
+    if trust is None:
+        raise DataNotFoundError(f"no trust calibration for {args.encoder}")
+    rep = press_contact(trust, n=args.n, blanks=args.blanks, seed=args.seed)
+    print(json.dumps(rep, indent=1) if args.json else format_press_contact(rep))
     return 0
 
 

@@ -194,6 +194,12 @@ def _add_train(sub) -> None:
                     help="share of in-distribution validation inputs each signal may flag")
     tr.add_argument("--out", default=None,
                     help="calibration JSON (default: assets/trust/ENCODER.json)")
+    ge = tsub.add_parser("geometry", help="fit each sensor family's colour-to-gradient lookup "
+                                          "(Taxim's real ball presses; the DIGIT shader's "
+                                          "renders) and its contact floors on blank renders")
+    ge.add_argument("--seed", type=_nonneg_int, default=0)
+    ge.add_argument("--out", default=None,
+                    help="calibration JSON (default: assets/geometry/lookups.json)")
     cc = tsub.add_parser("cascade", help="calibrate the encoder cascade (smallest confident "
                                          "encoder answers) on the world's validation renders")
     cc.add_argument("--encoders", default=",".join(CHAIN_SETS),
@@ -317,7 +323,15 @@ def _add_eval(sub) -> None:
                                          "frequencies, contact area), per family")
     se.add_argument("--n", type=_pos_int, default=60, help="renders per family")
     se.add_argument("--json", action="store_true")
-    for p in (r, t, st, tt, c, pr, ph, fa, fr, se):
+    pe = esub.add_parser("presses", help="contact on renders of everyday presses (flat faces, "
+                                         "fabrics, foam, tape, wire, an edge, a small cap) per "
+                                         "family, with and without a drifted background")
+    pe.add_argument("--encoder", default=DEFAULT_ENCODER)
+    pe.add_argument("--n", type=_pos_int, default=10, help="presses per family and kind")
+    pe.add_argument("--blanks", type=_pos_int, default=40, help="blank pairs per family")
+    pe.add_argument("--seed", type=_nonneg_int, default=1)
+    pe.add_argument("--json", action="store_true")
+    for p in (r, t, st, tt, c, pr, ph, fa, fr, se, pe):
         p.set_defaults(module="eval")
 
 

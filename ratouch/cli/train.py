@@ -10,13 +10,14 @@ from pathlib import Path
 
 from ratouch.cli.common import usage
 from ratouch.encoders.factory import DEFAULT_SETS, create_model, shipped_weights
-from ratouch.paths import cascade_calibration, trust_calibration
+from ratouch.paths import cascade_calibration, geometry_calibration, trust_calibration
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.ship import retrain
 from ratouch.ship.cascade import CascadeConfig, calibrate_cascade
 from ratouch.threads import intra_op_threads
 from ratouch.train import recipes
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
+from ratouch.train.geometry import calibrate as calibrate_geometry
 from ratouch.train.trust import TrustConfig, calibrate
 
 
@@ -37,6 +38,8 @@ def run(args: argparse.Namespace) -> int:
         return _train_trust(args)
     if args.train_cmd == "cascade":
         return _train_cascade(args)
+    if args.train_cmd == "geometry":
+        return _train_geometry(args)
     if args.train_cmd == "all":
         args.model, args.out, args.steps, args.threads = None, None, None, 2
         args.n_pairs, args.n_corpus = 12_000, 8_000
@@ -63,6 +66,15 @@ def _train_cascade(args: argparse.Namespace) -> int:
     out = cal.save(args.out or cascade_calibration("+".join(names)))
     print(json.dumps({"written": str(out), "measure": cal.measure,
                       "thresholds": list(cal.thresholds), **cal.meta}, indent=1))
+    return 0
+
+
+def _train_geometry(args: argparse.Namespace) -> int:
+    cal, held_out = calibrate_geometry(args.seed)
+    out = cal.save(args.out or geometry_calibration())
+    print(json.dumps({"written": str(out), "held_out": {
+        k: {m: v for m, v in r.items() if m != "presses"} for k, r in held_out.items()},
+        "thresholds": {k: lk.structure_threshold for k, lk in cal.lookups.items()}}, indent=1))
     return 0
 
 

@@ -39,6 +39,7 @@ from scipy.ndimage import gaussian_filter
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
 from ratouch.images import resize_array
+from ratouch.model.geometry import GeometryCalibration, read_height
 from ratouch.world.sensors import LOOK_LIMIT, guess_family
 
 log = logging.getLogger(__name__)
@@ -293,6 +294,9 @@ class TrustCalibration:
     meta: dict = field(default_factory=dict)
     noise_floor: float = 0.0
     uncertain: tuple[float, float] | None = None
+    #: the sensor families' geometry lookups and structured-change floors (shipped beside,
+    #: not inside, this file: `ratouch.paths.geometry_calibration`); None: not loaded
+    geometry: GeometryCalibration | None = None
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the calibration as JSON (atomically; the vectors one per line)."""
@@ -345,18 +349,51 @@ class TrustCalibration:
         model = self.contact if background is None else self.contact_bg
         return float(model.score(contact_features(frame, background))[0])
 
+    def structured_contact(self, frame: np.ndarray, background: np.ndarray
+                           ) -> dict | None:
+        """Contact by structured local change against the background, with the frame's
+        (guessed) family's floors: {"contact", "score", "threshold", "family"}; None when no
+        geometry calibration is loaded."""
+        if self.geometry is None:
+            return None
+        _check_background(frame, background)
+        name, _ = guess_family(frame)
+        lookup = self.geometry.lookup(name)
+        if lookup is None:
+            return None
+        hit, score = lookup.contact(frame, background)
+        return {"contact": hit, "score": round(score, 3) if np.isfinite(score) else None,
+                "threshold": round(lookup.structure_threshold, 3), "family": name}
+
+    def height_map(self, frame: np.ndarray, background: np.ndarray):
+        """The frame read as geometry against its background
+        (`ratouch.model.geometry.HeightMap`) by its guessed family's lookup, or None (no
+        geometry calibration)."""
+        if self.geometry is None:
+            return None
+        _check_background(frame, background)
+        lookup = self.geometry.lookup(guess_family(frame)[0])
+        return None if lookup is None else read_height(lookup, frame, background)
+
     def contact_state(self, frame: np.ndarray, background: np.ndarray | None = None
                       ) -> tuple[str, float]:
         """What the frame shows, one of :data:`CONTACT_STATES`, and its contact logit.
 
-        With a background: a frame within sensor noise of it (`noise_floor`) is "no contact"
-        by construction; otherwise the model decides at `contact_threshold_bg`. Without:
+        With a background: a frame whose structured local change (edges and texture, the
+        sensor's global drift removed) stands above its family's floors is "contact"
+        (`structured_contact`: shallow, broad presses that change a few levels); otherwise a
+        frame within sensor noise of it (`noise_floor`) is "no contact" by construction,
+        and else the model decides at `contact_threshold_bg`. Without:
         the model decides outside the `uncertain` band and says "uncertain" inside it (a
         frame that looks like none of the rendered sensors is flagged by `assess`, not
         here). A score that is not a finite number is never "contact": it is "uncertain".
         """
-        if background is not None and background_change(frame, background) < self.noise_floor:
-            return "no contact", float(self.contact_score(frame, background))
+        if background is not None:
+            structured = self.structured_contact(frame, background)
+            if structured is not None and structured["contact"]:
+                return "contact", float(self.contact_score(frame, background))
+            if background_change(frame, background) < self.noise_floor:
+                return "no contact", float(self.contact_score(frame, background))
         score = self.contact_score(frame, background)
         if not np.isfinite(score):
             return "uncertain", score
@@ -406,21 +443,29 @@ class TrustCalibration:
                         "contact_threshold": round(thr, 4), "state": state,
                         "no_contact": state == "no contact", "uncertain": state == "uncertain",
                         "background": background is not None})
+            if background is not None and self.geometry is not None:
+                tac["structure"] = self.structured_contact(frame, background)
+                hm = self.height_map(frame, background)
+                tac["geometry"] = None if hm is None else hm.to_dict()
             # the family the frame was read as, guessed once from its colours
             name, distance = guess_family(frame)
             unlike = distance > LOOK_LIMIT
             tac["sensor"] = {"family": name, "distance": round(distance, 3), "source": (
                 "the nearest guess: the frame looks like none of the families' units"
                 if unlike else "guessed from the frame's colours")}
-            # without a background the contact model reads the frame's own look: one unlike
-            # every rendered sensor makes its decision a guess
-            foreign = background is None and unlike
+            # a frame unlike every rendered sensor: without a background the contact model
+            # reads its own look (a guess); with one the contact is read against it, but the
+            # encoders have never seen such a sensor: the description is a guess either way
+            foreign = unlike
             tac["unfamiliar_sensor"] = bool(foreign)
             out["tactile"] = tac
             against = ", against the background frame" if background is not None else ""
             if tac["no_contact"]:
                 shown = "" if tac["contact"] is None else (
                     f" (contact {tac['contact']} < {tac['contact_threshold']}{against})")
+                if tac.get("structure"):
+                    shown += (f"; structured change {tac['structure']['score']} <= "
+                              f"{tac['structure']['threshold']}")
                 warnings.append(
                     "no contact detected: the tactile image looks like the sensor's "
                     f"background with nothing pressed into it{shown}; no material "
@@ -429,12 +474,18 @@ class TrustCalibration:
                 warnings.append(
                     "contact uncertain: give the sensor's no-contact frame (background); "
                     "the description below is a guess")
-            if foreign and not tac["uncertain"]:
+            if foreign and not tac["uncertain"] and background is None:
                 warnings.append(
                     f"the tactile frame looks like none of the sensors the contact check was "
                     f"fitted on: '{state}' is a guess; give the sensor's no-contact frame "
                     "(background)" + ("" if tac["no_contact"] else
                                       ", and read the description below as a guess"))
+            elif foreign and not tac["uncertain"]:
+                warnings.append(
+                    "the tactile frame looks like none of the sensors the models were trained "
+                    f"on (read against its background as '{state}', with the nearest family's "
+                    f"floors, '{name}')" + ("" if tac["no_contact"] else
+                                            ": read the description below as a guess"))
             elif tac["novel"]:
                 warnings.append(
                     f"the tactile image is unlike the frames the encoders were trained on "

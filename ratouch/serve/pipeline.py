@@ -13,6 +13,7 @@ each against the corpus's text embeddings (Table 4's x->text settings).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 from collections.abc import Sequence
@@ -25,11 +26,12 @@ import torch
 from ratouch.errors import ConfigError
 from ratouch.model.fastpath import StackCache
 from ratouch.model.generator import describe_together, load_generator
+from ratouch.model.geometry import GeometryCalibration
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.model.neighbour_tokens import KIND as NEIGHBOUR_TOKENS
 from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
 from ratouch.model.trust import TrustCalibration
-from ratouch.paths import generator_weights, trust_calibration
+from ratouch.paths import generator_weights, geometry_calibration, trust_calibration
 from ratouch.search.modes import IMAGE_MODE, QUERY_MODES, RA_TOUCH_MODE
 from ratouch.search.pca import PCA2D
 from ratouch.search.retrieval import CorpusSearch
@@ -74,7 +76,13 @@ def load_trust(encoder: str) -> TrustCalibration | None:
         log.warning("no trust calibration for %s (%s): `ratouch train trust --encoder %s`",
                     encoder, path, encoder)
         return None
-    return TrustCalibration.load(path)
+    trust = TrustCalibration.load(path)
+    geo = geometry_calibration()
+    if not geo.is_file():
+        log.warning("no geometry calibration (%s): `ratouch train geometry`; contact against a "
+                    "background is read without the structured-change check", geo)
+        return trust
+    return dataclasses.replace(trust, geometry=GeometryCalibration.load(geo))
 
 
 def stage_ms(clock: Laps, batch_size: int) -> dict[str, float]:

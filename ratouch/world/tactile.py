@@ -380,3 +380,21 @@ def render_tactile(plan: TactilePlan, pyramid_fn: Callable[[PatternSpec], list],
     if plan.noise > 0:
         img = img + plan.noise * rng.standard_normal(img.shape, dtype=np.float32)
     return (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def contact_change(sensor: int, z: np.ndarray, dome: np.ndarray | None = None) -> np.ndarray:
+    """The colour change (float (H, W, 3), [0, 1] units) that a gel surface `z` (indentation,
+    gel-thickness units, (H, W)) makes on unit `sensor`, by its family's renderer, with
+    neutral per-frame settings (no light jitter, tint, vignetting, blur or noise): the
+    renderer as a function of geometry, for presses planned outside `plan_tactile`
+    (`ratouch.world.presses`) and for fitting the geometry lookups."""
+    z = np.asarray(z, np.float32)
+    hw = (int(z.shape[0]), int(z.shape[1]))
+    plan = TactilePlan(material="glass", sensor=int(sensor), contact=True, centre=(0.5, 0.5),
+                       force=1.0, axes=(1.0, 1.0), ellipse_angle=0.0, texture_angle=0.0,
+                       texture_offset=(0.0, 0.0), texture_step=1.0, blur=0.0, noise=0.0,
+                       render_seed=0)
+    if family(plan.family).renderer == "taxim":
+        return _taxim_change(plan, z)
+    return _shader_change(plan, z, z if dome is None else np.asarray(dome, np.float32),
+                          sensor_unit(int(sensor), hw).field)

@@ -1,0 +1,75 @@
+"""`ratouch eval presses`: contact on renders of the presses people make
+(`ratouch.world.presses`), per sensor family and press kind, with and without the sensor's
+background (captured at another moment, drifted as Taxim's real pairs drift), and false
+alarms on drifted blank pairs; the shipped trust calibration's decision, and the
+structured-change check alone. Renders only: the figures the thresholds were not set on
+(fresh seeds)."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+
+import numpy as np
+
+from ratouch.model.trust import TrustCalibration
+from ratouch.world.presses import PRESS_KINDS, render_blank_pair, render_press
+from ratouch.world.sensors import FAMILIES
+
+
+def press_contact(trust: TrustCalibration, n: int = 10, blanks: int = 40, seed: int = 1
+                  ) -> dict:
+    """Per family: per kind the share of presses read as contact (with background, without,
+    and by the structured check alone), the depth and spread of their height maps, and the
+    share of blank pairs read as contact (false alarms)."""
+    rng = np.random.default_rng([seed, 911])
+    out: dict = {}
+    for fam in FAMILIES:
+        rows: dict = defaultdict(lambda: defaultdict(list))
+        for kind in PRESS_KINDS:
+            for _ in range(n):
+                p = render_press(fam, rng, kind)
+                st_bg, _ = trust.contact_state(p.frame, p.background)
+                st, _ = trust.contact_state(p.frame, None)
+                sc = trust.structured_contact(p.frame, p.background)
+                hm = trust.height_map(p.frame, p.background)
+                r = rows[kind]
+                r["with_background"].append(st_bg == "contact")
+                r["without_background"].append(st == "contact")
+                r["structured"].append(bool(sc and sc["contact"]))
+                if hm is not None:
+                    r["depth"].append(hm.depth)
+                    r["spread"].append(hm.spread)
+        fa_bg, fa = [], []
+        for _ in range(blanks):
+            frame, bg = render_blank_pair(fam, rng)
+            fa_bg.append(trust.contact_state(frame, bg)[0] == "contact")
+            fa.append(trust.contact_state(frame, None)[0] == "contact")
+        out[fam] = {
+            "kinds": {k: {m: round(float(np.mean(v)), 4) for m, v in r.items()}
+                      for k, r in rows.items()},
+            "miss_with_background": round(1 - float(np.mean(
+                [x for r in rows.values() for x in r["with_background"]])), 4),
+            "miss_without_background": round(1 - float(np.mean(
+                [x for r in rows.values() for x in r["without_background"]])), 4),
+            "false_alarm_with_background": round(float(np.mean(fa_bg)), 4),
+            "false_alarm_without_background": round(float(np.mean(fa)), 4),
+            "n_presses": n * len(PRESS_KINDS), "n_blanks": blanks}
+    return out
+
+
+def format_press_contact(rep: dict) -> str:
+    lines = ["| family | kind | contact with bg | structured only | contact without bg | depth | "
+             "spread |", "|---|---|---|---|---|---|---|"]
+    for fam, f in rep.items():
+        for kind, r in f["kinds"].items():
+            lines.append(f"| {fam} | {kind} | {r['with_background']:.2f} | {r['structured']:.2f}"
+                         f" | {r['without_background']:.2f} | {r.get('depth', float('nan')):.3g}"
+                         f" | {r.get('spread', float('nan')):.2f} |")
+    lines += ["", "| family | miss (bg) | miss (no bg) | false alarm (bg) | false alarm (no bg) |",
+              "|---|---|---|---|---|"]
+    for fam, f in rep.items():
+        lines.append(f"| {fam} | {f['miss_with_background']:.3f} | "
+                     f"{f['miss_without_background']:.3f} | "
+                     f"{f['false_alarm_with_background']:.3f} | "
+                     f"{f['false_alarm_without_background']:.3f} |")
+    return "\n".join(lines)

@@ -1,0 +1,395 @@
+"""Touch read as geometry: a calibrated sensor's colour change becomes surface gradients, and
+the gradients a height map.
+
+This is how GelSight's own reconstruction works: a lookup from a pixel's colour change (and
+its position on the gel, whose lighting is not uniform) to the surface gradient there, fitted
+on presses of a ball of known size, then Poisson integration of the gradient field to a height
+map. Read this way a press is depth in millimetres, independent of the gel's colours and its
+lighting, and three measures follow from the height map:
+
+* **depth**: how far the surface is pushed in (the 99.5th percentile of the height above its
+  median);
+* **spread**: the share of the gel pushed in by more than a third of that depth (a compliant
+  object wraps the gel: a wide, shallow patch; a rigid one a small, deep one);
+* **relief**: the RMS of the height map's detail (the height minus its blur at
+  :data:`RELIEF_SIGMA`), the surface's texture.
+
+A lookup (:class:`GradientLookup`) is a small multilayer perceptron from (colour change RGB,
+x, y) to (dz/dx, dz/dy), evaluated in numpy; `ratouch train geometry`
+(`ratouch.train.geometry`) fits one per sensor family — on Taxim's real ball presses for the
+GelSight and the GelSight Mini, on the world shader's renders of ball presses for the DIGIT.
+The file is `ratouch.paths.geometry_calibration()`.
+
+Before the lookup, the global change between a background and a later frame (a gain and an
+offset per channel, which lighting drift makes) is removed by a robust fit over the frame,
+so that what is read is structured local change. **Contact against a background** is decided
+on that structured change (:func:`structure_stats`: band-passed edges and texture), against
+each family's floors set on blank pairs (a background and a later no-contact frame, with the
+drift Taxim's real pairs show): shallow, broad presses of fabrics and foams, which change a
+GelSight Mini's pixels by a few levels, stand above those floors where a threshold on the
+whole change does not.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.ndimage import gaussian_filter
+
+from ratouch.errors import DataError, DataNotFoundError
+from ratouch.files import write_atomic
+from ratouch.images import resize_array
+
+FORMAT = "ratouch-geometry-1"
+#: Working size (width, height) of a landscape sensor's frame (a portrait one: transposed).
+WORK_LANDSCAPE = (160, 120)
+#: Sigma (working pixels) of the light blur before the lookup (sensor noise).
+CHANGE_SIGMA = 1.0
+#: Sigma (working pixels) of the blur whose residual is the relief (texture).
+RELIEF_SIGMA = 4.0
+#: Scale of the colour change at the lookup's input ([0, 1] units -> about unit spread).
+CHANGE_SCALE = 10.0
+
+
+# ----------------------------------------------------------------------------- the lookup
+
+@dataclass(frozen=True)
+class GradientLookup:
+    """One sensor family's colour-change-to-gradient lookup.
+
+    Attributes:
+        family: the sensor family (a key of `ratouch.world.sensors.SENSOR_FAMILIES`).
+        weights, biases: the perceptron's layers (ReLU between them, linear output);
+            input (dR, dG, dB scaled by CHANGE_SCALE, x, y in [-1, 1]), output (gx, gy)
+            in working pixels of height per working pixel.
+        landscape: whether the lookup reads the sensor in landscape orientation.
+        mm_per_pixel: millimetres per working pixel (None: the renderer's own units).
+        structure_floors: per :data:`STRUCTURE_BANDS` band, the 99.5th percentile of the
+            structured change's two statistics over this family's drifted blank pairs (6
+            values), and `structure_threshold`, the same quantile of their combined score;
+            a frame whose score is above it shows contact (see :func:`structure_score`).
+        meta: provenance and measured figures.
+    """
+
+    family: str
+    weights: tuple[np.ndarray, ...]
+    biases: tuple[np.ndarray, ...]
+    landscape: bool
+    mm_per_pixel: float | None
+    structure_floors: tuple[float, ...] = ()
+    structure_threshold: float = float("inf")
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def work_size(self) -> tuple[int, int]:
+        """(width, height) the lookup reads frames at."""
+        w, h = WORK_LANDSCAPE
+        return (w, h) if self.landscape else (h, w)
+
+    def gradients(self, change: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(gx, gy) of a drift-free colour change (h, w, 3) at the working size."""
+        h, w = change.shape[:2]
+        yy, xx = np.meshgrid(np.linspace(-1, 1, h), np.linspace(-1, 1, w), indexing="ij")
+        x = np.concatenate([change.reshape(-1, 3) * CHANGE_SCALE,
+                            xx.reshape(-1, 1), yy.reshape(-1, 1)], 1)
+        for n, (wt, b) in enumerate(zip(self.weights, self.biases)):
+            x = x @ wt + b
+            if n < len(self.weights) - 1:
+                x = np.maximum(x, 0)
+        g = x.reshape(h, w, 2)
+        return g[..., 0], g[..., 1]
+
+    def to_dict(self) -> dict:
+        return {"family": self.family, "landscape": self.landscape,
+                "mm_per_pixel": self.mm_per_pixel,
+                "structure_floors": [float(f"{v:.6g}") for v in self.structure_floors],
+                "structure_threshold": self.structure_threshold, "meta": self.meta,
+                "weights": [np.round(w, 6).tolist() for w in self.weights],
+                "biases": [np.round(b, 6).tolist() for b in self.biases]}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> GradientLookup:
+        return cls(str(d["family"]), tuple(np.asarray(w, np.float64) for w in d["weights"]),
+                   tuple(np.asarray(b, np.float64) for b in d["biases"]), bool(d["landscape"]),
+                   None if d["mm_per_pixel"] is None else float(d["mm_per_pixel"]),
+                   tuple(float(v) for v in d["structure_floors"]),
+                   float(d["structure_threshold"]), dict(d.get("meta", {})))
+
+    def with_floors(self, floors: tuple[float, ...], threshold: float, **meta
+                    ) -> GradientLookup:
+        return GradientLookup(self.family, self.weights, self.biases, self.landscape,
+                              self.mm_per_pixel, tuple(float(f) for f in floors),
+                              float(threshold), {**self.meta, **meta})
+
+    def contact(self, frame: np.ndarray, background: np.ndarray) -> tuple[bool, float]:
+        """Whether `frame` shows contact against `background` by its structured change, and
+        the score against this family's floors (above :attr:`structure_threshold`: contact).
+        """
+        score = structure_score(structure_stats(frame, background, self.work_size),
+                                self.structure_floors)
+        return bool(score > self.structure_threshold), score
+
+
+# ------------------------------------------------------------------------- the reading
+
+def working_change(frame: np.ndarray, background: np.ndarray, size: tuple[int, int],
+                   turn: bool = False) -> np.ndarray:
+    """A frame's colour change against its background at `size` (width, height), [0, 1]
+    units, with the global drift removed: per channel, the gain and offset that best map the
+    background onto the frame (a robust fit: a press changes a minority of the gel) are
+    undone; then a light blur (:data:`CHANGE_SIGMA`).
+
+    Args:
+        frame, background: (H, W, 3) uint8 of the same size.
+        size: the working size.
+        turn: read the frame transposed (a landscape sensor mounted turned, as the world's
+            portrait GelSight frames are).
+
+    Raises:
+        DataError: the sizes differ.
+    """
+    if frame.shape != background.shape:
+        raise DataError(
+            f"background is {background.shape[1]}x{background.shape[0]} (WxH) but the "
+            f"tactile image is {frame.shape[1]}x{frame.shape[0]}")
+    if turn:
+        frame, background = frame.transpose(1, 0, 2), background.transpose(1, 0, 2)
+    f = _resize3(frame, size)
+    b = _resize3(background, size)
+    out = np.empty_like(f)
+    for c in range(3):
+        out[..., c] = f[..., c] - _robust_affine(b[..., c], f[..., c])
+    return gaussian_filter(out, (CHANGE_SIGMA, CHANGE_SIGMA, 0))
+
+
+def _resize3(a: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    a = np.asarray(a)
+    return np.stack([resize_array(np.ascontiguousarray(a[..., c], np.float32), size)
+                     for c in range(3)], -1).astype(np.float64) / 255.0
+
+
+def _robust_affine(x: np.ndarray, y: np.ndarray, rounds: int = 3) -> np.ndarray:
+    """gain * x + offset fitted to y by least squares, refitted on the pixels whose residual
+    is within 2.5 robust deviations (the press is left out)."""
+    xv, yv = x.ravel(), y.ravel()
+    keep = np.ones(xv.shape, bool)
+    gain, offset = 1.0, 0.0
+    for _ in range(rounds):
+        xs, ys = xv[keep], yv[keep]
+        var = xs.var()
+        gain = float(((xs - xs.mean()) * (ys - ys.mean())).mean() / var) if var > 1e-10 else 1.0
+        gain = float(np.clip(gain, 0.8, 1.25))
+        offset = float(ys.mean() - gain * xs.mean())
+        r = yv - (gain * xv + offset)
+        mad = np.median(np.abs(r - np.median(r))) * 1.4826 + 1e-6
+        keep = np.abs(r - np.median(r)) < 2.5 * mad
+        if keep.sum() < 0.3 * keep.size:  # never fit on fewer than a third of the gel
+            keep = np.abs(r) <= np.quantile(np.abs(r), 0.3)
+    return gain * x + offset
+
+
+def integrate(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+    """The height map whose gradient best matches (gx, gy) in least squares (Frankot and
+    Chellappa's projection onto integrable fields, on the field mirrored to be periodic, so
+    that the frame's borders do not wrap around). Height in the gradients' pixel units; its
+    mean is 0."""
+    gx = np.asarray(gx, np.float64)
+    gy = np.asarray(gy, np.float64)
+    h, w = gx.shape
+    # mirror: x-derivatives change sign under a left-right flip, y under an up-down flip
+    GX = np.block([[gx, -gx[:, ::-1]], [gx[::-1, :], -gx[::-1, ::-1]]])
+    GY = np.block([[gy, gy[:, ::-1]], [-gy[::-1, :], -gy[::-1, ::-1]]])
+    u = np.fft.fftfreq(2 * w) * 2 * np.pi
+    v = np.fft.fftfreq(2 * h) * 2 * np.pi
+    U, V = np.meshgrid(u, v)
+    den = U * U + V * V
+    den[0, 0] = 1.0
+    Z = (-1j * U * np.fft.fft2(GX) - 1j * V * np.fft.fft2(GY)) / den
+    Z[0, 0] = 0.0
+    return np.real(np.fft.ifft2(Z))[:h, :w]
+
+
+@dataclass(frozen=True)
+class HeightMap:
+    """A press read as geometry.
+
+    Attributes:
+        height: (h, w) height pushed in (towards the camera is positive), in `units`, at the
+            lookup's working size and orientation; 0 at its median.
+        depth: 99.5th percentile of the height (how far the gel is pushed in).
+        spread: share of the gel pushed in by more than a third of the depth.
+        relief: RMS of the height's detail (texture).
+        units: "mm" for a calibrated sensor, else "render units".
+        family: the lookup's family.
+    """
+
+    height: np.ndarray
+    depth: float
+    spread: float
+    relief: float
+    units: str
+    family: str
+
+    def to_dict(self) -> dict:
+        return {"family": self.family, "units": self.units, "depth": round(self.depth, 4),
+                "spread": round(self.spread, 4), "relief": round(self.relief, 5)}
+
+    def image(self, scale: float | None = None) -> np.ndarray:
+        """(h, w, 3) uint8 picture of the height map: dark is flat, bright is pushed in, on
+        a fixed scale (`scale`, the units' height shown white; default the depth or the
+        noise-floor-like 1e-3 whichever is larger) so that a blank stays dark."""
+        top = max(self.depth, 1e-3) if scale is None else scale
+        v = np.clip(self.height / top, 0, 1)
+        # a cool-to-warm ramp: black, blue, orange, white
+        r = np.clip(2.2 * v - 0.6, 0, 1)
+        g = np.clip(2.0 * v - 1.0, 0, 1) * 0.85 + 0.15 * v
+        b = np.clip(1.6 * v, 0, 1) * (1 - v) + v * v
+        return (np.stack([r, g, b], -1) * 255 + 0.5).astype(np.uint8)
+
+
+def read_height(lookup: GradientLookup, frame: np.ndarray, background: np.ndarray
+                ) -> HeightMap:
+    """Read a frame against its background as a height map with `lookup` (see the module).
+
+    A portrait frame of a landscape family is read turned, as the world mounts it.
+
+    Raises:
+        DataError: the sizes differ.
+    """
+    portrait = frame.shape[0] > frame.shape[1]
+    turn = portrait == lookup.landscape
+    change = working_change(frame, background, lookup.work_size, turn=turn)
+    gx, gy = lookup.gradients(change)
+    z = integrate(gx, gy)
+    z = z - np.median(z)
+    scale = 1.0 if lookup.mm_per_pixel is None else lookup.mm_per_pixel
+    z = z * scale
+    depth = float(np.percentile(z, 99.5))
+    spread = float((z > depth / 3).mean()) if depth > 0 else 0.0
+    detail = z - gaussian_filter(z, RELIEF_SIGMA)
+    relief = float(np.sqrt(np.mean(detail * detail)))
+    return HeightMap(z.astype(np.float32), depth, spread, relief,
+                     "mm" if lookup.mm_per_pixel is not None else "render units",
+                     lookup.family)
+
+
+# ------------------------------------------------------------------- structured change
+
+#: Band-passes (working-pixel sigmas) of the structured change: edges, texture, small caps.
+STRUCTURE_BANDS = ((1.0, 3.0), (2.0, 6.0), (3.0, 10.0))
+
+
+def structure_stats(frame: np.ndarray, background: np.ndarray, size: tuple[int, int]
+                    ) -> np.ndarray:
+    """Structured local change of a frame against its background, the global gain and drift
+    removed (`working_change`): per band of :data:`STRUCTURE_BANDS`, the 99.5th percentile
+    and the RMS of |band-pass| (mean over channels). (6,) float64, [0, 1] units."""
+    c = working_change(frame, background, size,
+                       turn=(frame.shape[0] > frame.shape[1]) != (size[1] > size[0]))
+    out = []
+    for lo, hi in STRUCTURE_BANDS:
+        d = np.abs(gaussian_filter(c, (lo, lo, 0)) - gaussian_filter(c, (hi, hi, 0))).mean(2)
+        out += [float(np.percentile(d, 99.5)), float(np.sqrt(np.mean(d * d)))]
+    return np.asarray(out, np.float64)
+
+
+def structure_score(stats: np.ndarray, floors: tuple[float, ...]) -> float:
+    """How far the structured change stands above a family's blank floors: the largest ratio
+    of a statistic to its floor (1: at the floor)."""
+    if not floors:
+        return float("nan")
+    return float(np.max(np.asarray(stats) / np.maximum(np.asarray(floors), 1e-9)))
+
+
+# ----------------------------------------------------------------------- the calibration
+
+@dataclass(frozen=True)
+class GeometryCalibration:
+    """Every family's lookup, with provenance."""
+
+    lookups: dict[str, GradientLookup]
+    meta: dict = field(default_factory=dict)
+
+    def lookup(self, family: str) -> GradientLookup | None:
+        return self.lookups.get(family)
+
+    def save(self, path: str | os.PathLike) -> Path:
+        body = {"format": FORMAT, "meta": self.meta,
+                "lookups": {k: v.to_dict() for k, v in self.lookups.items()}}
+        return write_atomic(path, json.dumps(body, indent=1) + "\n")
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> GeometryCalibration:
+        """Raises:
+            DataNotFoundError: no file.
+            DataError: not a geometry calibration.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise DataNotFoundError(
+                f"no geometry calibration at {path} (`ratouch train geometry`)")
+        try:
+            d = json.loads(path.read_text(encoding="utf-8"))
+            if d.get("format") != FORMAT:
+                raise ValueError(f"format {d.get('format')!r}, expected {FORMAT!r}")
+            return cls({k: GradientLookup.from_dict(v) for k, v in d["lookups"].items()},
+                       dict(d.get("meta", {})))
+        except (ValueError, KeyError, TypeError, UnicodeDecodeError) as e:
+            raise DataError(f"{path} is not a geometry calibration: {e}") from e
+
+
+def fit_lookup(family: str, changes: list[np.ndarray], targets: list[np.ndarray],
+               masks: list[np.ndarray], landscape: bool, mm_per_pixel: float | None,
+               seed: int = 0, samples: int = 120_000, hidden: tuple[int, ...] = (32, 32),
+               meta: dict | None = None) -> GradientLookup:
+    """Fit a family's lookup on drift-free colour changes (h, w, 3) and their known gradients
+    (h, w, 2), on the pixels of `masks` (h, w) bool (pixels near a contact's rim, where the
+    annotation is least sure, are best left out by the caller)."""
+    from sklearn.neural_network import MLPRegressor
+
+    rng = np.random.default_rng(seed)
+    xs, ys = [], []
+    for change, target, mask in zip(changes, targets, masks):
+        h, w = change.shape[:2]
+        yy, xx = np.meshgrid(np.linspace(-1, 1, h), np.linspace(-1, 1, w), indexing="ij")
+        x = np.concatenate([change.reshape(-1, 3) * CHANGE_SCALE,
+                            xx.reshape(-1, 1), yy.reshape(-1, 1)], 1)
+        idx = np.flatnonzero(mask.ravel())
+        xs.append(x[idx])
+        ys.append(target.reshape(-1, 2)[idx])
+    X, Y = np.concatenate(xs), np.concatenate(ys)
+    if len(X) > samples:
+        pick = rng.choice(len(X), samples, replace=False)
+        X, Y = X[pick], Y[pick]
+    mlp = MLPRegressor(hidden_layer_sizes=hidden, max_iter=80, random_state=seed,
+                       early_stopping=True, n_iter_no_change=8)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a stop at max_iter is a budget, not an error
+        mlp.fit(X, Y)
+    return GradientLookup(family, tuple(np.asarray(w) for w in mlp.coefs_),
+                          tuple(np.asarray(b) for b in mlp.intercepts_), landscape,
+                          mm_per_pixel, meta={**(meta or {}),
+                                              "fit_r2": round(float(mlp.score(X, Y)), 4),
+                                              "fit_pixels": int(len(X))})
+
+
+def sphere_gradients(hw: tuple[int, int], centre: tuple[float, float], radius: float,
+                     ball: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The gradient (h, w, 2) of a ball of radius `ball` pressed in with a contact circle of
+    `radius` at `centre` (x, y), all in working pixels, zero outside the contact, and the
+    height (h, w) of the cap (its known depth is the value at the centre)."""
+    h, w = hw
+    yy, xx = np.mgrid[:h, :w].astype(np.float64)
+    dx, dy = xx - centre[0], yy - centre[1]
+    d2 = dx * dx + dy * dy
+    inside = d2 < radius * radius
+    zz = np.sqrt(np.maximum(ball * ball - d2, 1e-9))
+    g = np.stack([np.where(inside, -dx / zz, 0.0), np.where(inside, -dy / zz, 0.0)], -1)
+    cap = np.where(inside, zz - np.sqrt(max(ball * ball - radius * radius, 0.0)), 0.0)
+    return g, cap, inside

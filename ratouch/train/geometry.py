@@ -1,0 +1,198 @@
+"""Fitting the geometry lookups (`ratouch train geometry`): per sensor family, a colour-change
+-to-gradient lookup and the noise floors of its height maps (`ratouch.model.geometry`).
+
+* **GelSight, GelSight Mini**: fitted on Taxim's real ball presses (`calib/*/dataPack.npz`:
+  frames, the no-contact frame, each touch's annotated centre and radius), every sixth press
+  held out of the fit to measure the reconstruction (depth and contact radius against the
+  sphere's). The ball's radius is not stored with the calibrations; Taxim's calibration
+  procedure presses "a small sphere (about 4 mm)", so :data:`BALL_MM` = 2.0. Pixel size:
+  the calibration's `pixmm`.
+* **DIGIT**: no real calibration exists; the lookup is fitted on the world shader's own
+  renders of ball presses (so a render is inverted exactly by the shader's mapping, and a
+  real DIGIT frame gets the shader's mapping too: its depth is in render units, a guess).
+* **Contact floors**: per family, the 99.5th percentiles of the structured change
+  (`ratouch.model.geometry.structure_stats`) over blank pairs (a unit's background and a
+  later no-contact frame, drifted as Taxim's real pairs drift: `ratouch.world.presses`).
+  Renders only: no real frame sets a threshold.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from ratouch.model.geometry import (
+    WORK_LANDSCAPE,
+    GeometryCalibration,
+    GradientLookup,
+    fit_lookup,
+    read_height,
+    sphere_gradients,
+    structure_score,
+    structure_stats,
+    working_change,
+)
+
+log = logging.getLogger(__name__)
+
+#: Radius (mm) of the ball Taxim's calibrations were pressed with (see the module).
+BALL_MM = 2.0
+#: Every how-many-th real press is held out of a lookup's fit.
+HOLD_OUT_EVERY = 6
+#: Blank pairs per family the floors are set on, and the quantile.
+FLOOR_PAIRS = 300
+FLOOR_QUANTILE = 0.995
+
+
+def _taxim_pixels(calibration: str) -> float:
+    """Working pixels per full-resolution pixel of a Taxim calibration."""
+    return WORK_LANDSCAPE[0] / 640.0
+
+
+def fit_taxim(name: str, calibration: str, seed: int = 0) -> tuple[GradientLookup, dict]:
+    """A landscape family's lookup fitted on its calibration's real presses; and the held-out
+    reconstruction (per held-out press: depth in mm against the sphere's, contact radius in
+    full-resolution pixels against the annotated one)."""
+    from ratouch.world.taxim_optics import optics, real_presses
+
+    rp = real_presses(calibration)
+    pixmm = optics(calibration).pixmm
+    s = _taxim_pixels(calibration)
+    mm_per_work = pixmm / s
+    ball = BALL_MM / mm_per_work  # working pixels
+    bg = rp["background"]
+    n = len(rp["frames"])
+    held = [i for i in range(n) if i % HOLD_OUT_EVERY == 0]
+    changes, targets, masks = [], [], []
+    for i in range(n):
+        if i in held:
+            continue
+        change = working_change(rp["frames"][i], bg, WORK_LANDSCAPE)
+        cx, cy = rp["centres"][i] * s
+        r = float(rp["radii"][i]) * s
+        g, _, _ = sphere_gradients(change.shape[:2], (cx, cy), r * 0.97, ball)
+        yy, xx = np.mgrid[:change.shape[0], :change.shape[1]]
+        d = np.hypot(xx - cx, yy - cy)
+        masks.append((d < 0.95 * r) | (d > 1.5 * r))  # the rim left out: its annotation is loose
+        changes.append(change)
+        targets.append(g)
+    lookup = fit_lookup(name, changes, targets, masks, landscape=True, mm_per_pixel=mm_per_work,
+                        seed=seed, meta={"fitted_on": f"Taxim's {calibration} real ball presses "
+                                         f"({n - len(held)} of {n}; every {HOLD_OUT_EVERY}th "
+                                         "held out)", "ball_mm": BALL_MM,
+                                         "pixmm": pixmm})
+    rows = []
+    for i in held:
+        hm = read_height(lookup, rp["frames"][i], bg)
+        r = float(rp["radii"][i])
+        r_mm = r * pixmm
+        true_depth = BALL_MM - float(np.sqrt(max(BALL_MM ** 2 - r_mm ** 2, 0.0)))
+        radius = float(np.sqrt((hm.height > hm.depth / 3).sum() / np.pi)) / s
+        rows.append({"press": i, "depth_mm": round(hm.depth, 4),
+                     "sphere_depth_mm": round(true_depth, 4),
+                     "radius_px": round(radius, 1), "annotated_radius_px": round(r, 1)})
+    return lookup, _summary(rows)
+
+
+def _summary(rows: list[dict]) -> dict:
+    dd = np.array([r["depth_mm"] - r["sphere_depth_mm"] for r in rows])
+    rel = np.array([r["depth_mm"] / r["sphere_depth_mm"] - 1 for r in rows])
+    dr = np.array([r["radius_px"] - r["annotated_radius_px"] for r in rows])
+    return {"presses": rows, "depth_error_mm_mean": round(float(dd.mean()), 4),
+            "depth_error_mm_mae": round(float(np.abs(dd).mean()), 4),
+            "depth_error_relative_mae": round(float(np.abs(rel).mean()), 4),
+            "radius_error_px_mean": round(float(dr.mean()), 2),
+            "radius_error_px_mae": round(float(np.abs(dr).mean()), 2)}
+
+
+def fit_shader(name: str, seed: int = 0, presses: int = 40) -> tuple[GradientLookup, dict]:
+    """A shader family's lookup, fitted on the shader's renders of ball presses (in its own
+    render units), and the reconstruction of held-out renders."""
+    from ratouch.world.sensors import family_sensors
+    from ratouch.world.tactile import (
+        _SHADER_RELIEF,  # the shader's height scale
+        contact_change,
+        sensor_background,
+    )
+
+    rng = np.random.default_rng([seed, 31])
+    w, h = WORK_LANDSCAPE[1], WORK_LANDSCAPE[0]  # portrait working size (width, height)
+    units = list(family_sensors(name))
+    frames = []
+    for i in range(presses):
+        sensor = units[i % len(units)]
+        r = float(rng.uniform(0.12, 0.35)) * w
+        ball = r / float(rng.uniform(0.5, 0.95))
+        cx, cy = rng.uniform(0.3, 0.7) * w, rng.uniform(0.3, 0.7) * h
+        g, cap, inside = sphere_gradients((h, w), (cx, cy), r, ball)
+        bg = sensor_background(sensor, (h, w)).astype(np.float64)
+        change = contact_change(sensor, cap / _SHADER_RELIEF)
+        frame = (np.clip(bg + change + rng.normal(0, 0.004, bg.shape), 0, 1) * 255 + .5
+                 ).astype(np.uint8)
+        frames.append((frame, (bg * 255 + .5).astype(np.uint8), g, cap, r))
+    held = set(range(0, presses, HOLD_OUT_EVERY))
+    changes, targets, masks = [], [], []
+    for i, (frame, bg, g, _, _r) in enumerate(frames):
+        if i in held:
+            continue
+        changes.append(working_change(frame, bg, (w, h)))
+        targets.append(g)
+        masks.append(np.ones(g.shape[:2], bool))
+    lookup = fit_lookup(name, changes, targets, masks, landscape=False, mm_per_pixel=None,
+                        seed=seed, meta={"fitted_on": f"the world shader's renders of "
+                                         f"{presses - len(held)} ball presses (render units)"})
+    rows = []
+    for i in sorted(held):
+        frame, bg, _, cap, r = frames[i]
+        hm = read_height(lookup, frame, bg)
+        radius = float(np.sqrt((hm.height > hm.depth / 3).sum() / np.pi))
+        rows.append({"press": i, "depth_mm": round(hm.depth, 4),
+                     "sphere_depth_mm": round(float(cap.max()), 4),
+                     "radius_px": round(radius, 1), "annotated_radius_px": round(r, 1)})
+    return lookup, _summary(rows)
+
+
+def set_floors(lookup: GradientLookup, seed: int = 0, pairs: int = FLOOR_PAIRS
+               ) -> GradientLookup:
+    """The lookup with its structured-change floors set on drifted blank pairs of its
+    family: each statistic's quantile, then the quantile of the combined score on a second,
+    independent half of the pairs (so that the threshold is not set on the floors' own
+    data)."""
+    from ratouch.world.presses import render_blank_pair
+
+    rng = np.random.default_rng([seed, 47])
+    stats = np.array([structure_stats(*render_blank_pair(lookup.family, rng), lookup.work_size)
+                      for _ in range(pairs)])
+    half = pairs // 2
+    floors = tuple(float(v) for v in np.quantile(stats[:half], FLOOR_QUANTILE, axis=0))
+    scores = [structure_score(s, floors) for s in stats[half:]]
+    threshold = float(np.quantile(scores, FLOOR_QUANTILE))
+    return lookup.with_floors(floors, threshold, floors_on=(
+        f"{pairs} drifted blank render pairs of the family: floors on {half}, the threshold "
+        f"on the other {pairs - half}, {FLOOR_QUANTILE:.1%} quantiles"))
+
+
+def calibrate(seed: int = 0) -> tuple[GeometryCalibration, dict[str, Any]]:
+    """Every family's lookup with its floors, and the held-out reconstruction per family."""
+    from ratouch.world.sensors import SENSOR_FAMILIES
+
+    lookups, report = {}, {}
+    for name, row in SENSOR_FAMILIES.items():
+        if row.renderer == "taxim":
+            lookup, rec = fit_taxim(name, str(row.calibration), seed)
+        else:
+            lookup, rec = fit_shader(name, seed)
+        lookup = set_floors(lookup, seed)
+        lookups[name] = lookup.with_floors(lookup.structure_floors,
+                                           lookup.structure_threshold, held_out=_brief(rec))
+        report[name] = rec
+        log.info("geometry %s: depth MAE %s, radius MAE %s px, threshold %.3g", name,
+                 rec["depth_error_mm_mae"], rec["radius_error_px_mae"],
+                 lookup.structure_threshold)
+    return GeometryCalibration(lookups, {"seed": seed, "ball_mm": BALL_MM}), report
+
+
+def _brief(rec: dict) -> dict:
+    return {k: v for k, v in rec.items() if k != "presses"}

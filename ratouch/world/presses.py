@@ -1,0 +1,219 @@
+"""Renders of the presses people make, and of a sensor's drift between two moments.
+
+The world's training frames (`tactile.py`) press a patch of a material firmly into the gel.
+The presses people make with a tactile sensor in their hand are other regimes, and this module
+renders them with the same sensor families and renderers (`tactile.contact_change`):
+
+* ``flat_face``: a flat face (a book, a box, a table) covering most of the gel, shallow;
+* ``fabric``: a towel, denim, a blanket: a broad, shallow, compliant press whose weave or pile
+  is the only structure;
+* ``foam``: a sponge: broad, compliant, porous;
+* ``tape``: a strip of tape: flat and very shallow;
+* ``wire``: steel wool: thin wires crossing the gel;
+* ``edge``: the edge of a ruler: a straight ridge across the gel;
+* ``small_curved``: an egg, a pebble: a small curved cap.
+
+And a sensor's **drift**: the background is captured at one moment and the press at another;
+between them each channel's gain and offset change, the illumination field shifts slowly and
+the camera adds noise. :func:`measure_drift` measures these on Taxim's real pairs (away from
+the touch), :func:`drifted` applies a drawn drift to a frame. The geometry calibration
+(`ratouch.train.geometry`) sets its noise floors on blank pairs drifted this way, and
+`ratouch eval presses` measures contact on these renders.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy.ndimage import gaussian_filter
+
+from ratouch.world.material import material
+from ratouch.world.sensors import family, family_sensors
+from ratouch.world.tactile import contact_change, sensor_background
+from ratouch.world.texture import make_tile, mip_pyramid, pixel_grid, sample_tile
+
+#: The press regimes, each with the materials that make it (names of the world's materials).
+PRESS_KINDS: dict[str, tuple[str, ...]] = {
+    "flat_face": ("oak", "matte_plastic", "paper", "glazed_ceramic", "glossy_plastic"),
+    "fabric": ("terry_cloth", "denim", "fleece", "wool_knit", "carpet", "cotton_jersey",
+               "velvet", "felt", "linen", "corduroy"),
+    "foam": ("sponge", "memory_foam"),
+    "tape": ("matte_plastic", "paper"),
+    "wire": ("brushed_aluminum",),
+    "edge": ("oak", "matte_plastic", "polished_metal"),
+    "small_curved": ("glazed_ceramic", "glossy_plastic", "polished_marble"),
+}
+#: Whether a kind's material is soft (for hard-against-soft measures): compliance >= 0.5.
+SOFT_AT = 0.5
+
+
+@dataclass(frozen=True)
+class Drift:
+    """How a sensor's frame changes between two moments without contact, [0, 1] units.
+
+    Attributes:
+        offset_sd: per-channel offset std.
+        gain_sd: per-channel relative gain std.
+        field_sd: std of a slowly varying illumination change (sigma: an eighth of the
+            frame's width).
+        noise_sd: per-pixel camera noise std.
+    """
+
+    offset_sd: float
+    gain_sd: float
+    field_sd: float
+    noise_sd: float
+
+
+def measure_drift(calibration: str) -> Drift:
+    """The drift between a Taxim calibration's real background and its real presses, away
+    from each touch (beyond twice its radius): the spread over presses of the per-channel
+    offset and gain, the RMS of the slowly varying remainder and of the fine noise."""
+    from ratouch.world.taxim_optics import real_presses
+
+    rp = real_presses(calibration)
+    bg = rp["background"].astype(np.float64) / 255
+    h, w = bg.shape[:2]
+    yy, xx = np.mgrid[:h, :w]
+    offs, gains, fields, noise = [], [], [], []
+    for f, c, r in zip(rp["frames"], rp["centres"], rp["radii"]):
+        far = np.hypot(xx - c[0], yy - c[1]) > 2 * r
+        f = f.astype(np.float64) / 255
+        d = f - bg
+        offs.append(d[far].mean(0))
+        gains.append([np.median(f[..., k][far] / np.maximum(bg[..., k][far], 1e-3))
+                      for k in range(3)])
+        low = gaussian_filter(d, (w / 32, w / 32, 0))
+        fields.append((low[far] - low[far].mean(0)).std(0))
+        fine = d - gaussian_filter(d, (1.5, 1.5, 0))
+        noise.append(fine[far].std(0))
+    return Drift(offset_sd=float(np.std(offs, 0).mean()), gain_sd=float(np.std(gains, 0).mean()),
+                 field_sd=float(np.mean(fields)), noise_sd=float(np.mean(noise)))
+
+
+@lru_cache(maxsize=4)
+def family_drift(name: str) -> Drift:
+    """A family's drift: measured on its Taxim calibration's real pairs; a family without
+    one (the DIGIT) takes the larger of the two measured (the GelSight's)."""
+    row = family(name)
+    if row.calibration is not None:
+        return measure_drift(str(row.calibration))
+    return max((measure_drift(c) for c in ("gelsight", "gelsight_mini")),
+               key=lambda d: d.field_sd + d.offset_sd)
+
+
+def drifted(frame: np.ndarray, drift: Drift, rng: np.random.Generator) -> np.ndarray:
+    """`frame` (float [0, 1], (H, W, 3)) as the sensor would show it at another moment."""
+    h, w = frame.shape[:2]
+    gain = 1 + rng.normal(0, drift.gain_sd, 3)
+    offset = rng.normal(0, drift.offset_sd, 3)
+    field = gaussian_filter(rng.standard_normal((h, w, 3)), (w / 8, w / 8, 0))
+    field = field / (field.std() + 1e-12) * drift.field_sd * rng.uniform(0.3, 1.0)
+    out = frame * gain + offset + field + rng.normal(0, drift.noise_sd, frame.shape)
+    return out
+
+
+def to_uint8(frame: np.ndarray) -> np.ndarray:
+    return (np.clip(frame, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class Press:
+    """One rendered everyday press: the frame, its unit's background captured at another
+    moment (both uint8), and what was pressed."""
+
+    frame: np.ndarray
+    background: np.ndarray
+    kind: str
+    material: str
+    family: str
+    soft: bool
+    depth: float  # peak indentation, gel-thickness units
+
+
+@lru_cache(maxsize=64)
+def _pyramid(name: str) -> list:
+    return mip_pyramid(make_tile(material(name).feel.pattern))
+
+
+def _surface(kind: str, name: str, rng: np.random.Generator, hw: tuple[int, int]
+             ) -> np.ndarray:
+    """The indentation (gel-thickness units, (H, W)) of one press of `kind`."""
+    h, w = hw
+    ys, xs = pixel_grid(h, w)
+    mat = material(name)
+    k = mat.feel.compliance
+    tex = sample_tile(_pyramid(name), hw, float(rng.uniform(0.8, 1.2)) * 96 / w,
+                      float(rng.uniform(0, 360)), tuple(rng.uniform(0, 256, 2)))
+    relief = mat.feel.relief * (1 - 0.4 * k)
+    cx, cy = rng.uniform(0.3, 0.7) * w, rng.uniform(0.3, 0.7) * h
+    if kind in ("flat_face", "fabric", "foam", "tape"):
+        # a broad patch, often running off the gel: radius 0.5 .. 1.2 frame widths
+        radius = w * rng.uniform(0.5, 1.2)
+        a = float(rng.uniform(0, np.pi))
+        u = ((xs - cx) * np.cos(a) + (ys - cy) * np.sin(a)) / radius
+        v = (-(xs - cx) * np.sin(a) + (ys - cy) * np.cos(a)) / (radius * rng.uniform(0.6, 1.0))
+        rho = np.sqrt(u * u + v * v)
+        edge = 0.1 + 0.4 * k
+        inside = np.clip((1 - rho) / edge, 0, 1)
+        inside = inside * inside * (3 - 2 * inside)
+        depth = {"flat_face": rng.uniform(0.05, 0.3), "fabric": rng.uniform(0.05, 0.3),
+                 "foam": rng.uniform(0.1, 0.4), "tape": rng.uniform(0.02, 0.08)}[kind]
+        texture = {"tape": 0.2, "flat_face": 1.0}.get(kind, 1.6)
+        return depth * inside * (1 + texture * 2.2 * relief * (tex - 0.5))
+    if kind == "wire":
+        z = np.zeros(hw, np.float64)
+        depth = rng.uniform(0.1, 0.4)
+        for _ in range(int(rng.integers(8, 25))):
+            # a wire: a smooth random curve, a tube about a pixel wide
+            t = np.linspace(0, 1, 60)
+            p0 = rng.uniform(0, 1, 2) * (w, h)
+            bend = rng.normal(0, 0.3, (3, 2)) * (w, h)
+            pts = p0 + np.outer(t, bend[0]) + np.outer(t * t, bend[1]) + np.outer(t ** 3, bend[2])
+            thick = rng.uniform(0.6, 1.5) * w / 96
+            for px, py in pts:
+                d2 = (xs - px) ** 2 + (ys - py) ** 2
+                z = np.maximum(z, np.exp(-d2 / (2 * thick * thick)))
+        return depth * z
+    if kind == "edge":
+        a = float(rng.uniform(0, np.pi))
+        d = (xs - cx) * np.cos(a) + (ys - cy) * np.sin(a)
+        width = rng.uniform(1.5, 5.0) * w / 96  # a rounded edge a few pixels wide
+        depth = rng.uniform(0.2, 0.7)
+        ridge = np.sqrt(np.clip(1 - (d / width) ** 2, 0, 1))
+        return depth * ridge * (1 + 0.5 * relief * (tex - 0.5))
+    if kind == "small_curved":
+        r = w * rng.uniform(0.12, 0.3)
+        ax = rng.uniform(0.7, 1.0)
+        rho2 = ((xs - cx) / r) ** 2 + ((ys - cy) / (r * ax)) ** 2
+        depth = rng.uniform(0.3, 0.8)
+        return depth * np.sqrt(np.clip(1 - rho2, 0, 1))
+    raise ValueError(f"unknown press kind {kind!r}; known: {', '.join(PRESS_KINDS)}")
+
+
+def render_press(family_name: str, rng: np.random.Generator, kind: str | None = None,
+                 hw: tuple[int, int] = (128, 96)) -> Press:
+    """One everyday press on a random unit of `family_name` (kind and material drawn when
+    not given), with its background captured at another moment (drifted, `family_drift`)."""
+    kind = str(rng.choice(list(PRESS_KINDS))) if kind is None else kind
+    name = str(rng.choice(list(PRESS_KINDS[kind])))
+    sensor = int(rng.choice(list(family_sensors(family_name))))
+    bg = sensor_background(sensor, hw).astype(np.float64)
+    z = _surface(kind, name, rng, hw)
+    change = gaussian_filter(contact_change(sensor, z).astype(np.float64), (0.7, 0.7, 0))
+    drift = family_drift(family_name)
+    frame = drifted(bg + change, drift, rng)
+    later = drifted(bg, drift, rng)
+    return Press(to_uint8(frame), to_uint8(later), kind, name, family_name,
+                 material(name).feel.compliance >= SOFT_AT, float(z.max()))
+
+
+def render_blank_pair(family_name: str, rng: np.random.Generator,
+                      hw: tuple[int, int] = (128, 96)) -> tuple[np.ndarray, np.ndarray]:
+    """A no-contact frame and its unit's background, captured at two moments (uint8)."""
+    sensor = int(rng.choice(list(family_sensors(family_name))))
+    bg = sensor_background(sensor, hw).astype(np.float64)
+    drift = family_drift(family_name)
+    return to_uint8(drifted(bg, drift, rng)), to_uint8(drifted(bg, drift, rng))
