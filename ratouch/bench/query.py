@@ -78,7 +78,9 @@ def bench_query(encoder: str = "default-s", corpus: str | None = None, n: int = 
                 k: int = 5, seed: int = 0) -> dict:
     """Cold start and warm latency of the whole RA-Touch query (both encoders, three
     retrievals, retriever, integrator, both generations, PCA) on world test pairs; of the
-    cascade, the generation figures are its first stage's."""
+    cascade, the generation figures are its first stage's. The same queries are timed again
+    with each pair's sensor background given ("with_background": the contact check against
+    it, the structured change and the height map are then computed too)."""
     if encoder != CASCADE:  # the cascade's stages each use their default corpus
         corpus = corpus or str(default_corpus(encoder, progress=False))  # built before timing
     t0 = time.perf_counter()
@@ -97,10 +99,14 @@ def bench_query(encoder: str = "default-s", corpus: str | None = None, n: int = 
             escalated.append(r.cascade["escalated"])
         for name, ms in r.timings_ms.items():
             stages.setdefault(name, []).append(ms)
+    with_bg = [_ask(model, s, k, world.background_image(s.sensor)).timings_ms["total"]
+               for s in samples]
     return {"encoder": encoder, "corpus_size": len(model.corpus), "n_queries": n, "k": k,
             "cold_start_s": round(cold, 2),
             "p50_ms": round(float(np.percentile(totals, 50)), 1),
             "p95_ms": round(float(np.percentile(totals, 95)), 1),
+            "with_background": {"p50_ms": round(float(np.percentile(with_bg, 50)), 1),
+                                "p95_ms": round(float(np.percentile(with_bg, 95)), 1)},
             "stages_p50_ms": {k_: round(float(np.median(v)), 2) for k_, v in stages.items()},
             **({"escalated": round(float(np.mean(escalated)), 4)} if escalated else {}),
             "generation": bench_generation(
@@ -111,9 +117,11 @@ def bench_query(encoder: str = "default-s", corpus: str | None = None, n: int = 
                        "cold_start_s": 10}}
 
 
-def _ask(model: Model, s, k: int):
-    """A world sample's query, answered by `model` (a `QueryResult`)."""
-    return answer_one(model, QueryRequest.decode(s.visual, s.tactile, box=s.box, k=k))
+def _ask(model: Model, s, k: int, background: np.ndarray | None = None):
+    """A world sample's query (with its sensor's background when given), answered by `model`
+    (a `QueryResult`)."""
+    return answer_one(model, QueryRequest.decode(s.visual, s.tactile, box=s.box, k=k,
+                                                 background=background))
 
 
 def bench_regenerate(model: Model, samples: list, k: int = 5) -> dict:

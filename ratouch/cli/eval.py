@@ -20,6 +20,7 @@ from ratouch.eval.frames import (
     digit_frames,
     format_frames,
     frames_in,
+    height_sheet,
     read_frames,
     summarise,
     taxim_frames,
@@ -111,9 +112,13 @@ def _eval_frames(args: argparse.Namespace) -> int:
         frames += digit_frames(reference_dir())
     else:
         frames = frames_in(args.folder, args.background)
-    rows = read_frames(RATouchPipeline.load(args.encoder, args.corpus), frames, k=args.k)
+    pipeline = RATouchPipeline.load(args.encoder, args.corpus)
+    rows = read_frames(pipeline, frames, k=args.k)
     print(json.dumps({"frames": rows, "summary": summarise(rows)}, indent=1) if args.json
           else format_frames(rows))
+    if args.sheet:
+        print(f"height maps: {height_sheet(pipeline.trust, frames, args.sheet)}",
+              file=sys.stderr)
     return 0
 
 

@@ -198,6 +198,10 @@ def _add_train(sub) -> None:
                                           "(Taxim's real ball presses; the DIGIT shader's "
                                           "renders) and its contact floors on blank renders")
     ge.add_argument("--seed", type=_nonneg_int, default=0)
+    ge.add_argument("--samples", type=_pos_int, default=120_000,
+                    help="pixels each family's lookup is fitted on")
+    ge.add_argument("--pairs", type=_pos_int, default=300,
+                    help="drifted blank render pairs each family's contact floors are set on")
     ge.add_argument("--out", default=None,
                     help="calibration JSON (default: assets/geometry/lookups.json)")
     cc = tsub.add_parser("cascade", help="calibrate the encoder cascade (smallest confident "
@@ -317,6 +321,9 @@ def _add_eval(sub) -> None:
     fr.add_argument("--encoder", default=DEFAULT_ENCODER)
     fr.add_argument("--corpus", default=None, help="a built corpus (default: the embedded one)")
     fr.add_argument("--k", type=_pos_int, default=5, help="neighbours per frame")
+    fr.add_argument("--sheet", default=None,
+                    help="also write a PNG: each frame beside its height map (frames read "
+                         "against a background)")
     fr.add_argument("--json", action="store_true")
     se = esub.add_parser("sensors", help="rendered sensor frames against real ones in numbers "
                                          "(mean and spread of frame - background, spatial "

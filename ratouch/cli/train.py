@@ -70,7 +70,7 @@ def _train_cascade(args: argparse.Namespace) -> int:
 
 
 def _train_geometry(args: argparse.Namespace) -> int:
-    cal, held_out = calibrate_geometry(args.seed)
+    cal, held_out = calibrate_geometry(args.seed, samples=args.samples, pairs=args.pairs)
     out = cal.save(args.out or geometry_calibration())
     print(json.dumps({"written": str(out), "held_out": {
         k: {m: v for m, v in r.items() if m != "presses"} for k, r in held_out.items()},

@@ -15,15 +15,18 @@ Nothing is tuned on these frames: every threshold comes from renders (`ratouch t
 
 from __future__ import annotations
 
+import io
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, ImageDraw
 from scipy.ndimage import gaussian_filter, label
 
 from ratouch.errors import ConfigError, DataNotFoundError
 from ratouch.eval.judge.lexicon import MEMBERS
+from ratouch.files import write_atomic
 from ratouch.images import to_rgb_array
 from ratouch.vocabulary import parse_adjectives
 
@@ -95,6 +98,8 @@ def read_frame(pipeline, item: Frame, k: int = 5) -> dict:
            "reading": reading, "firmness": firmness(reading),
            "ra_touch": (result.get("description") or {}).get("ra_touch", ""),
            "neighbours": [n.get("caption") for n in tactile[:k]],
+           "geometry": tac.get("geometry"), "structure": tac.get("structure"),
+           "unfamiliar_sensor": bool(tac.get("unfamiliar_sensor")),
            "warnings": list(result.get("warnings", []))}
     if item.background is not None and item.centre is not None and item.radius is not None:
         row["region_overlaps_touch"] = overlaps(
@@ -177,11 +182,17 @@ def format_frames(rows: list[dict]) -> str:
     """A plain table of read frames and their summary."""
     if not rows:
         raise ConfigError("no frames to show")
-    lines = [f"{'frame':<44} {'sensor':<9} {'state':<11} {'contact':>8}  reading -> RA-Touch"]
+    lines = [f"{'frame':<44} {'sensor':<9} {'state':<11} {'contact':>8} {'depth':>14} "
+             f"{'spread':>6}  reading -> RA-Touch"]
     for r in rows:
         score = "-" if r["contact"] is None else f"{r['contact']:.2f}"
+        geo = r.get("geometry") or {}
+        depth = (f"{geo['depth']:.3g} {'mm' if geo['units'] == 'mm' else 'r.u.'}"
+                 if geo else "-")
+        spread = f"{geo['spread']:.2f}" if geo else "-"
         lines.append(f"{r['frame'][:44]:<44} {str(r['sensor']):<9} {str(r['state']):<11} "
-                     f"{score:>8}  {r['reading'] or '-'} -> {r['ra_touch'] or '-'}")
+                     f"{score:>8} {depth:>14} {spread:>6}  {r['reading'] or '-'} -> "
+                     f"{r['ra_touch'] or '-'}")
     s = summarise(rows)
     lines.append("")
     lines.append(
@@ -194,5 +205,48 @@ def format_frames(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["Frame", "firmness", "contact_region", "overlaps", "read_frame", "read_frames",
+def height_sheet(trust, frames: Iterable[Frame], path: str | Path, columns: int = 4,
+                 tile: int = 160) -> Path:
+    """A contact sheet (PNG): each frame beside its height map (read against its background by
+    the guessed family's lookup; frames without a background get none), captioned with the
+    frame's name, depth and spread. Written atomically.
+
+    Raises:
+        ConfigError: no frame, or no geometry calibration loaded.
+    """
+    items = list(frames)
+    if not items:
+        raise ConfigError("no frames to draw")
+    if trust is None or trust.geometry is None:
+        raise ConfigError("no geometry calibration loaded: `ratouch train geometry`")
+    th = tile * 3 // 4
+    cell_w, cell_h = 2 * tile + 8, th + 30
+    rows = (len(items) + columns - 1) // columns
+    sheet = Image.new("RGB", (columns * cell_w, rows * cell_h), (250, 250, 250))
+    draw = ImageDraw.Draw(sheet)
+    for n, item in enumerate(items):
+        x, y = (n % columns) * cell_w, (n // columns) * cell_h
+        f = item.frame if item.frame.shape[0] <= item.frame.shape[1] else item.frame.transpose(
+            1, 0, 2)
+        sheet.paste(Image.fromarray(f).resize((tile, th)), (x, y))
+        caption = item.name[:30]
+        if item.background is not None:
+            hm = trust.height_map(item.frame, item.background)
+            if hm is not None:
+                img = hm.image()
+                if img.shape[0] > img.shape[1]:
+                    img = img.transpose(1, 0, 2)
+                sheet.paste(Image.fromarray(img).resize((tile, th)), (x + tile + 4, y))
+                unit = "mm" if hm.units == "mm" else "r.u."
+                caption += f" | {hm.depth:.2g} {unit}, spread {hm.spread:.2f}"
+        else:
+            draw.text((x + tile + 12, y + th // 2), "no background:\nno height map",
+                      fill=(90, 90, 90))
+        draw.text((x + 2, y + th + 4), caption, fill=(20, 20, 20))
+    buf = io.BytesIO()
+    sheet.save(buf, format="PNG")
+    return write_atomic(path, buf.getvalue())
+
+
+__all__ = ["height_sheet", "Frame", "firmness", "contact_region", "overlaps", "read_frame", "read_frames",
            "frames_in", "taxim_frames", "digit_frames", "summarise", "format_frames"]

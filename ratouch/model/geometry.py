@@ -91,17 +91,22 @@ class GradientLookup:
         return (w, h) if self.landscape else (h, w)
 
     def gradients(self, change: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(gx, gy) of a drift-free colour change (h, w, 3) at the working size."""
+        """(gx, gy) of a drift-free colour change (h, w, 3) at the working size; no change is
+        no gradient (the perceptron's output at zero change, per position, is subtracted)."""
         h, w = change.shape[:2]
         yy, xx = np.meshgrid(np.linspace(-1, 1, h), np.linspace(-1, 1, w), indexing="ij")
-        x = np.concatenate([change.reshape(-1, 3) * CHANGE_SCALE,
-                            xx.reshape(-1, 1), yy.reshape(-1, 1)], 1)
+        pos = np.concatenate([xx.reshape(-1, 1), yy.reshape(-1, 1)], 1)
+        x = np.concatenate([change.reshape(-1, 3) * CHANGE_SCALE, pos], 1)
+        rest = np.concatenate([np.zeros((h * w, 3)), pos], 1)
+        g = (self._forward(x) - self._forward(rest)).reshape(h, w, 2)
+        return g[..., 0], g[..., 1]
+
+    def _forward(self, x: np.ndarray) -> np.ndarray:
         for n, (wt, b) in enumerate(zip(self.weights, self.biases)):
             x = x @ wt + b
             if n < len(self.weights) - 1:
                 x = np.maximum(x, 0)
-        g = x.reshape(h, w, 2)
-        return g[..., 0], g[..., 1]
+        return x
 
     def to_dict(self) -> dict:
         return {"family": self.family, "landscape": self.landscape,

@@ -1,7 +1,7 @@
 """What `ratouch train all` runs: every shipped weight retrained in dependency order (the
-encoders, the corpus embeddings, and per encoder set of the chain the retriever, the trust
-calibration, the language prior and both generators), then the cascade calibrated over the
-chain's pipelines.
+geometry lookups, the encoders, the corpus embeddings, and per encoder set of the chain the
+retriever, the trust calibration, the language prior and both generators), then the cascade
+calibrated over the chain's pipelines.
 
 It sits above serving and training: the cascade is calibrated by answering validation renders
 with the loaded pipelines (`ratouch.ship.cascade`). Each step is a training recipe
@@ -13,12 +13,18 @@ from __future__ import annotations
 import shutil
 
 from ratouch.encoders.factory import CHAIN_SETS, ENCODER_ONLY_SETS, create_model, shipped_weights
-from ratouch.paths import cascade_calibration, generator_weights, trust_calibration
+from ratouch.paths import (
+    cascade_calibration,
+    generator_weights,
+    geometry_calibration,
+    trust_calibration,
+)
 from ratouch.search.retrieval_side import default_corpus
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.ship.cascade import CascadeConfig, calibrate_cascade
 from ratouch.timing import Laps
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
+from ratouch.train.geometry import calibrate as calibrate_geometry
 from ratouch.train.recipes import generator_recipe, retriever_recipe
 from ratouch.train.trust import TrustConfig, calibrate
 
@@ -32,6 +38,12 @@ def train_all(seed: int = 0, progress: bool = True, report=print, encoders: bool
     encoders already in assets/ (e.g. trained where a GPU was lent)."""
     clock = Laps()
     lap = clock.lap
+    # the geometry lookups depend on nothing trained (Taxim's real presses, renders)
+    geometry, held_out = calibrate_geometry(seed)
+    geometry.save(geometry_calibration())
+    report({"geometry": {k: {m: v for m, v in r.items() if m != "presses"}
+                         for k, r in held_out.items()}})
+    lap("geometry")
 
     shared: dict = {}
     for name in (*CHAIN_SETS, *ENCODER_ONLY_SETS) if encoders else ():

@@ -51,7 +51,8 @@ def _taxim_pixels(calibration: str) -> float:
     return WORK_LANDSCAPE[0] / 640.0
 
 
-def fit_taxim(name: str, calibration: str, seed: int = 0) -> tuple[GradientLookup, dict]:
+def fit_taxim(name: str, calibration: str, seed: int = 0, samples: int = 120_000
+              ) -> tuple[GradientLookup, dict]:
     """A landscape family's lookup fitted on its calibration's real presses; and the held-out
     reconstruction (per held-out press: depth in mm against the sphere's, contact radius in
     full-resolution pixels against the annotated one)."""
@@ -79,7 +80,7 @@ def fit_taxim(name: str, calibration: str, seed: int = 0) -> tuple[GradientLooku
         changes.append(change)
         targets.append(g)
     lookup = fit_lookup(name, changes, targets, masks, landscape=True, mm_per_pixel=mm_per_work,
-                        seed=seed, meta={"fitted_on": f"Taxim's {calibration} real ball presses "
+                        seed=seed, samples=samples, meta={"fitted_on": f"Taxim's {calibration} real ball presses "
                                          f"({n - len(held)} of {n}; every {HOLD_OUT_EVERY}th "
                                          "held out)", "ball_mm": BALL_MM,
                                          "pixmm": pixmm})
@@ -90,24 +91,25 @@ def fit_taxim(name: str, calibration: str, seed: int = 0) -> tuple[GradientLooku
         r_mm = r * pixmm
         true_depth = BALL_MM - float(np.sqrt(max(BALL_MM ** 2 - r_mm ** 2, 0.0)))
         radius = float(np.sqrt((hm.height > hm.depth / 3).sum() / np.pi)) / s
-        rows.append({"press": i, "depth_mm": round(hm.depth, 4),
-                     "sphere_depth_mm": round(true_depth, 4),
+        rows.append({"press": i, "depth": round(hm.depth, 4),
+                     "sphere_depth": round(true_depth, 4),
                      "radius_px": round(radius, 1), "annotated_radius_px": round(r, 1)})
-    return lookup, _summary(rows)
+    return lookup, _summary(rows, "mm")
 
 
-def _summary(rows: list[dict]) -> dict:
-    dd = np.array([r["depth_mm"] - r["sphere_depth_mm"] for r in rows])
-    rel = np.array([r["depth_mm"] / r["sphere_depth_mm"] - 1 for r in rows])
+def _summary(rows: list[dict], units: str) -> dict:
+    dd = np.array([r["depth"] - r["sphere_depth"] for r in rows])
+    rel = np.array([r["depth"] / r["sphere_depth"] - 1 for r in rows])
     dr = np.array([r["radius_px"] - r["annotated_radius_px"] for r in rows])
-    return {"presses": rows, "depth_error_mm_mean": round(float(dd.mean()), 4),
-            "depth_error_mm_mae": round(float(np.abs(dd).mean()), 4),
+    return {"presses": rows, "units": units, "depth_error_mean": round(float(dd.mean()), 4),
+            "depth_error_mae": round(float(np.abs(dd).mean()), 4),
             "depth_error_relative_mae": round(float(np.abs(rel).mean()), 4),
             "radius_error_px_mean": round(float(dr.mean()), 2),
             "radius_error_px_mae": round(float(np.abs(dr).mean()), 2)}
 
 
-def fit_shader(name: str, seed: int = 0, presses: int = 40) -> tuple[GradientLookup, dict]:
+def fit_shader(name: str, seed: int = 0, presses: int = 40, samples: int = 120_000
+               ) -> tuple[GradientLookup, dict]:
     """A shader family's lookup, fitted on the shader's renders of ball presses (in its own
     render units), and the reconstruction of held-out renders."""
     from ratouch.world.sensors import family_sensors
@@ -141,17 +143,17 @@ def fit_shader(name: str, seed: int = 0, presses: int = 40) -> tuple[GradientLoo
         targets.append(g)
         masks.append(np.ones(g.shape[:2], bool))
     lookup = fit_lookup(name, changes, targets, masks, landscape=False, mm_per_pixel=None,
-                        seed=seed, meta={"fitted_on": f"the world shader's renders of "
+                        seed=seed, samples=samples, meta={"fitted_on": f"the world shader's renders of "
                                          f"{presses - len(held)} ball presses (render units)"})
     rows = []
     for i in sorted(held):
         frame, bg, _, cap, r = frames[i]
         hm = read_height(lookup, frame, bg)
         radius = float(np.sqrt((hm.height > hm.depth / 3).sum() / np.pi))
-        rows.append({"press": i, "depth_mm": round(hm.depth, 4),
-                     "sphere_depth_mm": round(float(cap.max()), 4),
+        rows.append({"press": i, "depth": round(hm.depth, 4),
+                     "sphere_depth": round(float(cap.max()), 4),
                      "radius_px": round(radius, 1), "annotated_radius_px": round(r, 1)})
-    return lookup, _summary(rows)
+    return lookup, _summary(rows, "render units")
 
 
 def set_floors(lookup: GradientLookup, seed: int = 0, pairs: int = FLOOR_PAIRS
@@ -174,24 +176,28 @@ def set_floors(lookup: GradientLookup, seed: int = 0, pairs: int = FLOOR_PAIRS
         f"on the other {pairs - half}, {FLOOR_QUANTILE:.1%} quantiles"))
 
 
-def calibrate(seed: int = 0) -> tuple[GeometryCalibration, dict[str, Any]]:
-    """Every family's lookup with its floors, and the held-out reconstruction per family."""
+def calibrate(seed: int = 0, samples: int = 120_000, pairs: int = FLOOR_PAIRS
+              ) -> tuple[GeometryCalibration, dict[str, Any]]:
+    """Every family's lookup with its floors, and the held-out reconstruction per family
+    (`samples`: pixels each lookup is fitted on; `pairs`: blank pairs the floors are set on).
+    """
     from ratouch.world.sensors import SENSOR_FAMILIES
 
     lookups, report = {}, {}
     for name, row in SENSOR_FAMILIES.items():
         if row.renderer == "taxim":
-            lookup, rec = fit_taxim(name, str(row.calibration), seed)
+            lookup, rec = fit_taxim(name, str(row.calibration), seed, samples=samples)
         else:
-            lookup, rec = fit_shader(name, seed)
-        lookup = set_floors(lookup, seed)
+            lookup, rec = fit_shader(name, seed, samples=samples)
+        lookup = set_floors(lookup, seed, pairs=pairs)
         lookups[name] = lookup.with_floors(lookup.structure_floors,
                                            lookup.structure_threshold, held_out=_brief(rec))
         report[name] = rec
         log.info("geometry %s: depth MAE %s, radius MAE %s px, threshold %.3g", name,
-                 rec["depth_error_mm_mae"], rec["radius_error_px_mae"],
+                 rec["depth_error_mae"], rec["radius_error_px_mae"],
                  lookup.structure_threshold)
-    return GeometryCalibration(lookups, {"seed": seed, "ball_mm": BALL_MM}), report
+    return GeometryCalibration(lookups, {"seed": seed, "ball_mm": BALL_MM, "samples": samples,
+                                         "blank_pairs": pairs}), report
 
 
 def _brief(rec: dict) -> dict:

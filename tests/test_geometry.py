@@ -1,0 +1,163 @@
+"""Touch read as geometry: the Poisson integration, the drift removal, the shipped lookups on
+Taxim's held-out real ball presses, contact by structured change on everyday-press renders,
+and `ratouch train geometry` / `ratouch eval presses` through the CLI."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ratouch.cli import main
+from ratouch.errors import DataError, DataNotFoundError
+from ratouch.model.geometry import (
+    GeometryCalibration,
+    integrate,
+    read_height,
+    sphere_gradients,
+    working_change,
+)
+from ratouch.paths import geometry_calibration
+from ratouch.train.geometry import BALL_MM, HOLD_OUT_EVERY
+from ratouch.world.presses import render_blank_pair, render_press
+from ratouch.world.taxim_optics import optics, real_presses
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    return GeometryCalibration.load(geometry_calibration())
+
+
+def test_integration_recovers_a_sphere_from_its_gradients():
+    g, cap, _ = sphere_gradients((120, 160), (70.0, 55.0), 25.0, 40.0)
+    z = integrate(g[..., 0], g[..., 1])
+    z = z - np.median(z)
+    # the cap's depth and where it lies, within a few percent
+    assert abs(z.max() - cap.max()) < 0.1 * cap.max()
+    assert np.unravel_index(np.argmax(z), z.shape) == pytest.approx((55, 70), abs=2)
+    assert np.corrcoef(z.ravel(), cap.ravel())[0, 1] > 0.98
+
+
+def test_global_gain_and_offset_are_not_read_as_change():
+    rng = np.random.default_rng(0)
+    bg = (rng.uniform(0.2, 0.8, (96, 128, 3)) * 255).astype(np.uint8)
+    later = np.clip(bg * 1.03 + 4, 0, 255).astype(np.uint8)
+    change = working_change(later, bg, (160, 120))
+    assert np.abs(change).max() < 3 / 255
+    with pytest.raises(DataError, match="background"):
+        working_change(later[:50], bg, (160, 120))
+
+
+@pytest.mark.parametrize("family,calibration", [("gelsight", "gelsight"),
+                                                ("mini", "gelsight_mini")])
+def test_held_out_real_ball_presses_reconstruct_their_contact(shipped, family, calibration):
+    """The presses held out of the fit (every sixth): the contact radius within 20 % of the
+    annotated one, the depth within 50 % of the sphere's (ball radius BALL_MM) and the
+    deepest point on the touch."""
+    rp = real_presses(calibration)
+    lookup = shipped.lookup(family)
+    s = lookup.work_size[0] / 640
+    pixmm = optics(calibration).pixmm
+    for i in range(0, len(rp["frames"]), HOLD_OUT_EVERY):
+        hm = read_height(lookup, rp["frames"][i], rp["background"])
+        r = float(rp["radii"][i])
+        radius = np.sqrt((hm.height > hm.depth / 3).sum() / np.pi) / s
+        assert abs(radius - r) < 0.2 * r
+        r_mm = r * pixmm
+        sphere = BALL_MM - np.sqrt(BALL_MM ** 2 - r_mm ** 2)
+        assert abs(hm.depth - sphere) < 0.5 * sphere
+        y, x = np.unravel_index(np.argmax(hm.height), hm.height.shape)
+        assert np.hypot(x / s - rp["centres"][i][0], y / s - rp["centres"][i][1]) < r
+
+
+def test_real_backgrounds_read_against_themselves_are_flat(shipped):
+    for family, calibration in (("gelsight", "gelsight"), ("mini", "gelsight_mini")):
+        bg = real_presses(calibration)["background"]
+        lookup = shipped.lookup(family)
+        assert read_height(lookup, bg, bg).depth < 1e-6
+        assert not lookup.contact(bg, bg)[0]
+
+
+def test_everyday_presses_stand_above_the_floors_that_blanks_stay_under(shipped):
+    """Fresh renders (a seed the floors were not set on): broad, shallow presses of fabric and
+    foam on the faint Mini read as contact; drifted blank pairs do not."""
+    rng = np.random.default_rng(12345)
+    lookup = shipped.lookup("mini")
+    hits = [lookup.contact(p.frame, p.background)[0]
+            for p in (render_press("mini", rng, kind) for kind in ("fabric", "foam")
+                      for _ in range(4))]
+    assert sum(hits) >= 7
+    blanks = [lookup.contact(*render_blank_pair("mini", rng))[0] for _ in range(20)]
+    assert sum(blanks) <= 1
+
+
+def test_trust_reads_a_shallow_press_against_its_background(pipeline):
+    """The trust block: a broad fabric press on a Mini with its (drifted) background is
+    contact, with the structured score and the height map's numbers in the block."""
+    rng = np.random.default_rng(7)
+    p = render_press("mini", rng, "fabric")
+    cal = pipeline.trust
+    assert cal.geometry is not None
+    state, _ = cal.contact_state(p.frame, p.background)
+    assert state == "contact"
+    enc = pipeline.encoders
+    out = cal.assess(enc.encode_image([p.frame]), enc.encode_tactile([p.frame]), p.frame,
+                     p.background)
+    assert out["tactile"]["structure"]["contact"]
+    assert out["tactile"]["geometry"]["units"] == "mm"
+
+
+def test_an_unfamiliar_sensor_is_said_so_with_a_background(pipeline):
+    """A frame unlike every family (a saturated magenta gel) read against its own background
+    is flagged as unfamiliar, and the warning says the reading is a guess."""
+    rng = np.random.default_rng(3)
+    bg = np.zeros((128, 96, 3), np.uint8)
+    bg[..., 0], bg[..., 2] = 230, 200
+    bg = np.clip(bg + rng.integers(0, 6, bg.shape), 0, 255).astype(np.uint8)
+    frame = bg.copy()
+    frame[40:80, 30:60] = np.clip(frame[40:80, 30:60].astype(int) - 40, 0, 255)
+    enc = pipeline.encoders
+    out = pipeline.trust.assess(enc.encode_image([frame]), enc.encode_tactile([frame]), frame,
+                                bg)
+    assert out["tactile"]["unfamiliar_sensor"]
+    assert any("looks like none of the sensors" in w for w in out["warnings"])
+
+
+def test_calibration_file_errors_are_clear(tmp_path):
+    with pytest.raises(DataNotFoundError, match="ratouch train geometry"):
+        GeometryCalibration.load(tmp_path / "none.json")
+    (tmp_path / "bad.json").write_bytes(b"\xff\xfe not json")
+    with pytest.raises(DataError, match="not a geometry calibration"):
+        GeometryCalibration.load(tmp_path / "bad.json")
+
+
+def test_shipped_calibration_round_trips(shipped, tmp_path):
+    out = shipped.save(tmp_path / "g.json")
+    again = GeometryCalibration.load(out)
+    assert set(again.lookups) == set(shipped.lookups)
+    frame, bg = render_blank_pair("digit", np.random.default_rng(0))
+    for name, lookup in shipped.lookups.items():
+        a = again.lookup(name)
+        assert a.structure_threshold == pytest.approx(lookup.structure_threshold)
+        ga = a.gradients(np.full((12, 16, 3), 0.02))[0]
+        gb = lookup.gradients(np.full((12, 16, 3), 0.02))[0]
+        np.testing.assert_allclose(ga, gb, atol=1e-4)
+
+
+@pytest.mark.slow
+def test_train_geometry_cli_writes_a_calibration(tmp_path, capsys):
+    out = tmp_path / "lookups.json"
+    assert main(["train", "geometry", "--samples", "3000", "--pairs", "20",
+                 "--out", str(out)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert set(report["held_out"]) == {"digit", "gelsight", "mini"}
+    cal = GeometryCalibration.load(out)
+    assert all(np.isfinite(lk.structure_threshold) for lk in cal.lookups.values())
+
+
+def test_eval_presses_cli(capsys):
+    assert main(["eval", "presses", "--n", "1", "--blanks", "2", "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert set(rep) == {"digit", "gelsight", "mini"}
+    assert set(rep["mini"]["kinds"]) >= {"fabric", "foam", "edge"}
