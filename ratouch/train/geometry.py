@@ -129,11 +129,11 @@ def fit_shader(name: str, seed: int = 0, presses: int = 40, samples: int = 120_0
         ball = r / float(rng.uniform(0.5, 0.95))
         cx, cy = rng.uniform(0.3, 0.7) * w, rng.uniform(0.3, 0.7) * h
         g, cap, inside = sphere_gradients((h, w), (cx, cy), r, ball)
-        bg = sensor_background(sensor, (h, w)).astype(np.float64)
+        field = sensor_background(sensor, (h, w)).astype(np.float64)
         change = contact_change(sensor, cap / _SHADER_RELIEF)
-        frame = (np.clip(bg + change + rng.normal(0, 0.004, bg.shape), 0, 1) * 255 + .5
+        frame = (np.clip(field + change + rng.normal(0, 0.004, field.shape), 0, 1) * 255 + .5
                  ).astype(np.uint8)
-        frames.append((frame, (bg * 255 + .5).astype(np.uint8), g, cap, r))
+        frames.append((frame, (field * 255 + .5).astype(np.uint8), g, cap, r))
     held = set(range(0, presses, HOLD_OUT_EVERY))
     changes, targets, masks = [], [], []
     for i, (frame, bg, g, _, _r) in enumerate(frames):
