@@ -28,10 +28,11 @@ def press_contact(trust: TrustCalibration, n: int = 10, blanks: int = 40, seed: 
         for kind in PRESS_KINDS:
             for _ in range(n):
                 p = render_press(fam, rng, kind)
-                st_bg, _ = trust.contact_state(p.frame, p.background)
+                read = trust.read_geometry(p.frame, p.background)
+                sc = None if read is None else read["structure"]
+                hm = None if read is None else read["height"]
+                st_bg, _ = trust.contact_state(p.frame, p.background, sc)
                 st, _ = trust.contact_state(p.frame, None)
-                sc = trust.structured_contact(p.frame, p.background)
-                hm = trust.height_map(p.frame, p.background)
                 r = rows[kind]
                 r["with_background"].append(st_bg == "contact")
                 r["without_background"].append(st == "contact")

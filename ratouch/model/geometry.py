@@ -23,7 +23,7 @@ The file is `ratouch.paths.geometry_calibration()`.
 Before the lookup, the global change between a background and a later frame (a gain and an
 offset per channel, which lighting drift makes) is removed by a robust fit over the frame,
 so that what is read is structured local change. **Contact against a background** is decided
-on that structured change (:func:`structure_stats`: band-passed edges and texture), against
+on that structured change (:func:`band_stats`: band-passed edges and texture), against
 each family's floors set on blank pairs (a background and a later no-contact frame, with the
 drift Taxim's real pairs show): shallow, broad presses of fabrics and foams, which change a
 GelSight Mini's pixels by a few levels, stand above those floors where a threshold on the
@@ -130,12 +130,21 @@ class GradientLookup:
                               self.mm_per_pixel, tuple(float(f) for f in floors),
                               float(threshold), {**self.meta, **meta})
 
-    def contact(self, frame: np.ndarray, background: np.ndarray) -> tuple[bool, float]:
+    def change(self, frame: np.ndarray, background: np.ndarray) -> np.ndarray:
+        """The frame's drift-free change against `background` at this lookup's working size
+        and orientation (a portrait frame of a landscape family is read turned, as the world
+        mounts it): what both the height map and the structured change read."""
+        turn = (frame.shape[0] > frame.shape[1]) == self.landscape
+        return working_change(frame, background, self.work_size, turn=turn)
+
+    def contact(self, frame: np.ndarray, background: np.ndarray,
+                change: np.ndarray | None = None) -> tuple[bool, float]:
         """Whether `frame` shows contact against `background` by its structured change, and
         the score against this family's floors (above :attr:`structure_threshold`: contact).
-        """
-        score = structure_score(structure_stats(frame, background, self.work_size),
-                                self.structure_floors)
+        `change`: `self.change(frame, background)` where already computed."""
+        if change is None:
+            change = self.change(frame, background)
+        score = structure_score(band_stats(change), self.structure_floors)
         return bool(score > self.structure_threshold), score
 
 
@@ -256,18 +265,16 @@ class HeightMap:
         return (np.stack([r, g, b], -1) * 255 + 0.5).astype(np.uint8)
 
 
-def read_height(lookup: GradientLookup, frame: np.ndarray, background: np.ndarray
-                ) -> HeightMap:
-    """Read a frame against its background as a height map with `lookup` (see the module).
-
-    A portrait frame of a landscape family is read turned, as the world mounts it.
+def read_height(lookup: GradientLookup, frame: np.ndarray, background: np.ndarray,
+                change: np.ndarray | None = None) -> HeightMap:
+    """Read a frame against its background as a height map with `lookup` (see the module);
+    `change`: `lookup.change(frame, background)` where already computed.
 
     Raises:
         DataError: the sizes differ.
     """
-    portrait = frame.shape[0] > frame.shape[1]
-    turn = portrait == lookup.landscape
-    change = working_change(frame, background, lookup.work_size, turn=turn)
+    if change is None:
+        change = lookup.change(frame, background)
     gx, gy = lookup.gradients(change)
     z = integrate(gx, gy)
     z = z - np.median(z)
@@ -288,13 +295,10 @@ def read_height(lookup: GradientLookup, frame: np.ndarray, background: np.ndarra
 STRUCTURE_BANDS = ((1.0, 3.0), (2.0, 6.0), (3.0, 10.0))
 
 
-def structure_stats(frame: np.ndarray, background: np.ndarray, size: tuple[int, int]
-                    ) -> np.ndarray:
-    """Structured local change of a frame against its background, the global gain and drift
-    removed (`working_change`): per band of :data:`STRUCTURE_BANDS`, the 99.5th percentile
-    and the RMS of |band-pass| (mean over channels). (6,) float64, [0, 1] units."""
-    c = working_change(frame, background, size,
-                       turn=(frame.shape[0] > frame.shape[1]) != (size[1] > size[0]))
+def band_stats(c: np.ndarray) -> np.ndarray:
+    """Structured local change of a drift-free change (`GradientLookup.change`): per band of
+    :data:`STRUCTURE_BANDS`, the 99.5th percentile and the RMS of |band-pass| (mean over
+    channels). (6,) float64, [0, 1] units."""
     out = []
     for lo, hi in STRUCTURE_BANDS:
         d = np.abs(gaussian_filter(c, (lo, lo, 0)) - gaussian_filter(c, (hi, hi, 0))).mean(2)

@@ -39,7 +39,7 @@ from scipy.ndimage import gaussian_filter
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
 from ratouch.images import resize_array
-from ratouch.model.geometry import GeometryCalibration, read_height
+from ratouch.model.geometry import GeometryCalibration, HeightMap, read_height
 from ratouch.world.sensors import LOOK_LIMIT, guess_family
 
 log = logging.getLogger(__name__)
@@ -349,34 +349,43 @@ class TrustCalibration:
         model = self.contact if background is None else self.contact_bg
         return float(model.score(contact_features(frame, background))[0])
 
-    def structured_contact(self, frame: np.ndarray, background: np.ndarray
-                           ) -> dict | None:
-        """Contact by structured local change against the background, with the frame's
-        (guessed) family's floors: {"contact", "score", "threshold", "family"}; None when no
-        geometry calibration is loaded."""
+    def structured_contact(self, frame: np.ndarray, background: np.ndarray,
+                           family: str | None = None) -> dict | None:
+        """Contact by structured local change against the background, with the floors of
+        `family` (default: guessed from the frame): {"contact", "score", "threshold",
+        "family"}; None when no geometry calibration (or lookup for the family) is loaded."""
+        read = self.read_geometry(frame, background, family, height=False)
+        return None if read is None else read["structure"]
+
+    def height_map(self, frame: np.ndarray, background: np.ndarray,
+                   family: str | None = None) -> HeightMap | None:
+        """The frame read as geometry against its background by `family`'s lookup (default:
+        guessed from the frame), or None (no geometry calibration or lookup)."""
+        read = self.read_geometry(frame, background, family)
+        return None if read is None else read["height"]
+
+    def read_geometry(self, frame: np.ndarray, background: np.ndarray,
+                      family: str | None = None, height: bool = True) -> dict | None:
+        """The frame's drift-free change against its background, computed once, read both
+        ways: {"structure": the structured-contact block, "height": its `HeightMap` (None
+        unless `height`)}; None when no geometry calibration or lookup for the family."""
         if self.geometry is None:
             return None
         _check_background(frame, background)
-        name, _ = guess_family(frame)
+        name = guess_family(frame)[0] if family is None else family
         lookup = self.geometry.lookup(name)
         if lookup is None:
             return None
-        hit, score = lookup.contact(frame, background)
-        return {"contact": hit, "score": round(score, 3) if np.isfinite(score) else None,
-                "threshold": round(lookup.structure_threshold, 3), "family": name}
+        change = lookup.change(frame, background)
+        hit, score = lookup.contact(frame, background, change)
+        return {"structure": {"contact": hit,
+                              "score": round(score, 3) if np.isfinite(score) else None,
+                              "threshold": round(lookup.structure_threshold, 3),
+                              "family": name},
+                "height": read_height(lookup, frame, background, change) if height else None}
 
-    def height_map(self, frame: np.ndarray, background: np.ndarray):
-        """The frame read as geometry against its background
-        (`ratouch.model.geometry.HeightMap`) by its guessed family's lookup, or None (no
-        geometry calibration)."""
-        if self.geometry is None:
-            return None
-        _check_background(frame, background)
-        lookup = self.geometry.lookup(guess_family(frame)[0])
-        return None if lookup is None else read_height(lookup, frame, background)
-
-    def contact_state(self, frame: np.ndarray, background: np.ndarray | None = None
-                      ) -> tuple[str, float]:
+    def contact_state(self, frame: np.ndarray, background: np.ndarray | None = None,
+                      structured: dict | None = None) -> tuple[str, float]:
         """What the frame shows, one of :data:`CONTACT_STATES`, and its contact logit.
 
         With a background: a frame whose structured local change (edges and texture, the
@@ -387,9 +396,11 @@ class TrustCalibration:
         the model decides outside the `uncertain` band and says "uncertain" inside it (a
         frame that looks like none of the rendered sensors is flagged by `assess`, not
         here). A score that is not a finite number is never "contact": it is "uncertain".
+        `structured`: the `structured_contact` block where the caller already has it.
         """
         if background is not None:
-            structured = self.structured_contact(frame, background)
+            if structured is None:
+                structured = self.structured_contact(frame, background)
             if structured is not None and structured["contact"]:
                 return "contact", float(self.contact_score(frame, background))
             if background_change(frame, background) < self.noise_floor:
@@ -438,17 +449,19 @@ class TrustCalibration:
         if T is not None and frame is not None:
             tac = _novelty_block(self.tactile, T)
             thr = self.contact_threshold if background is None else self.contact_threshold_bg
-            state, score = self.contact_state(frame, background)
+            # the family the frame was read as, guessed once from its colours
+            name, distance = guess_family(frame)
+            read = (None if background is None else
+                    self.read_geometry(frame, background, name))
+            state, score = self.contact_state(
+                frame, background, None if read is None else read["structure"])
             tac.update({"contact": round(score, 4) if np.isfinite(score) else None,
                         "contact_threshold": round(thr, 4), "state": state,
                         "no_contact": state == "no contact", "uncertain": state == "uncertain",
                         "background": background is not None})
             if background is not None and self.geometry is not None:
-                tac["structure"] = self.structured_contact(frame, background)
-                hm = self.height_map(frame, background)
-                tac["geometry"] = None if hm is None else hm.to_dict()
-            # the family the frame was read as, guessed once from its colours
-            name, distance = guess_family(frame)
+                tac["structure"] = None if read is None else read["structure"]
+                tac["geometry"] = None if read is None else read["height"].to_dict()
             unlike = distance > LOOK_LIMIT
             tac["sensor"] = {"family": name, "distance": round(distance, 3), "source": (
                 "the nearest guess: the frame looks like none of the families' units"

@@ -11,7 +11,7 @@
   renders of ball presses (so a render is inverted exactly by the shader's mapping, and a
   real DIGIT frame gets the shader's mapping too: its depth is in render units, a guess).
 * **Contact floors**: per family, the 99.5th percentiles of the structured change
-  (`ratouch.model.geometry.structure_stats`) over blank pairs (a unit's background and a
+  (`ratouch.model.geometry.band_stats`) over blank pairs (a unit's background and a
   later no-contact frame, drifted as Taxim's real pairs drift: `ratouch.world.presses`).
   Renders only: no real frame sets a threshold.
 """
@@ -27,11 +27,11 @@ from ratouch.model.geometry import (
     WORK_LANDSCAPE,
     GeometryCalibration,
     GradientLookup,
+    band_stats,
     fit_lookup,
     read_height,
     sphere_gradients,
     structure_score,
-    structure_stats,
     working_change,
 )
 
@@ -165,7 +165,7 @@ def set_floors(lookup: GradientLookup, seed: int = 0, pairs: int = FLOOR_PAIRS
     from ratouch.world.presses import render_blank_pair
 
     rng = np.random.default_rng([seed, 47])
-    stats = np.array([structure_stats(*render_blank_pair(lookup.family, rng), lookup.work_size)
+    stats = np.array([band_stats(lookup.change(*render_blank_pair(lookup.family, rng)))
                       for _ in range(pairs)])
     half = pairs // 2
     floors = tuple(float(v) for v in np.quantile(stats[:half], FLOOR_QUANTILE, axis=0))
