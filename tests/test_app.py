@@ -478,7 +478,7 @@ def test_the_app_serves_while_the_pipeline_loads(fake, pair_files):
 
     from app import handlers
     from app.app import _header
-    from app.loading import BackgroundPipeline, PipelineNotReady
+    from ratouch.serve.loader import BackgroundPipeline, PipelineNotReady
 
     go = threading.Event()
     pending = BackgroundPipeline(lambda: go.wait(30) and fake, "fake-enc")

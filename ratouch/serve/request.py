@@ -3,7 +3,7 @@ interface every serving part offers, `Answerer`.
 
 A request is decoded once, where it arrives (`QueryRequest.decode`: in the app's handler, in
 `ratouch query`, in a caller's thread), and handed down as it is. The parts of serving
-(`RATouchPipeline`, `Cascade`, `ModelChoice`, `QueryBatcher`, the app's `BackgroundPipeline`)
+(`RATouchPipeline`, `Cascade`, `ModelChoice`, `QueryBatcher`, `BackgroundPipeline`)
 are each an `Answerer`, and the wrapping ones wrap an `Answerer`: none decodes again.
 """
 
