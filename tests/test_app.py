@@ -730,10 +730,10 @@ def test_real_pipeline_batched_queries_match_single_ones(real_pipeline, world):
     reqs += [{"visual": samples[0].visual, "k": 4},  # image-only
              {"visual": samples[0].visual, "k": len(real_pipeline.corpus.entries) + 1}]
     many = real_pipeline.answer([QueryRequest.decode(**req) for req in reqs])
-    assert isinstance(many[4], ConfigError) and "k must be" in str(many[4])  # K > the corpus
+    assert isinstance(many[4], ConfigError) and "K must be" in str(many[4])  # K > the corpus
     with pytest.raises(DataError, match="box"):  # decoding says what is wrong with a request
         QueryRequest.decode(samples[0].visual, box=(9, 9, 2, 2))
-    with pytest.raises(ConfigError, match="k must be"):
+    with pytest.raises(ConfigError, match="K must be"):
         QueryRequest.decode(samples[0].visual, k=0)
     for req, got in zip(reqs[:4], many[:4]):
         got = got.to_dict()
@@ -844,11 +844,12 @@ def gr_update():
 @pytest.mark.parametrize("k", [2.5, 0, 21, "", None, "five", float("nan")])
 def test_bad_k_is_named(fake, pair_files, k):
     from app import handlers
+    from ratouch.serve.request import MAX_K, check_k
 
     good = handlers.upload_visual(str(pair_files[0]))[0]
     v = handlers.run_query(fake, _thumb, good, str(pair_files[1]), None, None, None, None, k)
     assert "K must be a whole number from 1 to 20" in v.status and v.raw is None
-    assert handlers.parse_k(7.0) == 7 and handlers.parse_k("3") == 3
+    assert check_k(7.0, MAX_K) == 7 and check_k("3", MAX_K) == 3  # a slider's, typed
 
 
 def test_duplicate_captions_are_grouped_in_galleries_but_not_in_tables():

@@ -210,7 +210,7 @@ def test_judge_scores_of_a_query_result():
 def test_bad_settings_are_refused(fake):
     with pytest.raises(ConfigError, match="unknown condition"):
         failures.failure_cases(fake, conditions=("fog",))
-    with pytest.raises(ConfigError, match="k must be"):
+    with pytest.raises(ConfigError, match="K must be"):
         failures.failure_cases(fake, k=0, conditions=CONDS)
     fake.corpus.entries = [SimpleNamespace(material="", caption="x")] * 10
     with pytest.raises(DataError, match="material"):

@@ -41,6 +41,7 @@ from ratouch.paths import (
     retriever_weights,
 )
 from ratouch.search.modes import QUERY_MODES, RA_TOUCH_MODE
+from ratouch.serve.request import check_k
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
 from ratouch.world.generator import TEST_SIZE, World
@@ -171,8 +172,7 @@ def failure_cases(pipeline, world: WorldConfig | None = None, k: int = 5,
         `joint_gap` = the best other mode's precision - that of the mode RA-Touch reads.
     """
     conditions = _check_conditions(conditions)
-    if not 1 <= int(k) <= len(pipeline.corpus.entries):
-        raise ConfigError(f"k must be in 1..{len(pipeline.corpus.entries)}, got {k}")
+    k = check_k(k, len(pipeline.corpus.entries))
     judge = judge or OfflineJudge()
     entry_mats = entry_materials(pipeline.corpus)
     if not entry_mats.size or not all(entry_mats):

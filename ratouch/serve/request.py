@@ -30,18 +30,32 @@ from ratouch.images import (
 Box = tuple[int, int, int, int]
 
 
+#: The largest K a person is offered: the app's slider and `/query` API, `ratouch query --k`
+#: (more neighbours per mode than a page shows side by side or a reader compares).
+MAX_K = 20
+
+
 def check_k(k: Any, largest: int | None = None) -> int:
-    """K, the neighbours per mode, as a whole number from 1 to `largest` (None: no bound).
+    """K, the neighbours per mode, as given or typed: a whole number from 1 to `largest`
+    (None: no bound). An int, or a float or text holding a whole number (7.0 from a slider,
+    "7" typed), counts as that number. The one check of K: the app, the CLI, every answerer
+    (against its corpus's size) and the evaluations that take a K call it.
 
     Raises:
-        ConfigError: for anything else (a bool, a float, 0, more than `largest`).
+        ConfigError: naming K and the value, for anything else (a bool, 2.5, "", "five", NaN,
+            0, more than `largest`).
     """
-    whole = not isinstance(k, bool) and isinstance(k, (int, np.integer))
-    if not whole or k < 1 or (largest is not None and k > largest):
+    value = float("nan")
+    if not isinstance(k, bool):
+        try:
+            value = float(k)
+        except (TypeError, ValueError, OverflowError):
+            pass
+    if not (value.is_integer() and value >= 1 and (largest is None or value <= largest)):
         span = f"from 1 to {largest}" if largest is not None else "of at least 1"
-        raise ConfigError(f"k must be a whole number {span} (K, the neighbours per mode), "
-                          f"got k={k!r}")
-    return int(k)
+        raise ConfigError(f"K must be a whole number {span}, got K={k!r} (K: the neighbours "
+                          "per query mode)")
+    return int(value)
 
 
 @dataclass(frozen=True, eq=False)
