@@ -26,7 +26,7 @@ from app.plot import pca_figure
 from ratouch.errors import DataError, RATouchError
 from ratouch.eval import failures
 from ratouch.eval.report import last_commit, weights_commit
-from ratouch.images import QUERY_MAX_SIDE, to_rgb_array
+from ratouch.images import QUERY_MAX_SIDE, check_background_size, to_rgb_array
 from ratouch.serve.request import MAX_K, QueryRequest, answer_one, check_k
 from ratouch.serve.trace import trace_retrieval
 
@@ -164,11 +164,7 @@ def _check_upload(value: Any, role: str, against: Any = None) -> tuple:
         to_rgb_array(path, name=role, max_side=QUERY_MAX_SIDE)
         if isinstance(against, str) and against:
             with Image.open(path) as a, Image.open(against) as b:
-                if a.size != b.size:
-                    raise DataError(f"the {role} {path} is {a.size[0]}x{a.size[1]} (WxH) but "
-                                    f"the tactile image is {b.size[0]}x{b.size[1]}; the "
-                                    "background must be the same sensor's no-contact frame "
-                                    "at the same size")
+                check_background_size(a.size, b.size, f"the {role} {path}")
     except USER_ERRORS as e:
         return (None, *error_view(_fail(e, {role: path})))
     return (gr.update(), *keep)

@@ -852,6 +852,19 @@ def test_bad_k_is_named(fake, pair_files, k):
     assert check_k(7.0, MAX_K) == 7 and check_k("3", MAX_K) == 3  # a slider's, typed
 
 
+def test_a_background_of_another_size_is_named_alike_on_upload_and_on_run(pair_files, tmp_path):
+    from app import handlers
+    from ratouch.serve.request import QueryRequest
+
+    bg = tmp_path / "bg.png"
+    Image.new("RGB", (50, 60)).save(bg)
+    said = "is 50x60 (WxH) but the tactile image is 96x128; the background must be the same"
+    upload = handlers.upload_background(str(bg), str(pair_files[1]))
+    assert upload[0] is None and said in upload[1]  # removed at once, and why
+    with pytest.raises(DataError, match=re.escape(said)):
+        QueryRequest.decode(str(pair_files[0]), str(pair_files[1]), background=str(bg))
+
+
 def test_duplicate_captions_are_grouped_in_galleries_but_not_in_tables():
     from app import view
 

@@ -38,7 +38,7 @@ from scipy.ndimage import gaussian_filter
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
-from ratouch.images import resize_array
+from ratouch.images import check_background_size, resize_array
 from ratouch.world.sensors import LOOK_LIMIT, guess_family
 
 log = logging.getLogger(__name__)
@@ -154,7 +154,7 @@ def contact_features(frame: np.ndarray, background: np.ndarray | None = None) ->
     f = _working(frame)
     colour = f.mean((0, 1))
     if background is not None:
-        _check_background(frame, background)
+        check_background_size(background.shape[1::-1], frame.shape[1::-1], "the background")
         f = f - _working(background, (f.shape[1], f.shape[0]))
     eps = 1e-4
     sigmas = sorted({x for b in CONTACT_BANDS for x in b} | {NOISE_SIGMA})
@@ -181,15 +181,6 @@ def contact_features(frame: np.ndarray, background: np.ndarray | None = None) ->
     return np.asarray(feats, np.float64)
 
 
-def _check_background(frame: np.ndarray, background: np.ndarray) -> None:
-    """Raise DataError, naming both sizes, unless the background has the frame's size."""
-    if background.shape != frame.shape:
-        raise DataError(
-            f"background is {background.shape[1]}x{background.shape[0]} (WxH) but the "
-            f"tactile image is {frame.shape[1]}x{frame.shape[0]}; the background must be "
-            "the same sensor's no-contact frame at the same size")
-
-
 def background_change(frame: np.ndarray, background: np.ndarray) -> float:
     """How much a frame differs from its sensor's no-contact frame beyond a global brightness
     drift: the 99th percentile of the lightly blurred |difference| (mean over channels, per
@@ -201,7 +192,7 @@ def background_change(frame: np.ndarray, background: np.ndarray) -> float:
     Raises:
         DataError: If the background's size differs from the frame's.
     """
-    _check_background(frame, background)
+    check_background_size(background.shape[1::-1], frame.shape[1::-1], "the background")
     f = _working(frame)
     d = f - _working(background, (f.shape[1], f.shape[0]))
     d = gaussian_filter(d - d.mean((0, 1)), (NOISE_SIGMA, NOISE_SIGMA, 0))

@@ -17,9 +17,10 @@ from typing import Any, Protocol, TypeVar
 import numpy as np
 from PIL import Image
 
-from ratouch.errors import ConfigError, DataError
+from ratouch.errors import ConfigError
 from ratouch.images import (
     QUERY_MAX_SIDE,
+    check_background_size,
     clip_box,
     crop_box,
     oriented_size,
@@ -155,12 +156,7 @@ def _tactile_inputs(tactile: Any, background: Any, warnings: list[str]
         return frame, None
     bg_size = _source_size(background)
     bg = to_rgb_array(background, name="background image", max_side=QUERY_MAX_SIDE)
-    if (bg_size or bg.shape[1::-1]) != (size or frame.shape[1::-1]):
-        w, h = bg_size or bg.shape[1::-1]
-        fw, fh = size or frame.shape[1::-1]
-        raise DataError(f"the background image is {w}x{h} (WxH) but the tactile image is "
-                        f"{fw}x{fh}; the background must be the same sensor's no-contact "
-                        "frame at the same size")
+    check_background_size(bg_size or bg.shape[1::-1], size or frame.shape[1::-1])
     return frame, bg
 
 
