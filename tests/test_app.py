@@ -871,9 +871,9 @@ def test_duplicate_captions_are_grouped_in_galleries_but_not_in_tables():
     ns = [{"id": i, "score": 0.5 - i / 100, "class_name": "sand castle",
            "caption": "grainy, hard" if i < 4 else "soft", "source": "w"} for i in range(5)]
     result = {"neighbours": {"joint": ns}}
-    items = view.gallery_items(result, "joint", _thumb)
-    assert [c for _, c in items] == ["1. 0.500 ×4 · sand castle · grainy, hard",
-                                     "5. 0.460 · sand castle · soft"]
+    strip = view.neighbour_strip(result, "joint", _thumb)
+    assert strip.count("<figure") == 2 and strip.count("×4") == 1  # folded: 4 + 1
+    assert strip.index("grainy, hard") < strip.index(">soft<")
     assert view.neighbour_table(result, "joint").count("<tr") == 6  # raw top-5 + header
 
 

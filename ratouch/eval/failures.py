@@ -99,17 +99,6 @@ def case_sample(condition: str, index: int, world: WorldConfig | None = None):
     return case_world(condition, world).sample("test", i)
 
 
-def case_inputs(condition: str, index: int, world: WorldConfig | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int, int, int], str]:
-    """(visual image, tactile image, the sensor's background, contact box, ground-truth
-    label) of one case: the inputs the failure table encoded it from (`encode_test_split`
-    reads each tactile frame against its sensor's background, as TVL rows carry one)."""
-    s = case_sample(condition, index, world)
-    background = case_world(condition, world).background_image(s.sensor)
-    x0, y0, x1, y1 = (int(v) for v in s.box)
-    return s.visual, s.tactile, background, (x0, y0, x1, y1), s.caption
-
-
 # --------------------------------------------------------------------------- judging
 
 def row_scores(row: Mapping[str, Any]) -> dict[str, tuple[str | None, float]]:
