@@ -58,6 +58,24 @@ CONTACT_BANDS = ((0.7, 2.0), (1.5, 4.0), (3.0, 8.0))
 
 # --------------------------------------------------------------------------- novelty
 
+#: Spatial spread (:func:`image_spread`, grey levels of 255) below which a visual crop is
+#: uniform, a blank or a flat colour: nothing to recognise, never familiar, whatever its
+#: embedding's distance (a plain white photo sits near the renders' mean). Below every one of
+#: 1,002 world crops (test[0:402] and train[0:600] of world seed 0: smallest 1.43, 1st
+#: percentile 3.3) and above a flat photo with strong pixel noise (std 8 levels: 0.43).
+UNIFORM_SPREAD = 1.0
+
+
+def image_spread(crop: np.ndarray) -> float:
+    """How much a visual crop (uint8 RGB) varies in space: the std of its grey levels (of
+    255) at 64 pixels on its longer side, where area averaging has removed pixel noise."""
+    h, w = crop.shape[:2]
+    s = 64 / max(h, w)
+    small = resize_array(crop, (max(1, round(w * s)), max(1, round(h * s))))
+    grey = small.astype(np.float64) @ np.array([0.299, 0.587, 0.114])  # (h', w')
+    return float(grey.std())
+
+
 @dataclass(frozen=True)
 class Novelty:
     """A probabilistic-PCA distance from a reference set of embeddings, and its threshold.
@@ -365,8 +383,8 @@ class TrustCalibration:
         return {**_novelty_block(self.visual, V), "space": "embedding"}
 
     def assess(self, V: np.ndarray, T: np.ndarray | None, frame: np.ndarray | None,
-               background: np.ndarray | None = None, prior: np.ndarray | None = None
-               ) -> dict:
+               background: np.ndarray | None = None, prior: np.ndarray | None = None,
+               crop: np.ndarray | None = None) -> dict:
         """The trust block of one query.
 
         Args:
@@ -375,9 +393,11 @@ class TrustCalibration:
             frame: the tactile frame (uint8), or None.
             background: the sensor's no-contact frame, or None.
             prior: (1, F) the visual prior's features of the crop, or None.
+            crop: the visual crop (uint8): a uniform one (:data:`UNIFORM_SPREAD`) is novel.
 
         Returns:
-            {"visual": {"novelty", "threshold", "novel", "space"}, "tactile": {... plus
+            {"visual": {"novelty", "threshold", "novel", "space", and with a crop
+            "uniform"}, "tactile": {... plus
             "contact" (None when not a number), "contact_threshold", "state",
             "no_contact", "uncertain", "background", "sensor" (the family read, guessed from the
             frame's colours), "unfamiliar_sensor"} or None,
@@ -385,7 +405,16 @@ class TrustCalibration:
         """
         out: dict[str, Any] = {"visual": self.visual_novelty(V, prior), "tactile": None}
         warnings = []
-        if out["visual"]["novel"]:
+        spread = None if crop is None else image_spread(crop)
+        if spread is not None:
+            out["visual"]["uniform"] = spread < UNIFORM_SPREAD
+        if out["visual"].get("uniform"):
+            out["visual"]["novel"] = True
+            warnings.append(
+                f"uniform image: nothing to recognise (the visual crop's grey levels vary by "
+                f"{spread:.2f} of 255, unlike the images the encoders were trained on): its "
+                "neighbours and descriptions are guesses")
+        elif out["visual"]["novel"]:
             warnings.append(
                 f"the visual crop is unlike the images the encoders were trained on (novelty "
                 f"{out['visual']['novelty']} > {out['visual']['threshold']})")

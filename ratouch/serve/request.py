@@ -194,9 +194,10 @@ class QueryResult:
         encoder: the encoder set that answered.
         visual_route: {"route": "render"}, or the photo route's account (a crop that looks
             like a real photo: "classes", "coverage", "note").
-        trust: {"visual": {"novelty", "threshold", "novel"}, "tactile": {"novelty",
-            "threshold", "novel", "contact", "contact_threshold", "no_contact",
-            "background"} or None}, or None (no calibration).
+        trust: {"visual": {"novelty", "threshold", "novel", "space", "uniform"}, "tactile":
+            {"novelty", "threshold", "novel", "contact", "contact_threshold", "no_contact",
+            "background"} or None}, or None (no calibration). A uniform visual crop (a blank
+            or flat photo) is novel whatever its distance (`model.trust.UNIFORM_SPREAD`).
         cascade: where a cascade answered, {"answered_by", "stage", "escalated",
             "confidence": [per stage tried], "thresholds", "measure"}; else None.
     """
