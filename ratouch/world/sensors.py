@@ -38,6 +38,8 @@ from typing import Callable
 import numpy as np
 
 from ratouch.errors import ConfigError
+from ratouch.images import resize_array
+from ratouch.world.taxim_optics import optics  # a calibration loads on its first use
 
 UNITS_PER_FAMILY = 8
 #: Renderers a family row may name.
@@ -215,8 +217,6 @@ def _taxim_field(row: SensorFamily, unit: int, hw: tuple[int, int]) -> np.ndarra
     """The calibration's real no-contact frame, turned to the world's orientation, with this
     unit's own colour gains and a faint illumination gradient (units differ as real ones do:
     another gel, another LED batch)."""
-    from ratouch.world.taxim_optics import optics  # the calibration loads on first use
-
     rng = np.random.default_rng([7919, family_names().index(row.name), unit, 2])
     h, w = hw
     o = optics(str(row.calibration))
@@ -363,8 +363,6 @@ def canonical(frame: np.ndarray) -> np.ndarray:
 def _look(frame: np.ndarray) -> np.ndarray:
     """What tells sensor families apart in a frame: the chromaticity of its mean colour, how
     much the chromaticity varies over the gel, and its brightness (6 numbers)."""
-    from ratouch.images import resize_array
-
     f = resize_array(np.ascontiguousarray(canonical(frame)), (18, 24)).astype(np.float64) / 255
     total = f.sum(2, keepdims=True) + 1e-3
     chroma = (f / total)[..., :2]  # (h, w, 2): red and green shares

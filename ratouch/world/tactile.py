@@ -40,6 +40,7 @@ from ratouch.world.sensors import (
     unit_field,
     unit_index,
 )
+from ratouch.world.taxim_optics import optics  # a calibration loads on its first use
 from ratouch.world.texture import PatternSpec, pixel_grid, sample_tile
 
 __all__ = ["family_names", "sensor_count", "UNITS_PER_FAMILY", "family_sensors",
@@ -340,8 +341,6 @@ def _shader_change(plan: TactilePlan, z: np.ndarray, dome: np.ndarray, field: np
 def _taxim_change(plan: TactilePlan, z: np.ndarray) -> np.ndarray:
     """Taxim's optics: the colour change (float (H, W, 3)) of the family's calibrated sensor
     pressed `z` deep (indentation, gel thickness units; `press_mm` millimetres per unit)."""
-    from ratouch.world.taxim_optics import optics  # the calibration loads on first use
-
     row = family(plan.family)
     height = -row.press_mm * z  # mm; below 0 presses into the gel
     if row.landscape:  # the sensor is mounted turned: render its own orientation, turn back
