@@ -29,7 +29,7 @@ from ratouch.eval.judge import OfflineJudge  # noqa: E402
 from ratouch.paths import DOCS  # noqa: E402
 from ratouch.serve.batcher import QueryBatcher  # noqa: E402
 from ratouch.serve.loader import BackgroundPipeline  # noqa: E402
-from ratouch.world.generator import TEST_SIZE, World  # noqa: E402
+from ratouch.world.sampler import TEST_SIZE, World  # noqa: E402
 
 log = logging.getLogger(__name__)
 

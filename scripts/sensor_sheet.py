@@ -18,8 +18,8 @@ from PIL import Image, ImageDraw
 
 from ratouch.eval.sensors import real
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import World
 from ratouch.world.material import material
+from ratouch.world.sampler import World
 from ratouch.world.sensors import canonical, family_names
 from ratouch.world.tactile import (
     UNITS_PER_FAMILY,

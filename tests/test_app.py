@@ -35,7 +35,7 @@ def fake():
 @pytest.fixture(scope="module")
 def pair_files(tmp_path_factory):
     """A world test pair written as PNGs (what a user would upload)."""
-    from ratouch.world.generator import World
+    from ratouch.world.sampler import World
 
     s = World().sample("test", 60)
     d = tmp_path_factory.mktemp("pair")

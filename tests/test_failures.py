@@ -108,7 +108,7 @@ def test_rows_hold_scores_precisions_and_the_joint_verdict(fake):
 
 
 def test_conditions_change_the_inputs_and_cases_can_be_rebuilt():
-    from ratouch.world.generator import World
+    from ratouch.world.sampler import World
 
     natural = failures.case_sample("natural", 100)
     noisy = failures.case_sample("noisy touch", 100)

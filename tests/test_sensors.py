@@ -18,8 +18,8 @@ from scipy import ndimage
 
 from ratouch.errors import ConfigError
 from ratouch.world.config import StressConfig, WorldConfig
-from ratouch.world.generator import World
 from ratouch.world.material import MATERIALS, Material, material
+from ratouch.world.sampler import World
 from ratouch.world.sensors import (
     LOOK_LIMIT,
     SENSOR_FAMILIES,
@@ -403,7 +403,7 @@ def test_stress_knobs_override_the_per_frame_draws(world):
 
 _FRAME_DIGEST = """
 import hashlib
-from ratouch.world.generator import World
+from ratouch.world.sampler import World
 from ratouch.world.sensors import family_names
 w = World()
 seen = {}

@@ -23,7 +23,7 @@ from ratouch.model.trust import (
 from ratouch.paths import REPO, trust_calibration
 from ratouch.serve.request import QueryRequest
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import World
+from ratouch.world.sampler import World
 
 REFERENCE = REPO.parent / "shared" / "data" / "reference_tactile"
 

@@ -44,7 +44,7 @@ from ratouch.search.modes import QUERY_MODES, RA_TOUCH_MODE
 from ratouch.serve.request import check_k
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
-from ratouch.world.generator import TEST_SIZE, World
+from ratouch.world.sampler import TEST_SIZE, World
 from ratouch.world.splits import encode_test_split
 
 log = logging.getLogger(__name__)
@@ -87,7 +87,7 @@ def case_world(condition: str, world: WorldConfig | None = None) -> World:
 
 
 def case_sample(condition: str, index: int, world: WorldConfig | None = None):
-    """The test sample `index` of a condition's world (a `ratouch.world.generator.Sample`):
+    """The test sample `index` of a condition's world (a `ratouch.world.sampler.Sample`):
     its `.visual`, `.tactile`, `.box` and `.caption` are one failure case's query inputs,
     with its sensor's background (`case_world(...).background_image(sample.sensor)`)."""
     try:

@@ -26,8 +26,8 @@ from sklearn.preprocessing import StandardScaler
 from ratouch.eval.retrieval import entry_materials
 from ratouch.train.trust import VALIDATION_START, render_samples
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import World
 from ratouch.world.material import material
+from ratouch.world.sampler import World
 from ratouch.world.sensors import family_names
 
 #: First training-split index of these renders (beyond the trust and cascade calibrations').

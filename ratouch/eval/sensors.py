@@ -21,8 +21,8 @@ from ratouch.eval.frames import contact_region
 from ratouch.eval.photos import reference_dir
 from ratouch.images import resize_array, to_rgb_array
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import World
 from ratouch.world.material import MATERIALS
+from ratouch.world.sampler import World
 from ratouch.world.sensors import canonical, family, family_names, family_sensors
 from ratouch.world.tactile import plan_tactile, render_tactile
 from ratouch.world.taxim_optics import real_presses

@@ -27,7 +27,7 @@ from ratouch.model.trust import (
 )
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import TEST_SIZE, World
+from ratouch.world.sampler import TEST_SIZE, World
 from ratouch.world.tactile import family_names, sensor_family
 
 log = logging.getLogger(__name__)

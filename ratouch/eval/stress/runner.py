@@ -25,7 +25,7 @@ from ratouch.eval.stress.sweeps import (
 from ratouch.serve.request import check_k
 from ratouch.timing import Progress, say_to
 from ratouch.world.config import StressConfig, WorldConfig
-from ratouch.world.generator import World
+from ratouch.world.sampler import World
 from ratouch.world.splits import TestSplit, encode_samples
 
 log = logging.getLogger(__name__)
