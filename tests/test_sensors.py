@@ -140,7 +140,7 @@ def test_everything_but_the_tactile_frames_is_as_before_sensor_families(world):
 # ------------------------------------------------------------------ families and units
 
 def test_families_units_and_sensor_ids(world):
-    assert family_names() == ("digit", "gelsight", "mini")
+    assert family_names()[:3] == ("digit", "gelsight", "mini")  # a family added goes last
     assert sensor_count() == len(family_names()) * UNITS_PER_FAMILY
     for k, fam in enumerate(family_names()):
         ids = family_sensors(fam)
@@ -156,7 +156,8 @@ def test_families_units_and_sensor_ids(world):
     counts = {f: 0 for f in family_names()}
     for i in range(900):
         counts[world.plan("train", i)[4].family] += 1
-    assert all(240 <= c <= 360 for c in counts.values()), counts  # ~1/3 each
+    share = 900 / len(counts)
+    assert all(0.8 * share <= c <= 1.2 * share for c in counts.values()), counts  # even
     sensors = {world.plan("test", i)[4].sensor for i in range(402)}
     assert sensors == set(range(sensor_count()))
 
@@ -234,7 +235,7 @@ def amber():
     assert digit.shader is not None and digit.gel is not None
     colours = ((1.0, 0.62, 0.18), (0.95, 0.7, 0.3), (1.0, 0.55, 0.25))
     lights = tuple((d, c) for (d, _), c in zip(digit.shader.lights, colours))
-    row = dataclasses.replace(digit, name="amber", title="Amber-LED sensor", reference=None,
+    row = dataclasses.replace(digit, name="test-amber", title="Amber-LED sensor", reference=None,
                               shader=dataclasses.replace(digit.shader, lights=lights),
                               gel=dataclasses.replace(digit.gel, seed=104729))
     before = touch_version()
@@ -242,15 +243,16 @@ def amber():
     try:
         yield before
     finally:
-        SENSOR_FAMILIES.pop("amber")
+        SENSOR_FAMILIES.pop("test-amber")
 
 
 def test_a_family_added_as_one_row_renders_its_own_units(world, amber):
     from ratouch.eval.sensors import real
 
-    assert family_names()[-1] == "amber" and sensor_count() == 4 * UNITS_PER_FAMILY
-    units = list(family_sensors("amber"))
-    assert units == list(range(3 * UNITS_PER_FAMILY, 4 * UNITS_PER_FAMILY))
+    n = len(family_names())
+    assert family_names()[-1] == "test-amber" and sensor_count() == n * UNITS_PER_FAMILY
+    units = list(family_sensors("test-amber"))
+    assert units == list(range((n - 1) * UNITS_PER_FAMILY, n * UNITS_PER_FAMILY))
     assert touch_version() != amber  # cached renders of the three-family table are not reused
     fresh = World(WorldConfig(seed=0))
     digit = [fresh.background_image(k) for k in family_sensors("digit")]
@@ -259,26 +261,27 @@ def test_a_family_added_as_one_row_renders_its_own_units(world, amber):
     for k in units:
         bg = fresh.background_image(k)
         assert min(np.abs(bg.astype(int) - d).mean() for d in digit) > 10, k
-        assert guess_family(bg) == ("amber", guess_family(bg)[1]), k
+        assert guess_family(bg)[0] not in ("digit", "gelsight", "mini"), k  # its own
     mats = list(MATERIALS)
     for i, k in enumerate(units):
         p = plan_tactile(np.random.default_rng([9, i]), fresh.cfg, mats[i], sensor=k)
         frame = render_tactile(p, fresh.pyramid, fresh.cfg.tactile_hw, fresh.sensor_background(k))
-        assert p.family == "amber" and guess_family(frame)[0] != "digit"
+        assert p.family == "test-amber" and guess_family(frame)[0] != "digit"
         assert np.abs(frame.astype(int) - fresh.background_image(k)).mean() > 2  # a press shows
-    assert real("amber") is None  # not compared with the DIGIT's reference press
+    assert real("test-amber") is None  # not compared with the DIGIT's reference press
 
 
 def test_the_render_version_follows_the_table(amber):
     with_amber = touch_version()
-    SENSOR_FAMILIES["amber"] = dataclasses.replace(family("amber"), press_contrast=0.05,
-                                                   title="renamed")  # not rendering fields
+    row = family("test-amber")
+    SENSOR_FAMILIES[row.name] = dataclasses.replace(row, press_contrast=0.05,
+                                                    title="renamed")  # not rendering fields
     assert touch_version() == with_amber
-    SENSOR_FAMILIES["amber"] = dataclasses.replace(family("amber"), marker_units=2)
+    SENSOR_FAMILIES[row.name] = dataclasses.replace(row, marker_units=2)
     assert touch_version() != with_amber
-    SENSOR_FAMILIES.pop("amber")
-    assert touch_version() == amber  # the three-family table's version again
-    SENSOR_FAMILIES["amber"] = family("digit")  # for the fixture to remove
+    SENSOR_FAMILIES.pop(row.name)
+    assert touch_version() == amber  # the table without it: its version again
+    SENSOR_FAMILIES[row.name] = row  # for the fixture to remove
 
 
 def test_a_background_source_is_checked():
