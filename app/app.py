@@ -23,13 +23,13 @@ if __package__ in (None, ""):  # run as a script (`python app/app.py`, as `ratou
 import gradio as gr  # noqa: E402
 
 from app import handlers, view  # noqa: E402
-from app.loading import BackgroundPipeline  # noqa: E402
 from ratouch.errors import RATouchError  # noqa: E402
 from ratouch.eval import failures  # noqa: E402
 from ratouch.eval.judge import OfflineJudge  # noqa: E402
 from ratouch.paths import DOCS  # noqa: E402
 from ratouch.serve.batcher import QueryBatcher  # noqa: E402
-from ratouch.world.generator import TEST_SIZE, World  # noqa: E402
+from ratouch.serve.loader import BackgroundPipeline  # noqa: E402
+from ratouch.world.sampler import TEST_SIZE, World  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -107,8 +107,8 @@ def build_demo(pipeline, world=None, failure_options: dict | None = None,
     Args:
         pipeline: an `Answerer` that also names its loaded model (`model(name)`: its
             `corpus`, `name`, `regenerate`): a `RATouchPipeline`, a `QueryBatcher` or a
-            `ModelChoice`, or an `app.loading.BackgroundPipeline` still loading one (whose
-            `ready()` and `status()` the header shows).
+            `ModelChoice`, or a `ratouch.serve.loader.BackgroundPipeline` still loading one
+            (whose `ready()` and `status()` the header shows).
         world: the `World` whose test split gives the examples (default: the default world).
         failure_options: `ratouch.eval.failures.load_or_compute`'s k / conditions / indices
             (default: K=5, every condition, the whole test split, on `world`'s config).
@@ -146,8 +146,8 @@ def build_demo(pipeline, world=None, failure_options: dict | None = None,
 
 
 def _pending(pipeline) -> bool:
-    """Whether the models are still loading (or failed to): an `app.loading.BackgroundPipeline`
-    says so; anything else is loaded."""
+    """Whether the models are still loading (or failed to): a
+    `ratouch.serve.loader.BackgroundPipeline` says so; anything else is loaded."""
     ready = getattr(pipeline, "ready", None)
     return callable(ready) and not ready()
 

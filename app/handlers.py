@@ -26,8 +26,8 @@ from app.plot import pca_figure
 from ratouch.errors import DataError, RATouchError
 from ratouch.eval import failures
 from ratouch.eval.report import last_commit, weights_commit
-from ratouch.images import QUERY_MAX_SIDE, to_rgb_array
-from ratouch.serve.request import QueryRequest, answer_one
+from ratouch.images import QUERY_MAX_SIDE, check_background_size, to_rgb_array
+from ratouch.serve.request import MAX_K, QueryRequest, answer_one, check_k
 from ratouch.serve.trace import trace_retrieval
 
 log = logging.getLogger(__name__)
@@ -37,7 +37,6 @@ USER_ERRORS = (RATouchError, OSError, Image.DecompressionBombError)
 
 Fields = tuple[Any, Any, Any, Any]
 NO_BOX: Fields = (None, None, None, None)
-MAX_K = 20  # the app's largest K (neighbours per query mode)
 
 
 def upload_path(value: Any) -> str | np.ndarray | None:
@@ -46,21 +45,6 @@ def upload_path(value: Any) -> str | np.ndarray | None:
     if isinstance(value, dict):
         return value.get("path")
     return value
-
-
-def parse_k(k: Any, largest: int = MAX_K) -> int:
-    """K as typed or sent: a whole number from 1 to `largest`.
-
-    Raises:
-        DataError: naming K and the value, for anything else (2.5, "", "five", 0, 21).
-    """
-    try:
-        value = float(k)
-    except (TypeError, ValueError):
-        value = float("nan")
-    if not (value.is_integer() and 1 <= value <= largest):
-        raise DataError(f"K must be a whole number from 1 to {largest}, got K={k!r}")
-    return int(value)
 
 
 def user_message(e: BaseException, files: dict[str, Any] | None = None) -> str:
@@ -180,11 +164,7 @@ def _check_upload(value: Any, role: str, against: Any = None) -> tuple:
         to_rgb_array(path, name=role, max_side=QUERY_MAX_SIDE)
         if isinstance(against, str) and against:
             with Image.open(path) as a, Image.open(against) as b:
-                if a.size != b.size:
-                    raise DataError(f"the {role} {path} is {a.size[0]}x{a.size[1]} (WxH) but "
-                                    f"the tactile image is {b.size[0]}x{b.size[1]}; the "
-                                    "background must be the same sensor's no-contact frame "
-                                    "at the same size")
+                check_background_size(a.size, b.size, f"the {role} {path}")
     except USER_ERRORS as e:
         return (None, *error_view(_fail(e, {role: path})))
     return (gr.update(), *keep)
@@ -303,7 +283,7 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
         if visual is None:
             raise DataError("upload a visual image or pick an example first")
         box = boxes.fields_to_box(x0, y0, x1, y1)
-        k = parse_k(k, largest_k)
+        k = check_k(k, largest_k)
         if progress is not None:
             progress(0.05, desc=wait_note or "encoding, retrieving, generating…")
         request = QueryRequest.decode(visual.source, tactile, box=box, k=k, label=visual.label,
@@ -381,7 +361,7 @@ def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k,
             raise DataError("a visual image is required")
         box = boxes.fields_to_box(x0, y0, x1, y1)
         request = QueryRequest.decode(visual, tactile, box=box,
-                                      k=parse_k(5 if k is None else k), background=background,
+                                      k=check_k(5 if k is None else k, MAX_K), background=background,
                                       model=encoder or None)
         return answer_one(pipe, request).to_dict()
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user

@@ -50,24 +50,6 @@ def group_by_caption(neighbours: Sequence[dict]) -> list[tuple[int, dict, int]]:
     return [tuple(g) for g in groups.values()]
 
 
-def gallery_items(result: dict, mode: str, thumbnail: Callable[[int], np.ndarray]
-                  ) -> list[tuple[np.ndarray, str]]:
-    """(thumbnail, caption) per distinct tactile caption among one mode's neighbours, best
-    first (×n when n neighbours share it; the table below lists the raw top-K). The caption
-    leads with what fits under a thumbnail (rank, similarity, ×n, ◆ per other mode sharing
-    it, class); the gallery's preview shows the rest (tactile caption, which modes share it)."""
-    shared = shared_modes(result["neighbours"])
-    items = []
-    for rank, n, count in group_by_caption(result["neighbours"].get(mode, [])):
-        modes = shared[n["id"]]
-        stars = " " + "◆" * (len(modes) - 1) if len(modes) > 1 else ""
-        tail = f" · shared by {'·'.join(MODE_LETTER[m] for m in modes)}" if stars else ""
-        times = f" ×{count}" if count > 1 else ""
-        items.append((thumbnail(n["id"]), f"{rank}. {n['score']:.3f}{times}{stars} · "
-                                          f"{n['class_name']} · {n['caption']}{tail}"))
-    return items
-
-
 def data_uri(image: np.ndarray | str) -> str:
     """A thumbnail as an inline JPEG (a string passes through: already a URI)."""
     if isinstance(image, str):

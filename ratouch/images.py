@@ -597,6 +597,26 @@ def tvl_contact_box(width: int, height: int, version: str = "v1",
 # --------------------------------------------------------------------------- resize
 
 
+def check_background_size(background_wh: tuple[int, int], frame_wh: tuple[int, int],
+                          background: str = "the background image",
+                          frame: str = "the tactile image") -> None:
+    """The one check that a tactile sensor's no-contact frame has the size (W, H) of the frame
+    it belongs to (compared before any reduction, or as arrays).
+
+    Args:
+        background_wh, frame_wh: (width, height) of each.
+        background, frame: how the message names them ("the background image",
+            "background 3", a file's role and path).
+
+    Raises:
+        DataError: naming both sizes, when they differ.
+    """
+    if tuple(background_wh) != tuple(frame_wh):
+        raise DataError(f"{background} is {background_wh[0]}x{background_wh[1]} (WxH) but "
+                        f"{frame} is {frame_wh[0]}x{frame_wh[1]}; the background must be the "
+                        "same sensor's no-contact frame at the same size")
+
+
 def resize_array(arr: np.ndarray, size: int | tuple[int, int],
                  resample: Image.Resampling = Image.Resampling.BILINEAR,
                  reducing_gap: float | None = None) -> np.ndarray:

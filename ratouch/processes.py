@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import multiprocessing as mp
 import os
 import signal
 import sys
@@ -25,8 +26,6 @@ WATCH_SECONDS = 0.5  # how often the watchdog looks at the parent
 
 def fork_context():
     """Fork where the platform has it (workers inherit warmed tiles), else the default."""
-    import multiprocessing as mp
-
     return mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
 
 

@@ -88,7 +88,7 @@ def write_pairs(folder: Path) -> list[tuple[Upload, Upload, list[int], Upload]]:
     tactile, contact box, the tactile sensor's background), as a TVL row carries them."""
     from PIL import Image
 
-    from ratouch.world.generator import World
+    from ratouch.world.sampler import World
 
     world, out = World(), []
     for i in PAIRS:

@@ -18,11 +18,10 @@ from PIL import Image, ImageDraw
 
 from ratouch.eval.sensors import real
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import World
 from ratouch.world.material import material
-from ratouch.world.sensors import canonical
+from ratouch.world.sampler import World
+from ratouch.world.sensors import canonical, family_names
 from ratouch.world.tactile import (
-    FAMILIES,
     UNITS_PER_FAMILY,
     family_sensors,
     plan_tactile,
@@ -57,18 +56,18 @@ def sensor_sheet(world: World | None = None, units: int = UNITS_PER_FAMILY,
     # per family the real frames the project can see: a background, then two presses
     refs = {}
     if reference_dir is not None:
-        for family in FAMILIES:
+        for family in family_names():
             found = real(family)
             if found is not None:
                 refs[family] = ([found[1][0]], found[0][:2])
     n_real = 2 if refs else 0
     cols = max(units, len(materials)) + (1 + n_real if refs else 0)  # a gap, then real frames
     row_h = h + text + pad
-    sheet = Image.new("RGB", (cols * (w + pad) + pad + 70, 2 * len(FAMILIES) * row_h + pad),
+    sheet = Image.new("RGB", (cols * (w + pad) + pad + 70, 2 * len(family_names()) * row_h + pad),
                       (245, 245, 245))
     draw = ImageDraw.Draw(sheet)
     y = pad
-    for family in FAMILIES:
+    for family in family_names():
         bgs = [(f"bg {k}", world.background_image(k)) for k in list(family_sensors(family))[:units]]
         frames = [(f"{m} ({k})", f) for m, k, f in family_frames(world, family, materials)]
         for caption, row in ((f"{family}\nunits", bgs), (f"{family}\ncontact", frames)):

@@ -19,7 +19,7 @@ from ratouch.errors import DataError, RATouchError
 from ratouch.paths import generator_weights
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import write_split
-from ratouch.world.generator import World
+from ratouch.world.sampler import World
 
 
 @pytest.fixture(scope="module")

@@ -35,7 +35,7 @@ def fake():
 @pytest.fixture(scope="module")
 def pair_files(tmp_path_factory):
     """A world test pair written as PNGs (what a user would upload)."""
-    from ratouch.world.generator import World
+    from ratouch.world.sampler import World
 
     s = World().sample("test", 60)
     d = tmp_path_factory.mktemp("pair")
@@ -478,7 +478,7 @@ def test_the_app_serves_while_the_pipeline_loads(fake, pair_files):
 
     from app import handlers
     from app.app import _header
-    from app.loading import BackgroundPipeline, PipelineNotReady
+    from ratouch.serve.loader import BackgroundPipeline, PipelineNotReady
 
     go = threading.Event()
     pending = BackgroundPipeline(lambda: go.wait(30) and fake, "fake-enc")
@@ -730,10 +730,10 @@ def test_real_pipeline_batched_queries_match_single_ones(real_pipeline, world):
     reqs += [{"visual": samples[0].visual, "k": 4},  # image-only
              {"visual": samples[0].visual, "k": len(real_pipeline.corpus.entries) + 1}]
     many = real_pipeline.answer([QueryRequest.decode(**req) for req in reqs])
-    assert isinstance(many[4], ConfigError) and "k must be" in str(many[4])  # K > the corpus
+    assert isinstance(many[4], ConfigError) and "K must be" in str(many[4])  # K > the corpus
     with pytest.raises(DataError, match="box"):  # decoding says what is wrong with a request
         QueryRequest.decode(samples[0].visual, box=(9, 9, 2, 2))
-    with pytest.raises(ConfigError, match="k must be"):
+    with pytest.raises(ConfigError, match="K must be"):
         QueryRequest.decode(samples[0].visual, k=0)
     for req, got in zip(reqs[:4], many[:4]):
         got = got.to_dict()
@@ -844,11 +844,25 @@ def gr_update():
 @pytest.mark.parametrize("k", [2.5, 0, 21, "", None, "five", float("nan")])
 def test_bad_k_is_named(fake, pair_files, k):
     from app import handlers
+    from ratouch.serve.request import MAX_K, check_k
 
     good = handlers.upload_visual(str(pair_files[0]))[0]
     v = handlers.run_query(fake, _thumb, good, str(pair_files[1]), None, None, None, None, k)
     assert "K must be a whole number from 1 to 20" in v.status and v.raw is None
-    assert handlers.parse_k(7.0) == 7 and handlers.parse_k("3") == 3
+    assert check_k(7.0, MAX_K) == 7 and check_k("3", MAX_K) == 3  # a slider's, typed
+
+
+def test_a_background_of_another_size_is_named_alike_on_upload_and_on_run(pair_files, tmp_path):
+    from app import handlers
+    from ratouch.serve.request import QueryRequest
+
+    bg = tmp_path / "bg.png"
+    Image.new("RGB", (50, 60)).save(bg)
+    said = "is 50x60 (WxH) but the tactile image is 96x128; the background must be the same"
+    upload = handlers.upload_background(str(bg), str(pair_files[1]))
+    assert upload[0] is None and said in upload[1]  # removed at once, and why
+    with pytest.raises(DataError, match=re.escape(said)):
+        QueryRequest.decode(str(pair_files[0]), str(pair_files[1]), background=str(bg))
 
 
 def test_duplicate_captions_are_grouped_in_galleries_but_not_in_tables():
@@ -857,9 +871,9 @@ def test_duplicate_captions_are_grouped_in_galleries_but_not_in_tables():
     ns = [{"id": i, "score": 0.5 - i / 100, "class_name": "sand castle",
            "caption": "grainy, hard" if i < 4 else "soft", "source": "w"} for i in range(5)]
     result = {"neighbours": {"joint": ns}}
-    items = view.gallery_items(result, "joint", _thumb)
-    assert [c for _, c in items] == ["1. 0.500 ×4 · sand castle · grainy, hard",
-                                     "5. 0.460 · sand castle · soft"]
+    strip = view.neighbour_strip(result, "joint", _thumb)
+    assert strip.count("<figure") == 2 and strip.count("×4") == 1  # folded: 4 + 1
+    assert strip.index("grainy, hard") < strip.index(">soft<")
     assert view.neighbour_table(result, "joint").count("<tr") == 6  # raw top-5 + header
 
 

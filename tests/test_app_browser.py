@@ -169,7 +169,7 @@ def test_real_uploads_in_chromium(app_url, page, tmp_path, world):
     if not HAVE_ASSETS:
         pytest.skip("trust signals need the real pipeline (trained assets)")
     from ratouch.world.config import WorldConfig
-    from ratouch.world.generator import World
+    from ratouch.world.sampler import World
 
     page.set_viewport_size({"width": 1440, "height": 900})
     page.set_default_timeout(120_000)

@@ -112,7 +112,7 @@ def test_cascade_batches_mixed_requests(debug_pipeline, world):
     out[:2] = [r.to_dict() for r in out[:2]]
     assert out[0]["cascade"]["escalated"]
     assert out[1]["cascade"] == {**out[1]["cascade"], "stage": 0, "confidence": []}
-    assert isinstance(out[2], ConfigError) and "k must be" in str(out[2])
+    assert isinstance(out[2], ConfigError) and "K must be" in str(out[2])
     again = casc.regenerate(first, [n["id"] for n in out[0]["neighbours"]["joint"]])
     assert again["description"]["ra_touch"] == out[0]["description"]["ra_touch"]
     assert casc.model() is casc and casc.corpus is debug_pipeline.corpus

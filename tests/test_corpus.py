@@ -20,9 +20,9 @@ from ratouch.corpus.imagenet_t import (
 from ratouch.corpus.recaption import OfflineRecaptioner, validate_caption
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import CORPUS_MAX_PER_CLASS, CORPUS_POOL_PER_CLASS, World
 from ratouch.world.material import material
 from ratouch.world.objects import OBJECT_CLASSES
+from ratouch.world.sampler import CORPUS_MAX_PER_CLASS, CORPUS_POOL_PER_CLASS, World
 
 
 def test_parse_size():

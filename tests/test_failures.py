@@ -108,18 +108,21 @@ def test_rows_hold_scores_precisions_and_the_joint_verdict(fake):
 
 
 def test_conditions_change_the_inputs_and_cases_can_be_rebuilt():
-    from ratouch.world.generator import World
+    from ratouch.world.sampler import World
 
     natural = failures.case_sample("natural", 100)
     noisy = failures.case_sample("noisy touch", 100)
     expected = World(WorldConfig().with_stress(tactile_noise=0.2)).sample("test", 100)
     assert noisy.caption == expected.caption and np.array_equal(noisy.tactile, expected.tactile)
     assert not np.array_equal(natural.tactile, noisy.tactile)
-    visual, tactile, background, box, label = failures.case_inputs("box offset", 100)
+    case = failures.case_sample("box offset", 100)  # what the app opens a row with
+    background = failures.case_world("box offset").background_image(case.sensor)
     offset_world = World(WorldConfig().with_stress(box_offset=1.0))
     offset = offset_world.sample("test", 100)
-    assert box == tuple(offset.box) != tuple(offset.box_true) and label == offset.caption
-    assert np.array_equal(visual, offset.visual) and np.array_equal(tactile, offset.tactile)
+    assert tuple(case.box) == tuple(offset.box) != tuple(offset.box_true)
+    assert case.caption == offset.caption
+    assert np.array_equal(case.visual, offset.visual)
+    assert np.array_equal(case.tactile, offset.tactile)
     assert np.array_equal(background, offset_world.background_image(offset.sensor))
     small = failures.condition_world(WorldConfig(seed=3), "small object + dominant background")
     assert small.seed == 3 and small.stress.object_scale == 0.12
@@ -210,7 +213,7 @@ def test_judge_scores_of_a_query_result():
 def test_bad_settings_are_refused(fake):
     with pytest.raises(ConfigError, match="unknown condition"):
         failures.failure_cases(fake, conditions=("fog",))
-    with pytest.raises(ConfigError, match="k must be"):
+    with pytest.raises(ConfigError, match="K must be"):
         failures.failure_cases(fake, k=0, conditions=CONDS)
     fake.corpus.entries = [SimpleNamespace(material="", caption="x")] * 10
     with pytest.raises(DataError, match="material"):
@@ -227,6 +230,9 @@ def test_real_pipeline_failure_cases(real_pipeline):
     assert all(1 <= r["ra_score"] <= 10 and 0 <= r["precision_joint"] <= 1 for r in rows)
     # a case rebuilt from its (condition, index) gives the table's RA-Touch description
     r = rows[4]
-    visual, tactile, background, box, label = failures.case_inputs(r["condition"], r["index"])
-    out = pipe.query(visual, tactile, box=box, k=5, label=label, background=background)
+    case = failures.case_sample(r["condition"], r["index"])
+    background = failures.case_world(r["condition"]).background_image(case.sensor)
+    label = case.caption
+    out = pipe.query(case.visual, case.tactile, box=tuple(int(v) for v in case.box), k=5,
+                     label=label, background=background)
     assert label == r["label"] and out["description"]["ra_touch"] == r["ra_touch"]

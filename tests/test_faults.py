@@ -159,6 +159,13 @@ def test_numbers_typed_get_one_line_naming_the_value(tmp_path, capsys, argv, nam
     assert named in err and err.count("\n") == 1
 
 
+def test_query_k_has_the_apps_bound(tmp_path, capsys):
+    img = tmp_path / "v.png"
+    Image.new("RGB", (64, 64)).save(img)
+    assert main(["query", "--vision", str(img), "--k", "21"]) == 2  # before any model loads
+    assert "K must be a whole number from 1 to 20, got K=21" in capsys.readouterr().err
+
+
 def test_a_directory_as_vision_is_called_a_directory(tmp_path, capsys):
     assert main(["query", "--vision", str(tmp_path)]) == 2
     assert "is a directory" in capsys.readouterr().err

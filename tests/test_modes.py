@@ -72,9 +72,9 @@ def test_a_registered_mode_reaches_the_pipeline_json_and_app(mean_mode, debug_pi
     assert list(alone["neighbours"]) == ["image"]
     # the app: one gallery per mode, its header, letter and colour from the row
     assert list(view.MODES) == ["image", "tactile", "joint", "mean"]
-    galleries = [view.gallery_items(r, m, lambda i: np.zeros((2, 2, 3), np.uint8))
-                 for m in view.MODES]
-    assert len(galleries) == 4 and galleries[3]
+    strips = [view.neighbour_strip(r, m, lambda i: np.zeros((2, 2, 3), np.uint8))
+              for m in view.MODES]
+    assert len(strips) == 4 and "<figure" in strips[3]
     assert "Mean of image and tactile" in view.mode_header("mean")
     assert view.MODE_COLOUR["mean"] == "#9467bd" and view.MODE_LETTER["mean"] == "M"
     assert "mean query" in {t.name for t in pca_figure(r).data}

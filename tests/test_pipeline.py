@@ -210,7 +210,7 @@ def test_a_request_is_decoded_once_and_says_what_it_assumed(world, tmp_path):
     alone = QueryRequest.decode(s.visual, None, box=s.box, background=s.tactile)
     assert alone.frame is None and alone.background is None and len(alone.warnings) == 2
     for bad in (0, 2.5, True):
-        with pytest.raises(ConfigError, match="k must be a whole number"):
+        with pytest.raises(ConfigError, match="K must be a whole number"):
             QueryRequest.decode(s.visual, k=bad)
     with pytest.raises(DataError, match="background"):
         QueryRequest.decode(s.visual, s.tactile, background=np.zeros((9, 9, 3), np.uint8))
@@ -224,7 +224,7 @@ def test_answer_is_query_and_batches_match_single_answers(debug_pipeline, world)
     requests += [QueryRequest.decode(samples[0].visual, k=2),  # image-only
                  QueryRequest.decode(samples[0].visual, k=len(pipe.corpus.entries) + 1)]
     batch = pipe.answer(requests)
-    assert isinstance(batch[-1], ConfigError) and "k must be a whole number" in str(batch[-1])
+    assert isinstance(batch[-1], ConfigError) and "K must be a whole number" in str(batch[-1])
     for req, got in zip(requests[:-1], batch[:-1]):
         assert isinstance(got, QueryResult)
         alone = answer_one(pipe, req).to_dict()

@@ -13,8 +13,8 @@ import torch
 from ratouch.checkpoint import read_foreign_weights, sha256_file
 from ratouch.encoders import prior as P
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
-from ratouch.world.generator import World
 from ratouch.world.objects import OBJECT_CLASSES
+from ratouch.world.sampler import World
 
 skdata = pytest.importorskip("skimage.data")
 pytestmark = pytest.mark.usefixtures("one_thread")

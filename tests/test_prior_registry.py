@@ -68,6 +68,38 @@ def test_a_registered_timm_model_is_an_encoder_sets_prior(convnext_prior):
     assert not np.allclose(feats[0], feats[1])  # the prior reads the pixels
 
 
+def test_a_mobilenet_rows_width_is_the_features_taken(tmp_path):
+    """MobileNetV3 pools, then widens with a head convolution: its pre-logit features are
+    `head_hidden_size` wide (1024), not `num_features` (288). The row's width is measured on the
+    built model, so an encoder set runs on it and the classifier reads its features."""
+    import timm
+
+    from ratouch.encoders.default import DefaultConfig, DefaultEncoders
+
+    torch.manual_seed(0)
+    model = timm.create_model("mobilenetv3_small_050", pretrained=False)
+    path = tmp_path / "mobilenet.pth"
+    torch.save(model.state_dict(), path)   # the registry's layout: timm's own names
+    name = "test-mobilenet"
+    register_prior(name, PriorSpec("mobilenetv3_small_050", str(path), sha256_file(path), 64,
+                                   "Test MobileNetV3-Small"))
+    try:
+        assert model.num_features != model.head_hidden_size   # the trap this row sets
+        assert P.feature_dim(name) == model.head_hidden_size == P.load_prior(name).dim
+        enc = DefaultEncoders(DefaultConfig(name="mobilenet-set", width=8, vision_size=(48, 48),
+                                            prior=name, prior_size=48)).eval()
+        crops = [np.full((40, 30, 3), v, np.uint8) for v in (20, 200)]
+        V, feats = enc.encode_image_features(crops)
+        assert V.shape == (2, enc.dim) and feats.shape == (2, model.head_hidden_size)
+        probs = P.load_prior(name).classify(crops)
+        assert probs.shape == (2, 1000)
+        np.testing.assert_allclose(probs.sum(1), 1.0, rtol=1e-5)
+    finally:
+        PRIORS.pop(name)
+        P._loaded.pop(name, None)
+        P.feature_dim.cache_clear()
+
+
 def test_a_row_that_does_not_fit_is_refused(convnext_prior, tmp_path):
     state, _ = convnext_prior
     short = tmp_path / "short.pth"

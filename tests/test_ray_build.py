@@ -20,11 +20,11 @@ import pytest
 from PIL import Image
 
 from conftest import serve_fake_llm
-from ratouch.build.ray_corpus import SHARD_DIR, plan_cpus
 from ratouch.checkpoint import sha256_file
 from ratouch.corpus.embed import load_embeddings
 from ratouch.corpus.imagenet_t import build_corpus, load_corpus, world_lexicon
 from ratouch.corpus.recaption import OfflineRecaptioner
+from ratouch.distributed.ray_corpus import SHARD_DIR, plan_cpus
 from ratouch.errors import ConfigError
 from ratouch.search.retrieval_side import embed_and_index, open_retriever
 

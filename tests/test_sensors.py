@@ -18,18 +18,27 @@ from scipy import ndimage
 
 from ratouch.errors import ConfigError
 from ratouch.world.config import StressConfig, WorldConfig
-from ratouch.world.generator import World
 from ratouch.world.material import MATERIALS, Material, material
-from ratouch.world.sensors import LOOK_LIMIT, SensorFamily, family, guess_family, has_markers
+from ratouch.world.sampler import World
+from ratouch.world.sensors import (
+    LOOK_LIMIT,
+    SENSOR_FAMILIES,
+    SensorFamily,
+    family,
+    family_names,
+    guess_family,
+    has_markers,
+    register_family,
+    sensor_count,
+)
 from ratouch.world.tactile import (
-    FAMILIES,
-    N_SENSORS,
     UNITS_PER_FAMILY,
     family_sensors,
     plan_tactile,
     render_tactile,
     sensor_family,
     sensor_unit,
+    touch_version,
 )
 from ratouch.world.taxim_optics import real_presses
 
@@ -131,32 +140,33 @@ def test_everything_but_the_tactile_frames_is_as_before_sensor_families(world):
 # ------------------------------------------------------------------ families and units
 
 def test_families_units_and_sensor_ids(world):
-    assert FAMILIES == ("digit", "gelsight", "mini")
-    assert N_SENSORS == len(FAMILIES) * UNITS_PER_FAMILY
-    for k, fam in enumerate(FAMILIES):
+    assert family_names()[:3] == ("digit", "gelsight", "mini")  # a family added goes last
+    assert sensor_count() == len(family_names()) * UNITS_PER_FAMILY
+    for k, fam in enumerate(family_names()):
         ids = family_sensors(fam)
         assert list(ids) == list(range(k * UNITS_PER_FAMILY, (k + 1) * UNITS_PER_FAMILY))
         assert {sensor_family(i) for i in ids} == {fam}
-    for bad in (-1, N_SENSORS):
+    for bad in (-1, sensor_count()):
         with pytest.raises(ConfigError, match="sensor"):
             sensor_family(bad)
     with pytest.raises(ConfigError, match="family"):
         family_sensors("biotac")
     samples = [world.sample("train", i) for i in range(60)]
     assert all(s.family == sensor_family(s.sensor) for s in samples)
-    counts = {f: 0 for f in FAMILIES}
+    counts = {f: 0 for f in family_names()}
     for i in range(900):
         counts[world.plan("train", i)[4].family] += 1
-    assert all(240 <= c <= 360 for c in counts.values()), counts  # ~1/3 each
+    share = 900 / len(counts)
+    assert all(0.8 * share <= c <= 1.2 * share for c in counts.values()), counts  # even
     sensors = {world.plan("test", i)[4].sensor for i in range(402)}
-    assert sensors == set(range(N_SENSORS))
+    assert sensors == set(range(sensor_count()))
 
 
 def test_each_unit_has_its_own_fixed_background(world):
-    bgs = [world.background_image(k) for k in range(N_SENSORS)]
+    bgs = [world.background_image(k) for k in range(sensor_count())]
     assert all(b.dtype == np.uint8 and b.shape == (128, 96, 3) for b in bgs)
-    for i in range(N_SENSORS):
-        for j in range(i + 1, N_SENSORS):
+    for i in range(sensor_count()):
+        for j in range(i + 1, sensor_count()):
             assert np.abs(bgs[i].astype(int) - bgs[j]).mean() > 1.0, (i, j)
     assert np.array_equal(World().background_image(9), bgs[9])  # fixed per unit
 
@@ -169,7 +179,7 @@ def _dark_blobs(img: np.ndarray) -> tuple[int, np.ndarray]:
 
 
 def test_marker_units_have_a_marker_grid_and_the_others_none(world):
-    for k in range(N_SENSORS):
+    for k in range(sensor_count()):
         n, _ = _dark_blobs(world.background_image(k))
         if has_markers(k):
             assert sensor_family(k) == "gelsight"
@@ -215,6 +225,75 @@ def test_an_unknown_family_is_an_error_not_another_gel():
                      variation=family("digit").variation)
 
 
+# ------------------------------------------------------------------ a family is one row
+
+@pytest.fixture
+def amber():
+    """A fifth sensor family registered as one row: the DIGIT's shader and gel with amber
+    LEDs and a seed of its own (no real frames)."""
+    digit = family("digit")
+    assert digit.shader is not None and digit.gel is not None
+    colours = ((1.0, 0.62, 0.18), (0.95, 0.7, 0.3), (1.0, 0.55, 0.25))
+    lights = tuple((d, c) for (d, _), c in zip(digit.shader.lights, colours))
+    row = dataclasses.replace(digit, name="test-amber", title="Amber-LED sensor", reference=None,
+                              shader=dataclasses.replace(digit.shader, lights=lights),
+                              gel=dataclasses.replace(digit.gel, seed=104729))
+    before = touch_version()
+    register_family(row)
+    try:
+        yield before
+    finally:
+        SENSOR_FAMILIES.pop("test-amber")
+
+
+def test_a_family_added_as_one_row_renders_its_own_units(world, amber):
+    from ratouch.eval.sensors import real
+
+    n = len(family_names())
+    assert family_names()[-1] == "test-amber" and sensor_count() == n * UNITS_PER_FAMILY
+    units = list(family_sensors("test-amber"))
+    assert units == list(range((n - 1) * UNITS_PER_FAMILY, n * UNITS_PER_FAMILY))
+    assert touch_version() != amber  # cached renders of the three-family table are not reused
+    fresh = World(WorldConfig(seed=0))
+    digit = [fresh.background_image(k) for k in family_sensors("digit")]
+    for k in family_sensors("digit"):  # the DIGIT's units are as they were
+        assert np.array_equal(fresh.background_image(k), world.background_image(k))
+    for k in units:
+        bg = fresh.background_image(k)
+        assert min(np.abs(bg.astype(int) - d).mean() for d in digit) > 10, k
+        assert guess_family(bg)[0] not in ("digit", "gelsight", "mini"), k  # its own
+    mats = list(MATERIALS)
+    for i, k in enumerate(units):
+        p = plan_tactile(np.random.default_rng([9, i]), fresh.cfg, mats[i], sensor=k)
+        frame = render_tactile(p, fresh.pyramid, fresh.cfg.tactile_hw, fresh.sensor_background(k))
+        assert p.family == "test-amber" and guess_family(frame)[0] != "digit"
+        assert np.abs(frame.astype(int) - fresh.background_image(k)).mean() > 2  # a press shows
+    assert real("test-amber") is None  # not compared with the DIGIT's reference press
+
+
+def test_the_render_version_follows_the_table(amber):
+    with_amber = touch_version()
+    row = family("test-amber")
+    SENSOR_FAMILIES[row.name] = dataclasses.replace(row, press_contrast=0.05,
+                                                    title="renamed")  # not rendering fields
+    assert touch_version() == with_amber
+    SENSOR_FAMILIES[row.name] = dataclasses.replace(row, marker_units=2)
+    assert touch_version() != with_amber
+    SENSOR_FAMILIES.pop(row.name)
+    assert touch_version() == amber  # the table without it: its version again
+    SENSOR_FAMILIES[row.name] = row  # for the fixture to remove
+
+
+def test_a_background_source_is_checked():
+    digit = family("digit")
+    with pytest.raises(ConfigError, match=r"background='gelatin' must be one of \['leds', "):
+        dataclasses.replace(digit, name="x", background="gelatin")
+    with pytest.raises(ConfigError, match="one glow per light"):
+        dataclasses.replace(digit, name="x", gel=None)
+    with pytest.raises(ConfigError, match="already registered"):
+        register_family(digit)
+
+
 # ------------------------------------------------------------------ contact frames
 
 def _frames(world: World, family: str, contact: bool = True, n: int = N_FRAMES):
@@ -234,7 +313,7 @@ def _frames(world: World, family: str, contact: bool = True, n: int = N_FRAMES):
 @pytest.fixture(scope="module")
 def contrast(world) -> dict:
     out = {}
-    for fam in FAMILIES:
+    for fam in family_names():
         means, p99s = [], []
         for p, f in _frames(world, fam):
             d = np.abs(f.astype(int) - world.background_image(p.sensor))
@@ -266,7 +345,7 @@ def _contact_score(frame: np.ndarray, background: np.ndarray) -> float:
     return float(100 * np.sqrt(np.mean(d * d)))
 
 
-@pytest.mark.parametrize("family", FAMILIES)
+@pytest.mark.parametrize("family", family_names())
 def test_contact_is_visible_against_the_background_on_every_family(world, family):
     pressed = [_contact_score(f, world.background_image(p.sensor))
                for p, f in _frames(world, family)]
@@ -275,7 +354,7 @@ def test_contact_is_visible_against_the_background_on_every_family(world, family
     assert min(pressed) > 1.5 * max(empty), (min(pressed), max(empty))
 
 
-@pytest.mark.parametrize("family", FAMILIES)
+@pytest.mark.parametrize("family", family_names())
 def test_no_contact_frame_is_the_background_plus_small_noise(world, family):
     for p, f in _frames(world, family, contact=False, n=12):
         d = f.astype(int) - world.background_image(p.sensor)
@@ -327,14 +406,14 @@ def test_stress_knobs_override_the_per_frame_draws(world):
 
 _FRAME_DIGEST = """
 import hashlib
-from ratouch.world.generator import World
-from ratouch.world.tactile import FAMILIES
+from ratouch.world.sampler import World
+from ratouch.world.sensors import family_names
 w = World()
 seen = {}
 for i in range(40):
     s = w.sample("train", i)
     seen.setdefault(s.family, hashlib.sha256(s.tactile.tobytes()).hexdigest())
-print(" ".join(seen[f] for f in FAMILIES))
+print(" ".join(seen[f] for f in family_names()))
 """
 
 
@@ -345,10 +424,10 @@ def test_frames_are_deterministic_per_family_across_processes(world):
         s, t = world.sample("train", i), fresh.sample("train", i)
         assert np.array_equal(s.tactile, t.tactile)
         seen.setdefault(s.family, hashlib.sha256(s.tactile.tobytes()).hexdigest())
-    assert set(seen) == set(FAMILIES)
+    assert set(seen) == set(family_names())
     out = subprocess.run([sys.executable, "-c", _FRAME_DIGEST], capture_output=True, text=True,
                          check=True).stdout.split()
-    assert out == [seen[f] for f in FAMILIES]
+    assert out == [seen[f] for f in family_names()]
 
 
 # ------------------------------------------------------------------ the contact sheet

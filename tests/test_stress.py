@@ -7,8 +7,8 @@ import pytest
 from scipy.ndimage import gaussian_filter
 
 from ratouch.world.config import StressConfig, WorldConfig
-from ratouch.world.generator import World
 from ratouch.world.material import material
+from ratouch.world.sampler import World
 from ratouch.world.silhouette import mask_bbox
 from ratouch.world.tactile import plan_tactile, render_tactile, sensor_background
 

@@ -11,8 +11,8 @@ import pytest
 
 from ratouch.errors import DataNotFoundError
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import World
 from ratouch.world.material import material
+from ratouch.world.sampler import World
 from ratouch.world.tactile import family_sensors, gel_surface, plan_tactile
 from ratouch.world.taxim_optics import calibration_dir, optics, real_presses
 

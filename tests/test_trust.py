@@ -12,11 +12,18 @@ from PIL import Image
 
 from ratouch.errors import DataError
 from ratouch.images import QUERY_MAX_SIDE, to_rgb_array
-from ratouch.model.trust import ContactModel, Novelty, TrustCalibration, contact_features
+from ratouch.model.trust import (
+    UNIFORM_SPREAD,
+    ContactModel,
+    Novelty,
+    TrustCalibration,
+    contact_features,
+    image_spread,
+)
 from ratouch.paths import REPO, trust_calibration
 from ratouch.serve.request import QueryRequest
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import World
+from ratouch.world.sampler import World
 
 REFERENCE = REPO.parent / "shared" / "data" / "reference_tactile"
 
@@ -53,6 +60,22 @@ def test_no_contact_frame_gets_no_material_description(pipeline, no_contact_worl
     r = pipeline.query(s.visual, s.tactile, box=s.box, background=bg)
     assert r["trust"]["tactile"]["background"] is True and r["trust"]["tactile"]["no_contact"]
     assert "against the background frame" in " ".join(r["warnings"])
+
+
+def test_a_blank_or_uniform_photo_is_never_familiar(pipeline, world, tmp_path):
+    white = tmp_path / "white.png"
+    Image.new("RGB", (6000, 6000), (255, 255, 255)).save(white)  # the upload
+    r = pipeline.query(white, None)
+    assert r["trust"]["visual"]["uniform"] and r["trust"]["visual"]["novel"]
+    assert any(w.startswith("uniform image: nothing to recognise") for w in r["warnings"])
+    rng = np.random.default_rng(0)
+    grey = np.clip(200 + rng.normal(0, 8, (480, 640, 3)), 0, 255).astype(np.uint8)  # noisy
+    assert image_spread(grey) < UNIFORM_SPREAD
+    for i in (0, 12, 40, 60, 140, 190, 290, 390):  # the app's examples are something
+        s = world.sample("test", i)
+        r = pipeline.query(s.visual, None, box=s.box)
+        assert not r["trust"]["visual"]["uniform"], i
+        assert not any(w.startswith("uniform image") for w in r["warnings"])
 
 
 def test_contact_frame_is_described_and_not_flagged(pipeline, world):

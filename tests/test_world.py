@@ -12,14 +12,14 @@ import pytest
 from ratouch.errors import ConfigError
 from ratouch.vocabulary import TACTILE_WORDS, TVL_ADJECTIVES
 from ratouch.world.config import StressConfig, WorldConfig
-from ratouch.world.generator import TEST_SIZE, World
 from ratouch.world.material import MATERIALS, groups
 from ratouch.world.objects import OBJECT_CLASSES, classes_with_material
+from ratouch.world.sampler import TEST_SIZE, World
 from ratouch.world.silhouette import FAMILIES
 
 _DIGEST = """
 import hashlib, sys
-from ratouch.world.generator import World
+from ratouch.world.sampler import World
 w = World()
 h = hashlib.sha256()
 for split, i in [("train", 3), ("test", 7), ("test", 200), ("probe", 11)]:

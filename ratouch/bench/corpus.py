@@ -80,7 +80,7 @@ def _local(out: Path, n: int, workers: int, encoder: str) -> dict:
 
 
 def _ray(out: Path, n: int, workers: int, encoder: str, batch_size: int) -> dict:
-    from ratouch.build.ray_corpus import RayOptions, build_corpus_ray  # imports Ray (heavy)
+    from ratouch.distributed.ray_corpus import RayOptions, build_corpus_ray  # imports Ray (heavy)
 
     r = build_corpus_ray(out, n, seed=0, encoder=encoder,
                          options=RayOptions(workers=workers, batch_size=batch_size))

@@ -28,7 +28,7 @@ from ratouch.serve.request import QueryRequest, answer_one
 from ratouch.threads import intra_op_threads
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import write_split
-from ratouch.world.generator import World
+from ratouch.world.sampler import World
 
 
 def bench_world(corpus_size: int = 10_000, workers: int = 2, seed: int = 0,

@@ -60,7 +60,7 @@ from ratouch.paths import DOCS
 from ratouch.search.index import top_k
 from ratouch.threads import intra_op_threads
 from ratouch.train.trust import VALIDATION_START
-from ratouch.world.generator import World
+from ratouch.world.sampler import World
 
 log = logging.getLogger(__name__)
 

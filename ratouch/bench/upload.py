@@ -17,7 +17,7 @@ from ratouch.images import QUERY_MAX_SIDE, resize_array, to_rgb_array
 from ratouch.serve.batcher import QueryBatcher
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.serve.request import QueryRequest, answer_one
-from ratouch.world.generator import World
+from ratouch.world.sampler import World
 
 
 def write_big_frame(path: str, side: int, seed: int = 0) -> str:

@@ -63,7 +63,7 @@ def _say_embedding_state(out: Path, args: argparse.Namespace) -> None:
 
 def _run_corpus_ray(args: argparse.Namespace, rc) -> int:
     # imported here, not at the top: Ray costs about 1 s that a local build should not pay
-    from ratouch.build.ray_corpus import RayOptions, build_corpus_ray
+    from ratouch.distributed.ray_corpus import RayOptions, build_corpus_ray
 
     if args.no_embed:
         raise usage("--no-embed is not supported with --engine ray (it embeds as it goes)")

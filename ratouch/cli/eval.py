@@ -15,7 +15,6 @@ from ratouch.cli.judge import make_judge
 from ratouch.errors import DataNotFoundError
 from ratouch.eval import stress as S
 from ratouch.eval.controls import format_controls, run_controls
-from ratouch.eval.families import evaluate_families, format_families
 from ratouch.eval.frames import (
     digit_frames,
     format_frames,
@@ -36,6 +35,7 @@ from ratouch.eval.photos import (
 from ratouch.eval.premise import format_premise, run_premise, why_ignored
 from ratouch.eval.presses import format_press_contact, press_contact
 from ratouch.eval.retrieval import evaluate_retrieval, format_retrieval_eval
+from ratouch.eval.sensor_families import evaluate_families, format_families
 from ratouch.eval.sensors import compare_sensors, format_sensors
 from ratouch.eval.tvl import format_ttest, paired_ttest, run_tvl
 from ratouch.files import write_json_atomic

@@ -403,7 +403,9 @@ def _add_query(sub) -> None:
                         "tactile image): the frame is read against it, and the no-contact "
                         "check uses it")
     q.add_argument("--box", type=_box, default=None, help="contact box x0,y0,x1,y1 in pixels")
-    q.add_argument("--k", type=_pos_int, default=5)
+    q.add_argument("--k", type=_pos_int, default=5,
+                   help="neighbours per query mode (at most the app's largest K, "
+                        "serve.request.MAX_K)")
     q.add_argument("--label", default=None, help="ground-truth caption, if known (for the PCA)")
     q.add_argument("--encoder", default=DEFAULT_ENCODER,
                    help="encoder set (default-tiny, default-s, default-b where trained), or "

@@ -10,11 +10,12 @@ from pathlib import Path
 from ratouch.cli.common import usage
 from ratouch.search.modes import RA_TOUCH_MODE
 from ratouch.serve.models import load_model
-from ratouch.serve.request import QueryRequest, answer_one
+from ratouch.serve.request import MAX_K, QueryRequest, answer_one, check_k
 from ratouch.threads import intra_op_threads
 
 
 def run(args: argparse.Namespace) -> int:
+    check_k(args.k, MAX_K)  # the app's bound, before the models load
     for role, path in (("visual image", args.vision), ("tactile image", args.tactile),
                        ("background image", args.background)):
         if path is not None and Path(path).is_dir():

@@ -11,9 +11,9 @@ from ratouch.cli.common import usage, world_cfg
 from ratouch.files import atomic_path
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import check_writable, write_split
-from ratouch.world.generator import TEST_SIZE, World
 from ratouch.world.preview import contact_sheet
 from ratouch.world.probe import ProbeConfig, format_probe, run_probe
+from ratouch.world.sampler import TEST_SIZE, World
 from ratouch.world.scarcity import ScarceRegime
 
 

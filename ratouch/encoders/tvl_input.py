@@ -30,7 +30,14 @@ import torch.nn.functional as F
 from PIL import Image
 
 from ratouch.errors import ConfigError, DataError
-from ratouch.images import MIN_SIDE, ImageLike, as_image_list, resize_array, to_rgb_array
+from ratouch.images import (
+    MIN_SIDE,
+    ImageLike,
+    as_image_list,
+    check_background_size,
+    resize_array,
+    to_rgb_array,
+)
 
 #: OpenCLIP / OpenAI CLIP normalisation (also what TVL uses for its RGB frames).
 CLIP_MEAN: tuple[float, float, float] = (0.48145466, 0.4578275, 0.40821073)
@@ -215,12 +222,8 @@ def tvl_tactile_tensor(frames: Sequence[ImageLike] | np.ndarray, size: int = 224
             bg = to_rgb_array(backgrounds[i], name=f"background {j}")
             cache[key] = bg
         bg = cache[key]
-        if bg.shape != rgb.shape:
-            raise DataError(
-                f"background {j} is {bg.shape[1]}x{bg.shape[0]} (WxH) but tactile frame {j} is "
-                f"{rgb.shape[1]}x{rgb.shape[0]}; the background must come from the same sensor "
-                "at the same size"
-            )
+        check_background_size(bg.shape[1::-1], rgb.shape[1::-1], f"background {j}",
+                              f"tactile frame {j}")
         diff = (_to_chw_float(_pad_square_rotate(rgb))
                 - _to_chw_float(_pad_square_rotate(bg)))
         if diff.shape[-1] != size:

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+import torch
 
 from ratouch.errors import ConfigError, DataError
 from ratouch.eval.catalog import BASELINE, RA_TOUCH, SYSTEMS
@@ -41,8 +42,6 @@ def retrieve(pipeline, V: np.ndarray, T: np.ndarray, k: int, mode: str = RA_TOUC
 def describe(gen, V: np.ndarray, T: np.ndarray, rv: np.ndarray | None = None,
              rl: np.ndarray | None = None, batch: int = 128) -> list[str]:
     """Greedy descriptions of a generator over arrays, in batches (neighbours optional)."""
-    import torch
-
     arrays = [V, T]
     if rv is not None:
         assert rl is not None, "neighbour image embeddings without their text embeddings"

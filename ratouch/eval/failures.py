@@ -41,9 +41,10 @@ from ratouch.paths import (
     retriever_weights,
 )
 from ratouch.search.modes import QUERY_MODES, RA_TOUCH_MODE
+from ratouch.serve.request import check_k
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
-from ratouch.world.generator import TEST_SIZE, World
+from ratouch.world.sampler import TEST_SIZE, World
 from ratouch.world.splits import encode_test_split
 
 log = logging.getLogger(__name__)
@@ -86,7 +87,7 @@ def case_world(condition: str, world: WorldConfig | None = None) -> World:
 
 
 def case_sample(condition: str, index: int, world: WorldConfig | None = None):
-    """The test sample `index` of a condition's world (a `ratouch.world.generator.Sample`):
+    """The test sample `index` of a condition's world (a `ratouch.world.sampler.Sample`):
     its `.visual`, `.tactile`, `.box` and `.caption` are one failure case's query inputs,
     with its sensor's background (`case_world(...).background_image(sample.sensor)`)."""
     try:
@@ -96,17 +97,6 @@ def case_sample(condition: str, index: int, world: WorldConfig | None = None):
     if not 0 <= i < TEST_SIZE:
         raise DataError(f"test index {i} is out of range 0..{TEST_SIZE - 1}")
     return case_world(condition, world).sample("test", i)
-
-
-def case_inputs(condition: str, index: int, world: WorldConfig | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int, int, int], str]:
-    """(visual image, tactile image, the sensor's background, contact box, ground-truth
-    label) of one case: the inputs the failure table encoded it from (`encode_test_split`
-    reads each tactile frame against its sensor's background, as TVL rows carry one)."""
-    s = case_sample(condition, index, world)
-    background = case_world(condition, world).background_image(s.sensor)
-    x0, y0, x1, y1 = (int(v) for v in s.box)
-    return s.visual, s.tactile, background, (x0, y0, x1, y1), s.caption
 
 
 # --------------------------------------------------------------------------- judging
@@ -171,8 +161,7 @@ def failure_cases(pipeline, world: WorldConfig | None = None, k: int = 5,
         `joint_gap` = the best other mode's precision - that of the mode RA-Touch reads.
     """
     conditions = _check_conditions(conditions)
-    if not 1 <= int(k) <= len(pipeline.corpus.entries):
-        raise ConfigError(f"k must be in 1..{len(pipeline.corpus.entries)}, got {k}")
+    k = check_k(k, len(pipeline.corpus.entries))
     judge = judge or OfflineJudge()
     entry_mats = entry_materials(pipeline.corpus)
     if not entry_mats.size or not all(entry_mats):

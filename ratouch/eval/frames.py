@@ -29,6 +29,7 @@ from ratouch.eval.judge.lexicon import MEMBERS
 from ratouch.files import write_atomic
 from ratouch.images import to_rgb_array
 from ratouch.vocabulary import parse_adjectives
+from ratouch.world.sensors import family
 
 #: Image files `frames_in` reads from a folder.
 FRAME_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
@@ -145,7 +146,9 @@ def taxim_frames(calibration: str) -> list[Frame]:
 def digit_frames(folder: Path) -> list[Frame]:
     """The two real DIGIT frames: the pressed frame (alone and against the tacto background)
     and the tacto background (alone and against itself); [] where the folder lacks them."""
-    pressed, blank = folder / "digit_aurova_digit_raw.png", folder / "digit_tacto_bg_digit_240_320.png"
+    ref = family("digit").reference
+    assert ref is not None  # the DIGIT's row names its real frames
+    pressed, blank = folder / ref.pressed, folder / ref.background
     if not (pressed.is_file() and blank.is_file()):
         return []
     p, b = to_rgb_array(pressed, "tactile image"), to_rgb_array(blank, "background")

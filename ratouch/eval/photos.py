@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from PIL import Image
 
 from ratouch.encoders.prior import imagenet_names, load_prior
 from ratouch.encoders.prior_registry import DEFAULT_PRIOR
@@ -95,8 +96,6 @@ def load_photo(name: str) -> np.ndarray:
         if not path.is_file():
             raise DataNotFoundError(f"real DIGIT frame {name!r}: {path} is missing (the "
                                     f"shared reference data sits beside the checkout)")
-        from PIL import Image
-
         with Image.open(path) as im:
             return _rgb(np.asarray(im.convert("RGB")))
     raise ConfigError(f"unknown photo {name!r}; known photos: {photo_names()}")

@@ -12,12 +12,14 @@ The verdict applies the criteria pre-registered in docs/premise.md.
 
 from __future__ import annotations
 
+import copy
 import logging
 import time
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import torch
 from scipy import stats
 
 from ratouch.errors import ConfigError
@@ -288,10 +290,6 @@ def why_ignored(encoder: str = "default-s", n: int = 3000, seed: int = 0,
     `n_pairs` reads only the first pairs of the paired split (None: all 12,000); the shares
     and F1s are then of that part.
     """
-    import copy
-
-    import torch
-
     pipe = pipeline or RATouchPipeline.load(encoder)
     data = training_pairs(pipe.encoders, seed=0, n_pairs=n_pairs)
     scarce = set(ScarceRegime().scarce_materials())

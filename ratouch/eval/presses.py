@@ -13,7 +13,7 @@ import numpy as np
 
 from ratouch.model.trust import TrustCalibration
 from ratouch.world.presses import PRESS_KINDS, render_blank_pair, render_press
-from ratouch.world.sensors import FAMILIES
+from ratouch.world.sensors import family_names
 
 
 def press_contact(trust: TrustCalibration, n: int = 10, blanks: int = 40, seed: int = 1
@@ -23,7 +23,7 @@ def press_contact(trust: TrustCalibration, n: int = 10, blanks: int = 40, seed: 
     share of blank pairs read as contact (false alarms)."""
     rng = np.random.default_rng([seed, 911])
     out: dict = {}
-    for fam in FAMILIES:
+    for fam in family_names():
         rows: dict = defaultdict(lambda: defaultdict(list))
         for kind in PRESS_KINDS:
             for _ in range(n):

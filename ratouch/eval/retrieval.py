@@ -12,8 +12,8 @@ import numpy as np
 from ratouch.search.retrieval import CorpusSearch
 from ratouch.vocabulary import parse_adjectives
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import TEST_SIZE, World
 from ratouch.world.material import material
+from ratouch.world.sampler import TEST_SIZE, World
 
 
 def split_queries(world_cfg: WorldConfig, n: int = TEST_SIZE) -> dict:

@@ -2,8 +2,9 @@
 
 For each sensor family, contact renders (read against their unit's background) beside the
 real presses the project can see: Taxim's presses of a rigid ball on a real GelSight and
-GelSight Mini (`world.taxim_optics.real_presses`), and for the DIGIT the pressed reference
-frame against the tacto no-contact frame (another unit: a rough comparison). Per set of
+GelSight Mini (`world.taxim_optics.real_presses`), and for a family whose row names real
+frames (`SensorFamily.reference`: the DIGIT's pressed reference frame against the tacto
+no-contact frame, another unit, a rough comparison) those. Per set of
 frames: the per-channel mean and spread of frame - background (levels of 255), how the
 difference's energy spreads over spatial frequencies (share in three bands of cycles per
 frame width, at a common 128-pixel longer side), and the contact area (share of the frame in
@@ -20,9 +21,9 @@ from ratouch.eval.frames import contact_region
 from ratouch.eval.photos import reference_dir
 from ratouch.images import resize_array, to_rgb_array
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import World
 from ratouch.world.material import MATERIALS
-from ratouch.world.sensors import FAMILIES, canonical, family, family_sensors
+from ratouch.world.sampler import World
+from ratouch.world.sensors import canonical, family, family_names, family_sensors
 from ratouch.world.tactile import plan_tactile, render_tactile
 from ratouch.world.taxim_optics import real_presses
 
@@ -72,25 +73,28 @@ def rendered(world: World, name: str, n: int, seed: int = 0
 
 
 def real(name: str) -> tuple[list[np.ndarray], list[np.ndarray], str] | None:
-    """The real presses of family `name` with their backgrounds and where they come from."""
+    """The real presses of family `name` with their backgrounds and where they come from: a
+    Taxim row's calibration presses, else the row's own real frames (None: the row names
+    none, or their files are missing)."""
     row = family(name)
     if row.calibration is not None:
         d = real_presses(row.calibration)
         return (list(d["frames"]), [d["background"]] * len(d["frames"]),
                 f"Taxim's {len(d['frames'])} real presses of a rigid ball ({row.calibration})")
-    folder = reference_dir()
-    pressed, blank = folder / "digit_aurova_digit_raw.png", folder / "digit_tacto_bg_digit_240_320.png"
+    if row.reference is None:
+        return None
+    pressed, blank = (reference_dir() / f for f in (row.reference.pressed, row.reference.background))
     if not (pressed.is_file() and blank.is_file()):
         return None
     p, b = to_rgb_array(pressed, "tactile image"), to_rgb_array(blank, "background")
-    return [p], [b], "the reference DIGIT press against another unit's (tacto) background"
+    return [p], [b], row.reference.note
 
 
 def compare_sensors(n: int = 60, seed: int = 0) -> dict:
     """Per family: the renders' numbers and the real frames' (where there are any)."""
     world = World(WorldConfig(seed=seed)).warm()
     out = {}
-    for name in FAMILIES:
+    for name in family_names():
         frames, bgs = rendered(world, name, n, seed)
         row = {"renders": frame_stats(frames, bgs)}
         found = real(name)

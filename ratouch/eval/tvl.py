@@ -32,8 +32,8 @@ from ratouch.eval.judge import (
 )
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
-from ratouch.world.generator import TEST_SIZE
 from ratouch.world.material import material
+from ratouch.world.sampler import TEST_SIZE
 from ratouch.world.splits import TestSplit, encode_test_split
 
 

@@ -42,7 +42,7 @@ from scipy.ndimage import gaussian_filter
 
 from ratouch.errors import DataError, DataNotFoundError
 from ratouch.files import write_atomic
-from ratouch.images import resize_array
+from ratouch.images import check_background_size, resize_array
 
 FORMAT = "ratouch-geometry-1"
 #: Working size (width, height) of a landscape sensor's frame (a portrait one: transposed).
@@ -166,10 +166,7 @@ def working_change(frame: np.ndarray, background: np.ndarray, size: tuple[int, i
     Raises:
         DataError: the sizes differ.
     """
-    if frame.shape != background.shape:
-        raise DataError(
-            f"background is {background.shape[1]}x{background.shape[0]} (WxH) but the "
-            f"tactile image is {frame.shape[1]}x{frame.shape[0]}")
+    check_background_size(background.shape[1::-1], frame.shape[1::-1], "the background")
     if turn:
         frame, background = frame.transpose(1, 0, 2), background.transpose(1, 0, 2)
     f = _resize3(frame, size)

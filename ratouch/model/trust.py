@@ -38,7 +38,7 @@ from scipy.ndimage import gaussian_filter
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
-from ratouch.images import resize_array
+from ratouch.images import check_background_size, resize_array
 from ratouch.model.geometry import GeometryCalibration, HeightMap, read_height
 from ratouch.world.sensors import LOOK_LIMIT, guess_family
 
@@ -58,6 +58,24 @@ CONTACT_BANDS = ((0.7, 2.0), (1.5, 4.0), (3.0, 8.0))
 
 
 # --------------------------------------------------------------------------- novelty
+
+#: Spatial spread (:func:`image_spread`, grey levels of 255) below which a visual crop is
+#: uniform, a blank or a flat colour: nothing to recognise, never familiar, whatever its
+#: embedding's distance (a plain white photo sits near the renders' mean). Below every one of
+#: 1,002 world crops (test[0:402] and train[0:600] of world seed 0: smallest 1.43, 1st
+#: percentile 3.3) and above a flat photo with strong pixel noise (std 8 levels: 0.43).
+UNIFORM_SPREAD = 1.0
+
+
+def image_spread(crop: np.ndarray) -> float:
+    """How much a visual crop (uint8 RGB) varies in space: the std of its grey levels (of
+    255) at 64 pixels on its longer side, where area averaging has removed pixel noise."""
+    h, w = crop.shape[:2]
+    s = 64 / max(h, w)
+    small = resize_array(crop, (max(1, round(w * s)), max(1, round(h * s))))
+    grey = small.astype(np.float64) @ np.array([0.299, 0.587, 0.114])  # (h', w')
+    return float(grey.std())
+
 
 @dataclass(frozen=True)
 class Novelty:
@@ -155,7 +173,7 @@ def contact_features(frame: np.ndarray, background: np.ndarray | None = None) ->
     f = _working(frame)
     colour = f.mean((0, 1))
     if background is not None:
-        _check_background(frame, background)
+        check_background_size(background.shape[1::-1], frame.shape[1::-1], "the background")
         f = f - _working(background, (f.shape[1], f.shape[0]))
     eps = 1e-4
     sigmas = sorted({x for b in CONTACT_BANDS for x in b} | {NOISE_SIGMA})
@@ -182,15 +200,6 @@ def contact_features(frame: np.ndarray, background: np.ndarray | None = None) ->
     return np.asarray(feats, np.float64)
 
 
-def _check_background(frame: np.ndarray, background: np.ndarray) -> None:
-    """Raise DataError, naming both sizes, unless the background has the frame's size."""
-    if background.shape != frame.shape:
-        raise DataError(
-            f"background is {background.shape[1]}x{background.shape[0]} (WxH) but the "
-            f"tactile image is {frame.shape[1]}x{frame.shape[0]}; the background must be "
-            "the same sensor's no-contact frame at the same size")
-
-
 def background_change(frame: np.ndarray, background: np.ndarray) -> float:
     """How much a frame differs from its sensor's no-contact frame beyond a global brightness
     drift: the 99th percentile of the lightly blurred |difference| (mean over channels, per
@@ -202,7 +211,7 @@ def background_change(frame: np.ndarray, background: np.ndarray) -> float:
     Raises:
         DataError: If the background's size differs from the frame's.
     """
-    _check_background(frame, background)
+    check_background_size(background.shape[1::-1], frame.shape[1::-1], "the background")
     f = _working(frame)
     d = f - _working(background, (f.shape[1], f.shape[0]))
     d = gaussian_filter(d - d.mean((0, 1)), (NOISE_SIGMA, NOISE_SIGMA, 0))
@@ -371,7 +380,7 @@ class TrustCalibration:
         unless `height`)}; None when no geometry calibration or lookup for the family."""
         if self.geometry is None:
             return None
-        _check_background(frame, background)
+        check_background_size(background.shape[1::-1], frame.shape[1::-1], "the background")
         name = guess_family(frame)[0] if family is None else family
         lookup = self.geometry.lookup(name)
         if lookup is None:
@@ -422,8 +431,8 @@ class TrustCalibration:
         return {**_novelty_block(self.visual, V), "space": "embedding"}
 
     def assess(self, V: np.ndarray, T: np.ndarray | None, frame: np.ndarray | None,
-               background: np.ndarray | None = None, prior: np.ndarray | None = None
-               ) -> dict:
+               background: np.ndarray | None = None, prior: np.ndarray | None = None,
+               crop: np.ndarray | None = None) -> dict:
         """The trust block of one query.
 
         Args:
@@ -432,9 +441,11 @@ class TrustCalibration:
             frame: the tactile frame (uint8), or None.
             background: the sensor's no-contact frame, or None.
             prior: (1, F) the visual prior's features of the crop, or None.
+            crop: the visual crop (uint8): a uniform one (:data:`UNIFORM_SPREAD`) is novel.
 
         Returns:
-            {"visual": {"novelty", "threshold", "novel", "space"}, "tactile": {... plus
+            {"visual": {"novelty", "threshold", "novel", "space", and with a crop
+            "uniform"}, "tactile": {... plus
             "contact" (None when not a number), "contact_threshold", "state",
             "no_contact", "uncertain", "background", "sensor" (the family read, guessed from the
             frame's colours), "unfamiliar_sensor"} or None,
@@ -442,7 +453,16 @@ class TrustCalibration:
         """
         out: dict[str, Any] = {"visual": self.visual_novelty(V, prior), "tactile": None}
         warnings = []
-        if out["visual"]["novel"]:
+        spread = None if crop is None else image_spread(crop)
+        if spread is not None:
+            out["visual"]["uniform"] = spread < UNIFORM_SPREAD
+        if out["visual"].get("uniform"):
+            out["visual"]["novel"] = True
+            warnings.append(
+                f"uniform image: nothing to recognise (the visual crop's grey levels vary by "
+                f"{spread:.2f} of 255, unlike the images the encoders were trained on): its "
+                "neighbours and descriptions are guesses")
+        elif out["visual"]["novel"]:
             warnings.append(
                 f"the visual crop is unlike the images the encoders were trained on (novelty "
                 f"{out['visual']['novelty']} > {out['visual']['threshold']})")

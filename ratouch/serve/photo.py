@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ratouch.encoders.prior import VisualPrior, imagenet_to_world, world_class_probabilities
+from ratouch.encoders.prior import VisualPrior, world_class_probabilities
 from ratouch.search.index import top_k
 from ratouch.world.objects import OBJECT_CLASSES
 
@@ -142,7 +142,3 @@ class PhotoRoute:
         order = np.lexsort((np.arange(len(ids)), -sim, -score))[:max(int(k), 0)]
         return score[order].astype(np.float32), order.astype(np.int64)
 
-
-def mapped_world_classes() -> int:
-    """How many of the world's object classes some ImageNet class maps to."""
-    return len(set(imagenet_to_world().values()))

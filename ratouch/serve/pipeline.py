@@ -262,8 +262,8 @@ class RATouchPipeline(RetrievalSide):
         """Step 2: the trust block of one request (None: no calibration)."""
         if self.trust is None:
             return None
-        return self.trust.assess(encoded.V, encoded.T,
-                                 request.frame, request.background, encoded.prior)
+        return self.trust.assess(encoded.V, encoded.T, request.frame, request.background,
+                                 encoded.prior, crop=request.crop)
 
     def _trust_warnings(self, trust: dict | None) -> list[str]:
         if trust is None:

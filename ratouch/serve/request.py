@@ -3,7 +3,7 @@ interface every serving part offers, `Answerer`.
 
 A request is decoded once, where it arrives (`QueryRequest.decode`: in the app's handler, in
 `ratouch query`, in a caller's thread), and handed down as it is. The parts of serving
-(`RATouchPipeline`, `Cascade`, `ModelChoice`, `QueryBatcher`, the app's `BackgroundPipeline`)
+(`RATouchPipeline`, `Cascade`, `ModelChoice`, `QueryBatcher`, `BackgroundPipeline`)
 are each an `Answerer`, and the wrapping ones wrap an `Answerer`: none decodes again.
 """
 
@@ -17,9 +17,10 @@ from typing import Any, Protocol, TypeVar
 import numpy as np
 from PIL import Image
 
-from ratouch.errors import ConfigError, DataError
+from ratouch.errors import ConfigError
 from ratouch.images import (
     QUERY_MAX_SIDE,
+    check_background_size,
     clip_box,
     crop_box,
     oriented_size,
@@ -30,18 +31,32 @@ from ratouch.images import (
 Box = tuple[int, int, int, int]
 
 
+#: The largest K a person is offered: the app's slider and `/query` API, `ratouch query --k`
+#: (more neighbours per mode than a page shows side by side or a reader compares).
+MAX_K = 20
+
+
 def check_k(k: Any, largest: int | None = None) -> int:
-    """K, the neighbours per mode, as a whole number from 1 to `largest` (None: no bound).
+    """K, the neighbours per mode, as given or typed: a whole number from 1 to `largest`
+    (None: no bound). An int, or a float or text holding a whole number (7.0 from a slider,
+    "7" typed), counts as that number. The one check of K: the app, the CLI, every answerer
+    (against its corpus's size) and the evaluations that take a K call it.
 
     Raises:
-        ConfigError: for anything else (a bool, a float, 0, more than `largest`).
+        ConfigError: naming K and the value, for anything else (a bool, 2.5, "", "five", NaN,
+            0, more than `largest`).
     """
-    whole = not isinstance(k, bool) and isinstance(k, (int, np.integer))
-    if not whole or k < 1 or (largest is not None and k > largest):
+    value = float("nan")
+    if not isinstance(k, bool):
+        try:
+            value = float(k)
+        except (TypeError, ValueError, OverflowError):
+            pass
+    if not (value.is_integer() and value >= 1 and (largest is None or value <= largest)):
         span = f"from 1 to {largest}" if largest is not None else "of at least 1"
-        raise ConfigError(f"k must be a whole number {span} (K, the neighbours per mode), "
-                          f"got k={k!r}")
-    return int(k)
+        raise ConfigError(f"K must be a whole number {span}, got K={k!r} (K: the neighbours "
+                          "per query mode)")
+    return int(value)
 
 
 @dataclass(frozen=True, eq=False)
@@ -141,12 +156,7 @@ def _tactile_inputs(tactile: Any, background: Any, warnings: list[str]
         return frame, None
     bg_size = _source_size(background)
     bg = to_rgb_array(background, name="background image", max_side=QUERY_MAX_SIDE)
-    if (bg_size or bg.shape[1::-1]) != (size or frame.shape[1::-1]):
-        w, h = bg_size or bg.shape[1::-1]
-        fw, fh = size or frame.shape[1::-1]
-        raise DataError(f"the background image is {w}x{h} (WxH) but the tactile image is "
-                        f"{fw}x{fh}; the background must be the same sensor's no-contact "
-                        "frame at the same size")
+    check_background_size(bg_size or bg.shape[1::-1], size or frame.shape[1::-1])
     return frame, bg
 
 
@@ -184,9 +194,10 @@ class QueryResult:
         encoder: the encoder set that answered.
         visual_route: {"route": "render"}, or the photo route's account (a crop that looks
             like a real photo: "classes", "coverage", "note").
-        trust: {"visual": {"novelty", "threshold", "novel"}, "tactile": {"novelty",
-            "threshold", "novel", "contact", "contact_threshold", "no_contact",
-            "background"} or None}, or None (no calibration).
+        trust: {"visual": {"novelty", "threshold", "novel", "space", "uniform"}, "tactile":
+            {"novelty", "threshold", "novel", "contact", "contact_threshold", "no_contact",
+            "background"} or None}, or None (no calibration). A uniform visual crop (a blank
+            or flat photo) is novel whatever its distance (`model.trust.UNIFORM_SPREAD`).
         cascade: where a cascade answered, {"answered_by", "stage", "escalated",
             "confidence": [per stage tried], "thresholds", "measure"}; else None.
     """

@@ -32,7 +32,7 @@ from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
 from ratouch.world.scarcity import ScarceRegime
-from ratouch.world.tactile import TOUCH_VERSION
+from ratouch.world.tactile import touch_version
 
 log = logging.getLogger(__name__)
 
@@ -118,7 +118,7 @@ def training_data(tc: TrainConfig, vsize, tsize, progress: bool = True,
     "prior_corpus"): the prior is frozen, so they are computed once."""
 
     tag = (f"s{tc.seed}-p{tc.n_pairs}-c{tc.n_corpus}-v{vsize[0]}x{vsize[1]}-t{tsize[0]}x{tsize[1]}"
-           f"-{tc.scarcity.tag}-{TOUCH_VERSION}" + (f"-{prior}{prior_size}" if prior else ""))
+           f"-{tc.scarcity.tag}-{touch_version()}" + (f"-{prior}{prior_size}" if prior else ""))
     path = cache_dir() / f"train-data-{tag}.npz"
     if path.is_file():
         with np.load(path, allow_pickle=False) as z:

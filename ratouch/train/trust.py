@@ -27,8 +27,8 @@ from ratouch.model.trust import (
 )
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import TEST_SIZE, World
-from ratouch.world.tactile import FAMILIES, sensor_family
+from ratouch.world.sampler import TEST_SIZE, World
+from ratouch.world.tactile import family_names, sensor_family
 
 log = logging.getLogger(__name__)
 
@@ -179,14 +179,14 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
         measured[f"contact_false_alarm_test{suffix}"] = _rate(empty)
         measured[f"validation_no_contact_detected{suffix}"] = _rate(
             models[col].score(feats["nc_val"][col]) < thresholds[col])
-        for fam in FAMILIES:
+        for fam in family_names():
             sel = families == fam
             measured[f"contact_miss_test{suffix}_{fam}"] = _rate(press[sel])
             measured[f"contact_false_alarm_test{suffix}_{fam}"] = _rate(empty[sel])
     meta = {"world_seed": cfg.seed, "reference": f"train[0:{cfg.n_reference}] with and without contact",
             "validation": f"train[{VALIDATION_START}:{VALIDATION_START + cfg.n_validation}]",
             "test": f"test[0:{TEST_SIZE}] (measured only)", "target_false_alarm": fa,
-            "rank": cfg.rank, "families": list(FAMILIES), "measured": measured}
+            "rank": cfg.rank, "families": list(family_names()), "measured": measured}
     log.info("trust calibration for %s: %s", encoders.name, measured)
     return TrustCalibration(encoders.name, visual, tactile, models[0], models[1], thresholds[0],
                             thresholds[1], prior, meta, noise_floor, band)

@@ -41,7 +41,7 @@ from ratouch.files import (
 from ratouch.processes import worker_pool
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import TEST_SIZE, World
+from ratouch.world.sampler import TEST_SIZE, World
 
 log = logging.getLogger(__name__)
 

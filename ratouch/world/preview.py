@@ -9,7 +9,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from ratouch.errors import ConfigError
-from ratouch.world.generator import Sample
+from ratouch.world.sampler import Sample
 
 _TILE_W, _TILE_H, _TEXT_H = 2, 1, 40  # layout units: visual and tactile side by side
 

@@ -129,11 +129,3 @@ def premise_indices(group: str, n: int, regime: ScarceRegime) -> list[int]:
         i += 1
     return out
 
-
-def material_counts(regime: ScarceRegime, n_pairs: int) -> dict[str, int]:
-    """Pairs per material in the regime's training split, most frequent first."""
-    from collections import Counter
-
-    world = world_for(WorldConfig(seed=regime.seed))
-    c = Counter(world.plan("train", i)[2].name for i in regime.train_indices(n_pairs))
-    return dict(c.most_common())

@@ -2,10 +2,14 @@
 
 A row says everything the rest of the code needs to know about a family: how its frames are
 rendered (the world's photometric shader, or Taxim's optics calibrated on real presses), where
-its units' no-contact backgrounds come from, how many of its units carry marker dots, the real
-sensor's frame size, and its per-frame variation. Adding a family is adding a row to
-:data:`SENSOR_FAMILIES`; an unknown family name is an error (:func:`family`), never another
-family's gel.
+its units' no-contact backgrounds come from (a key of :data:`BACKGROUND_SOURCES`, with the
+row's own lights and gel), how many of its units carry marker dots, the real sensor's frame
+size, its per-frame variation, and the real frames it is compared with. Adding a family is
+adding a row to :data:`SENSOR_FAMILIES` (or :func:`register_family` at run time); an unknown
+family name is an error (:func:`family`), never another family's gel. Everything derived
+from the table is computed from it when asked: the family names and unit count, which family
+a frame looks like (:func:`guess_family`), and the table's digest (:func:`table_digest`),
+which names cached renders (`world.tactile.touch_version`).
 
 Each family has :data:`UNITS_PER_FAMILY` units; a unit's index is the global sensor id
 (`TactilePlan.sensor`, `sensor_{k}.png` of the TVL layout), families in table order.
@@ -25,24 +29,30 @@ turned back, so its lights stay consistent with its calibration.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import hashlib
+import json
+from dataclasses import asdict, dataclass
 from functools import lru_cache
 from typing import Callable
 
 import numpy as np
 
 from ratouch.errors import ConfigError
+from ratouch.images import resize_array
+from ratouch.world.taxim_optics import optics  # a calibration loads on its first use
 
 UNITS_PER_FAMILY = 8
 #: Renderers a family row may name.
 RENDERERS = ("shader", "taxim")
 
-# Light directions (x right, y down, z out of the gel) and colours: red, green, blue LEDs
-# 120 degrees apart around the gel, as on a DIGIT.
-DIGIT_LIGHTS = (
-    (np.array([-0.85, 0.0, 0.53]), np.array([1.0, 0.25, 0.2])),
-    (np.array([0.43, -0.74, 0.53]), np.array([0.2, 1.0, 0.3])),
-    (np.array([0.43, 0.74, 0.53]), np.array([0.25, 0.3, 1.0])),
+#: A light: its direction (x right, y down, z out of the gel) and its colour (RGB).
+Light = tuple[tuple[float, float, float], tuple[float, float, float]]
+
+# Red, green and blue LEDs 120 degrees apart around the gel, as on a DIGIT.
+DIGIT_LIGHTS: tuple[Light, ...] = (
+    ((-0.85, 0.0, 0.53), (1.0, 0.25, 0.2)),
+    ((0.43, -0.74, 0.53), (0.2, 1.0, 0.3)),
+    ((0.43, 0.74, 0.53), (0.25, 0.3, 1.0)),
 )
 
 
@@ -71,10 +81,45 @@ class Variation:
 class Shader:
     """The world's photometric shader of a family: lights and gains."""
 
-    lights: tuple
+    lights: tuple[Light, ...]
     gain: float  # strength of the contact shading
     darken: float  # how much the pressed gel darkens
     texture: float  # gain of the pressed texture against the indentation's dome
+
+
+@dataclass(frozen=True)
+class LedGel:
+    """A shader family's no-contact gel (background "leds"): a dark base lit by the row's
+    shader lights, each a broad glow on the side its LED sits on, fading across the gel.
+
+    Attributes:
+        base: the unlit gel's colour ([0, 1] RGB).
+        glow: each light's glow strength, in the order of the shader's lights.
+        seed: first seed word of the units' jitter (a family takes a seed of its own, so that
+            its units are not another family's recoloured).
+        vignette: darkening towards the corners.
+    """
+
+    base: tuple[float, float, float]
+    glow: tuple[float, ...]
+    seed: int
+    vignette: float = 0.3
+
+
+@dataclass(frozen=True)
+class RealFrames:
+    """Real frames of a family's sensor that renders are compared with (`ratouch eval
+    sensors`, `eval frames`): files in the reference folder (`eval.photos.reference_dir`).
+
+    Attributes:
+        pressed: a frame with something pressed into the gel.
+        background: a no-contact frame of the same kind of sensor.
+        note: what the pair is, said beside every figure made from it.
+    """
+
+    pressed: str
+    background: str
+    note: str
 
 
 @dataclass(frozen=True)
@@ -86,15 +131,18 @@ class SensorFamily:
         title: a plain name for people.
         renderer: "shader" (the world's photometric shader, `shader` set) or "taxim"
             (Taxim's optics with `calibration`).
-        background: how a unit's no-contact field is made (:data:`BACKGROUND_SOURCES`):
-            "leds" (the shader's LED field) or "taxim" (the calibration's real no-contact
-            frame, varied per unit).
+        background: how a unit's no-contact field is made, a key of
+            :data:`BACKGROUND_SOURCES`: "leds" (the row's shader lights glowing on its `gel`)
+            or "taxim" (the calibration's real no-contact frame, varied per unit).
         marker_units: how many of the family's units carry a marker grid.
         native_hw: the real sensor's frame size (h, w).
         variation: per-frame variation.
         shader: the shader's lights and gains (renderer "shader").
         calibration: Taxim's calibration folder (renderer "taxim").
         press_mm: indentation of a full press, mm (renderer "taxim").
+        gel: the unlit gel and the lights' glow (background "leds").
+        reference: real frames of this kind of sensor to compare renders with, beside the
+            calibration's own real presses (a Taxim row); None: no real frames.
         press_contrast: typical RMS change of a press against the background ([0, 1] units,
             the median over 150 of the family's renders, `train[2000000:2000150]`): the tactile encoder reads a frame's contrast
             against it, so that a faint sensor's press is not read as a light touch.
@@ -111,14 +159,23 @@ class SensorFamily:
     shader: Shader | None = None
     calibration: str | None = None
     press_mm: float = 0.0
+    gel: LedGel | None = None
+    reference: RealFrames | None = None
 
     def __post_init__(self) -> None:
-        if self.background not in ("leds", "taxim"):
-            raise ConfigError(f"sensor family {self.name!r}: background={self.background!r} "
-                              "must be 'leds' or 'taxim'")
         if self.renderer not in RENDERERS:
             raise ConfigError(f"sensor family {self.name!r}: renderer={self.renderer!r} must "
                               f"be one of {RENDERERS}")
+        if self.background not in BACKGROUND_SOURCES:
+            raise ConfigError(f"sensor family {self.name!r}: background={self.background!r} "
+                              f"must be one of {sorted(BACKGROUND_SOURCES)}")
+        if self.background == "leds" and (self.shader is None or self.gel is None
+                                          or len(self.gel.glow) != len(self.shader.lights)):
+            raise ConfigError(f"sensor family {self.name!r}: an 'leds' background needs a "
+                              "shader and a gel with one glow per light")
+        if self.background == "taxim" and self.calibration is None:
+            raise ConfigError(f"sensor family {self.name!r}: a 'taxim' background needs a "
+                              "calibration")
         if self.renderer == "shader" and self.shader is None:
             raise ConfigError(f"sensor family {self.name!r}: the shader needs `shader`")
         if self.renderer == "taxim" and (self.calibration is None or self.press_mm <= 0):
@@ -133,6 +190,57 @@ class SensorFamily:
         return self.native_hw[1] > self.native_hw[0]
 
 
+# ------------------------------------------------------- where a unit's background comes from
+
+def _led_field(row: SensorFamily, unit: int, hw: tuple[int, int]) -> np.ndarray:
+    """A shader family's no-contact field: its gel's dark base lit by the row's lights from
+    their sides, each a broad glow in the light's colour (the DIGIT's: three LEDs)."""
+    assert row.shader is not None and row.gel is not None  # the row's check
+    gel = row.gel
+    rng = np.random.default_rng([gel.seed, unit])
+    h, w = hw
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    u, v = xs / w - 0.5, ys / h - 0.5
+    img = np.zeros((h, w, 3), np.float32) + np.array(gel.base) * rng.uniform(0.9, 1.1, 3)
+    lights = row.shader.lights
+    for (d, colour), k, s in zip(lights, rng.uniform(0.8, 1.2, len(lights)), gel.glow):
+        # each LED glows broadly on the side it sits on, fading across the gel
+        cx, cy = d[0] * 0.5 + rng.uniform(-0.08, 0.08), d[1] * 0.5 + rng.uniform(-0.08, 0.08)
+        fall = np.exp(-(((u - cx) ** 2) / 0.18 + ((v - cy) ** 2) / 0.3))
+        img += s * k * fall[..., None] * np.asarray(colour)
+    vignette = 1 - gel.vignette * (u ** 2 + v ** 2)
+    img *= vignette[..., None]
+    return np.clip(img, 0, 1)
+
+
+def _taxim_field(row: SensorFamily, unit: int, hw: tuple[int, int]) -> np.ndarray:
+    """The calibration's real no-contact frame, turned to the world's orientation, with this
+    unit's own colour gains and a faint illumination gradient (units differ as real ones do:
+    another gel, another LED batch)."""
+    rng = np.random.default_rng([7919, family_names().index(row.name), unit, 2])
+    h, w = hw
+    o = optics(str(row.calibration))
+    bg = o.background_at((w, h)).transpose(1, 0, 2) if row.landscape else o.background_at(hw)
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    a = rng.uniform(0, 2 * np.pi)
+    slope = rng.uniform(0.0, 0.06)
+    grad = 1 + slope * ((xs / w - 0.5) * np.cos(a) + (ys / h - 0.5) * np.sin(a))
+    gains = rng.uniform(0.95, 1.05, 3).astype(np.float32)
+    return np.clip(bg * gains * grad[..., None], 0, 1).astype(np.float32)
+
+
+#: How a unit's field is made, by a row's `background`: (row, unit index within the family,
+#: (h, w)) -> float (h, w, 3) field in [0, 1]. Each source seeds its own units from the row, so
+#: that a unit's field is fixed. A new kind of gel is a function added here (and the fields
+#: its rows need, checked in `SensorFamily.__post_init__`).
+BACKGROUND_SOURCES: dict[str, Callable[[SensorFamily, int, tuple[int, int]], np.ndarray]] = {
+    "leds": _led_field,
+    "taxim": _taxim_field,
+}
+
+
+# ------------------------------------------------------------------------ the table
+
 SENSOR_FAMILIES: dict[str, SensorFamily] = {row.name: row for row in (
     SensorFamily(
         name="digit", title="DIGIT", renderer="shader", background="leds", marker_units=0,
@@ -140,6 +248,12 @@ SENSOR_FAMILIES: dict[str, SensorFamily] = {row.name: row for row in (
         variation=Variation(blur=(0.5, 1.1), noise=(0.006, 0.015), gain_jitter=0.12,
                             turn_jitter=8.0, tint_jitter=0.06, vignette=(0.1, 0.4)),
         shader=Shader(DIGIT_LIGHTS, gain=0.55, darken=0.12, texture=1.0),
+        # statistics matched to the real DIGIT frames of `shared/data/reference_tactile`:
+        # mean about (99, 105, 99) of 255, per-channel spread about (43, 18, 22), red strongest
+        gel=LedGel(base=(0.16, 0.22, 0.2), glow=(0.62, 0.42, 0.36), seed=7919),
+        reference=RealFrames("digit_aurova_digit_raw.png", "digit_tacto_bg_digit_240_320.png",
+                             "the reference DIGIT press against another unit's (tacto) "
+                             "background"),
         press_contrast=0.036),
     SensorFamily(
         name="gelsight", title="GelSight (Taxim)", renderer="taxim", background="taxim",
@@ -154,8 +268,43 @@ SENSOR_FAMILIES: dict[str, SensorFamily] = {row.name: row for row in (
                             turn_jitter=0.0, tint_jitter=0.08, vignette=(0.0, 0.4)),
         calibration="gelsight_mini", press_mm=0.6, press_contrast=0.025),
 )}
-FAMILIES = tuple(SENSOR_FAMILIES)
-N_SENSORS = len(FAMILIES) * UNITS_PER_FAMILY  # distinct sensor units, each with its background
+
+
+def family_names() -> tuple[str, ...]:
+    """The families' names, in table order."""
+    return tuple(SENSOR_FAMILIES)
+
+
+def sensor_count() -> int:
+    """Distinct sensor units over all families, each with its own background."""
+    return len(SENSOR_FAMILIES) * UNITS_PER_FAMILY
+
+
+def register_family(row: SensorFamily) -> None:
+    """Add a family at the end of the table (its units get the next global sensor ids).
+
+    Raises:
+        ConfigError: if the name is taken.
+    """
+    if row.name in SENSOR_FAMILIES:
+        raise ConfigError(f"sensor family {row.name!r} is already registered")
+    SENSOR_FAMILIES[row.name] = row
+
+
+def table_digest() -> str:
+    """A digest of what the table renders: every row's fields but its title and press
+    contrast (which the tactile encoder reads, not the renderer), in table order, and the
+    units per family. It changes whenever a row that renders differently is added, removed or
+    edited."""
+    return _digest(tuple(SENSOR_FAMILIES.values()))
+
+
+@lru_cache(maxsize=8)
+def _digest(rows: tuple[SensorFamily, ...]) -> str:
+    rendered = [{k: v for k, v in asdict(row).items() if k not in ("title", "press_contrast")}
+                for row in rows]
+    blob = json.dumps([UNITS_PER_FAMILY, rendered], sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
 def family(name: str) -> SensorFamily:
@@ -166,27 +315,28 @@ def family(name: str) -> SensorFamily:
     """
     row = SENSOR_FAMILIES.get(str(name))
     if row is None:
-        raise ConfigError(f"unknown sensor family {name!r}; known: {', '.join(FAMILIES)}")
+        raise ConfigError(f"unknown sensor family {name!r}; known: "
+                          f"{', '.join(family_names())}")
     return row
 
 
 def sensor_family(sensor: int) -> str:
     """The family name of global sensor unit `sensor`."""
-    if not 0 <= int(sensor) < N_SENSORS:
-        raise ConfigError(f"sensor={sensor!r} out of range [0, {N_SENSORS})")
-    return FAMILIES[int(sensor) // UNITS_PER_FAMILY]
+    if not 0 <= int(sensor) < sensor_count():
+        raise ConfigError(f"sensor={sensor!r} out of range [0, {sensor_count()})")
+    return family_names()[int(sensor) // UNITS_PER_FAMILY]
 
 
 def family_sensors(name: str) -> range:
     """The global sensor ids of the units of family `name`."""
     family(name)
-    k = FAMILIES.index(name)
+    k = family_names().index(name)
     return range(k * UNITS_PER_FAMILY, (k + 1) * UNITS_PER_FAMILY)
 
 
 def unit_index(sensor: int) -> int:
     """The unit's index within its family, [0, UNITS_PER_FAMILY)."""
-    return int(sensor) - FAMILIES.index(sensor_family(sensor)) * UNITS_PER_FAMILY
+    return int(sensor) - family_names().index(sensor_family(sensor)) * UNITS_PER_FAMILY
 
 
 def has_markers(sensor: int) -> bool:
@@ -194,60 +344,12 @@ def has_markers(sensor: int) -> bool:
     return unit_index(sensor) < family(sensor_family(sensor)).marker_units
 
 
-# ------------------------------------------------------------------- backgrounds per unit
-
-def _digit_field(unit: int, hw: tuple[int, int]) -> np.ndarray:
-    """A DIGIT's no-contact field: a dark neutral gel lit by its three LEDs from three sides,
-    each a broad saturated glow (statistics matched to the real DIGIT frames of
-    `shared/data/reference_tactile`: mean about (99, 105, 99) of 255, per-channel spread about
-    (43, 18, 22), red strongest)."""
-    rng = np.random.default_rng([7919, unit])
-    h, w = hw
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
-    u, v = xs / w - 0.5, ys / h - 0.5
-    img = np.zeros((h, w, 3), np.float32) + np.array([0.16, 0.22, 0.2]) * rng.uniform(0.9, 1.1, 3)
-    strength = (0.62, 0.42, 0.36)
-    for (d, colour), k, s in zip(DIGIT_LIGHTS, rng.uniform(0.8, 1.2, 3), strength):
-        # each LED glows broadly on the side it sits on, fading across the gel
-        cx, cy = d[0] * 0.5 + rng.uniform(-0.08, 0.08), d[1] * 0.5 + rng.uniform(-0.08, 0.08)
-        fall = np.exp(-(((u - cx) ** 2) / 0.18 + ((v - cy) ** 2) / 0.3))
-        img += s * k * fall[..., None] * colour
-    vignette = 1 - 0.3 * (u ** 2 + v ** 2)
-    img *= vignette[..., None]
-    return np.clip(img, 0, 1)
-
-
-def _taxim_field(row: SensorFamily, rng: np.random.Generator, hw: tuple[int, int]
-                 ) -> np.ndarray:
-    """The calibration's real no-contact frame, turned to the world's orientation, with this
-    unit's own colour gains and a faint illumination gradient (units differ as real ones do:
-    another gel, another LED batch)."""
-    from ratouch.world.taxim_optics import optics  # the calibration loads on first use
-
-    h, w = hw
-    o = optics(str(row.calibration))
-    bg = o.background_at((w, h)).transpose(1, 0, 2) if row.landscape else o.background_at(hw)
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
-    a = rng.uniform(0, 2 * np.pi)
-    slope = rng.uniform(0.0, 0.06)
-    grad = 1 + slope * ((xs / w - 0.5) * np.cos(a) + (ys / h - 0.5) * np.sin(a))
-    gains = rng.uniform(0.95, 1.05, 3).astype(np.float32)
-    return np.clip(bg * gains * grad[..., None], 0, 1).astype(np.float32)
-
-
-#: How a unit's field is made, by a row's `background`: (row, unit index, rng, hw) -> field.
-BACKGROUND_SOURCES: dict[str, Callable[..., np.ndarray]] = {
-    "leds": lambda row, unit, rng, hw: _digit_field(unit, hw),
-    "taxim": lambda row, unit, rng, hw: _taxim_field(row, rng, hw),
-}
-
+# ------------------------------------------------------------------------ units' backgrounds
 
 def unit_field(sensor: int, hw: tuple[int, int]) -> np.ndarray:
     """The gel field (no markers) of unit `sensor` at frame size `hw` (h, w), float [0, 1]."""
-    name = sensor_family(sensor)
-    row = family(name)
-    rng = np.random.default_rng([7919, FAMILIES.index(name), unit_index(sensor), 2])
-    return BACKGROUND_SOURCES[row.background](row, unit_index(sensor), rng, hw)
+    row = family(sensor_family(sensor))
+    return BACKGROUND_SOURCES[row.background](row, unit_index(sensor), hw)
 
 
 # ----------------------------------------------------------------- which family a frame is
@@ -261,23 +363,23 @@ def canonical(frame: np.ndarray) -> np.ndarray:
 def _look(frame: np.ndarray) -> np.ndarray:
     """What tells sensor families apart in a frame: the chromaticity of its mean colour, how
     much the chromaticity varies over the gel, and its brightness (6 numbers)."""
-    from ratouch.images import resize_array
-
     f = resize_array(np.ascontiguousarray(canonical(frame)), (18, 24)).astype(np.float64) / 255
     total = f.sum(2, keepdims=True) + 1e-3
     chroma = (f / total)[..., :2]  # (h, w, 2): red and green shares
     return np.r_[chroma.mean((0, 1)), chroma.std((0, 1)), f.mean(), f.mean(2).std()]
 
 
-@lru_cache(maxsize=1)
-def _family_looks() -> tuple[np.ndarray, np.ndarray]:
-    """(families, 6) mean looks of each family's unit backgrounds, and the looks' spread."""
-    looks: dict[str, list[np.ndarray]] = {n: [] for n in FAMILIES}
-    for s in range(N_SENSORS):
+@lru_cache(maxsize=2)
+def _family_looks(digest: str) -> tuple[np.ndarray, np.ndarray]:
+    """(families, 6) mean looks of each family's unit backgrounds, and the looks' spread:
+    computed from the table whose digest is `digest` (so a changed table is measured anew)."""
+    names = family_names()
+    looks: dict[str, list[np.ndarray]] = {n: [] for n in names}
+    for s in range(sensor_count()):
         field = (unit_field(s, (128, 96)) * 255 + 0.5).astype(np.uint8)
         looks[sensor_family(s)].append(_look(field))
-    centres = np.stack([np.mean(looks[n], 0) for n in FAMILIES])
-    spread = np.concatenate([np.asarray(looks[n]) - c for n, c in zip(FAMILIES, centres)])
+    centres = np.stack([np.mean(looks[n], 0) for n in names])
+    spread = np.concatenate([np.asarray(looks[n]) - c for n, c in zip(names, centres)])
     scale = np.maximum(spread.std(0), 0.01)
     return centres, scale
 
@@ -291,7 +393,7 @@ LOOK_LIMIT = 1.66
 def guess_family(frame: np.ndarray) -> tuple[str, float]:
     """The sensor family a frame (uint8 RGB) most looks like, from its colours alone, and how
     far it is from that family's units (in units of their spread; large: a guess at best)."""
-    centres, scale = _family_looks()
+    centres, scale = _family_looks(table_digest())
     d = np.sqrt((((_look(frame) - centres) / scale) ** 2).mean(1))
     k = int(np.argmin(d))
-    return FAMILIES[k], float(d[k])
+    return family_names()[k], float(d[k])

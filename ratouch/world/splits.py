@@ -17,7 +17,7 @@ import numpy as np
 from ratouch.errors import ConfigError
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import SUBSET_DIRS, world_for
-from ratouch.world.generator import TEST_SIZE, Sample, World
+from ratouch.world.sampler import TEST_SIZE, Sample, World
 from ratouch.world.tactile import sensor_family
 
 

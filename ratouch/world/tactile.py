@@ -29,23 +29,28 @@ from scipy.ndimage import gaussian_filter
 from ratouch.world.config import WorldConfig
 from ratouch.world.material import Material, material
 from ratouch.world.sensors import (
-    FAMILIES,
-    N_SENSORS,
     UNITS_PER_FAMILY,
     family,
+    family_names,
     family_sensors,
     has_markers,
+    sensor_count,
     sensor_family,
+    table_digest,
     unit_field,
+    unit_index,
 )
+from ratouch.world.taxim_optics import optics  # a calibration loads on its first use
 from ratouch.world.texture import PatternSpec, pixel_grid, sample_tile
 
-__all__ = ["FAMILIES", "N_SENSORS", "UNITS_PER_FAMILY", "family_sensors", "sensor_family",
-           "TactilePlan", "SensorUnit", "sensor_unit", "sensor_background", "plan_tactile",
-           "render_tactile", "gel_surface", "marker_shadow", "TOUCH_VERSION", "SHAPES"]
+__all__ = ["family_names", "sensor_count", "UNITS_PER_FAMILY", "family_sensors",
+           "sensor_family", "TactilePlan", "SensorUnit", "sensor_unit", "sensor_background",
+           "plan_tactile", "render_tactile", "gel_surface", "marker_shadow", "touch_version",
+           "SHAPES"]
 
-#: Bumped when rendered touch changes, so that cached renders and training data are redone.
-TOUCH_VERSION = "touch3"
+#: Bumped by hand when this module's rendering code changes; what the sensor table renders is
+#: in `touch_version` through the table's digest, never bumped by hand.
+RENDER_CODE = "touch3"
 #: the bound of the shared plan generator's sensor draw before sensor families existed (4
 #: units); `plan_tactile` still makes that draw so that the generator's stream is unchanged
 _LEGACY_SENSOR_DRAW = 4
@@ -64,7 +69,7 @@ _DRIFT_PER_NOISE = 0.6
 @dataclass(frozen=True)
 class TactilePlan:
     material: str
-    sensor: int  # global sensor unit id, [0, N_SENSORS)
+    sensor: int  # global sensor unit id, [0, sensor_count())
     contact: bool
     centre: tuple[float, float]  # fraction of (width, height)
     force: float  # 0.4 .. 1
@@ -146,16 +151,25 @@ def marker_shadow(centres: np.ndarray, radius: float, hw: tuple[int, int]) -> np
     return np.minimum(flat, 1.0).reshape(h, w).astype(np.float32)
 
 
-@lru_cache(maxsize=4 * N_SENSORS)
+def touch_version() -> str:
+    """What names cached renders and training data: the rendering code's version and the
+    sensor table's digest, so that a family added, removed or changed redoes them."""
+    return f"{RENDER_CODE}-{table_digest()}"
+
+
 def sensor_unit(sensor: int, hw: tuple[int, int]) -> SensorUnit:
-    """The fixed parts of sensor unit `sensor` at frame size `hw` (cached; read-only)."""
+    """The fixed parts of sensor unit `sensor` at frame size `hw` (cached per sensor table;
+    read-only)."""
+    return _sensor_unit(int(sensor), (int(hw[0]), int(hw[1])), table_digest())
+
+
+@lru_cache(maxsize=128)
+def _sensor_unit(sensor: int, hw: tuple[int, int], digest: str) -> SensorUnit:
     name = sensor_family(sensor)
-    hw = (int(hw[0]), int(hw[1]))
     field = unit_field(sensor, hw).astype(np.float32)
     markers, radius, darkness = np.zeros((0, 2), np.float32), 0.0, 0.0
     if has_markers(sensor):
-        unit = int(sensor) - FAMILIES.index(name) * UNITS_PER_FAMILY
-        rng = np.random.default_rng([7919, FAMILIES.index(name), unit])
+        rng = np.random.default_rng([7919, family_names().index(name), unit_index(sensor)])
         markers = _marker_grid(rng, hw)
         radius = float(rng.uniform(1.0, 1.5) * hw[1] / 96)
         darkness = float(rng.uniform(0.6, 0.8))
@@ -203,7 +217,7 @@ def plan_tactile(rng: np.random.Generator, cfg: WorldConfig, mat: Material,
     render_seed = int(rng.integers(2**31))
 
     frame = np.random.default_rng([render_seed, _FRAME_STREAM])
-    drawn = int(frame.integers(N_SENSORS))
+    drawn = int(frame.integers(sensor_count()))
     sensor = drawn if sensor is None else int(sensor)
     fam = family(sensor_family(sensor)).variation
     scale = cfg.tactile_hw[1] / 96
@@ -279,6 +293,7 @@ def _light_mix(lights, turn_deg: float) -> np.ndarray:
     c, s = np.cos(t), np.sin(t)
     m = np.zeros((3, 3))
     for d, colour in lights:
+        d, colour = np.asarray(d, np.float64), np.asarray(colour, np.float64)
         d = d / np.linalg.norm(d)
         d = np.array([d[0] * c - d[1] * s, d[0] * s + d[1] * c, d[2]])
         m += d[:, None] * colour[None, :]
@@ -326,8 +341,6 @@ def _shader_change(plan: TactilePlan, z: np.ndarray, dome: np.ndarray, field: np
 def _taxim_change(plan: TactilePlan, z: np.ndarray) -> np.ndarray:
     """Taxim's optics: the colour change (float (H, W, 3)) of the family's calibrated sensor
     pressed `z` deep (indentation, gel thickness units; `press_mm` millimetres per unit)."""
-    from ratouch.world.taxim_optics import optics  # the calibration loads on first use
-
     row = family(plan.family)
     height = -row.press_mm * z  # mm; below 0 presses into the gel
     if row.landscape:  # the sensor is mounted turned: render its own orientation, turn back

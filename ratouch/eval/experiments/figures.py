@@ -8,6 +8,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
+import torch
 
 from ratouch.eval.experiments.compare import curve_report, md_table
 from ratouch.eval.experiments.lab import Lab
@@ -39,7 +40,6 @@ def fig6_top_k(lab: Lab) -> Report:
 
 def fig5_loss_pca(lab: Lab) -> Report:
     """Figure 5: PCA of the joint queries, alignment loss only vs alignment + stability."""
-    import torch
     from plotly.subplots import make_subplots
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+import torch
 
 from ratouch.checkpoint import sha256_file
 from ratouch.errors import ConfigError
@@ -147,8 +148,6 @@ class Lab:
                                         ).encode()).hexdigest()[:16]
         folder = cache_dir() / "experiments" / f"stage1-withheld{n}-{key}"
         if not (folder / "manifest.json").is_file():
-            import torch
-
             data = self.train_for(n)
             log.info("training a stage-1 generator without %d materials (%d pairs, %d steps)",
                      n, len(data["labels"]), tc.stage1_steps)
@@ -257,9 +256,6 @@ _LATER_FIELDS = {"withheld"}
 
 def _run_variant(job):
     """Train one variant's stage 2 and describe the test split (runs in a worker)."""
-    import torch
-
-
     stage1, train, test, cfg, v, inputs = job
     torch.set_num_threads(1 if cfg.workers > 1 else 2)
     t0 = time.perf_counter()

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import torch
+
 from ratouch.eval.stress.scoring import Context, split_retrieval_metrics
 from ratouch.model.retriever import collapse_stats
 from ratouch.train.recipes import align_only_tgr
@@ -18,9 +20,6 @@ def collapse_report(pipeline, split: TestSplit, ctx: Context, encoder: str,
     """Collapse statistics (`collapse_stats`) and material precision@K of the joint queries on
     the natural split: the shipped retriever ("full" = alignment + stability loss) against one
     trained with alignment only (cached; trained on first use, `epochs` epochs)."""
-    import torch
-
-
     info: dict[str, Any] = {"epochs_align": epochs}
     if align_tgr is None:
         align_tgr, trained = align_only_tgr(encoder, epochs, seed, progress)

@@ -22,9 +22,10 @@ from ratouch.eval.stress.sweeps import (
     build_sweeps,
     stratified_indices,
 )
+from ratouch.serve.request import check_k
 from ratouch.timing import Progress, say_to
 from ratouch.world.config import StressConfig, WorldConfig
-from ratouch.world.generator import World
+from ratouch.world.sampler import World
 from ratouch.world.splits import TestSplit, encode_samples
 
 log = logging.getLogger(__name__)
@@ -112,8 +113,7 @@ def run_stress(pipeline, sweeps: dict[str, list[dict]] | None = None, k: int = 5
 
     t_start = time.perf_counter()
     sweeps = build_sweeps() if sweeps is None else sweeps
-    if not 1 <= k <= len(pipeline.corpus):
-        raise ConfigError(f"K={k} must lie in [1, {len(pipeline.corpus)}] (the corpus size)")
+    k = check_k(k, len(pipeline.corpus))
     if not 0 < drop < 1:
         raise ConfigError(f"drop={drop} must lie in (0, 1)")
     world = world or WorldConfig()

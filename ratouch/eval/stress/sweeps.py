@@ -8,7 +8,7 @@ from typing import Mapping, Sequence
 
 from ratouch.errors import ConfigError
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import TEST_SIZE, TEST_STRUCTURED
+from ratouch.world.sampler import TEST_SIZE, TEST_STRUCTURED
 
 # knobs whose fixed value replaces a per-sample random draw (see "Pairing" in the package
 # docstring)

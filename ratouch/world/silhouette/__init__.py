@@ -23,7 +23,7 @@ Example:
     (20, 30, 100, 110)
 """
 
-from ratouch.world.silhouette.families import FAMILIES
+from ratouch.world.silhouette.builders import FAMILIES
 from ratouch.world.silhouette.raster import (
     fill_fraction,
     mask_bbox,

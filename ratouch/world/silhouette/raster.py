@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ratouch.errors import ConfigError
-from ratouch.world.silhouette.families import builder
+from ratouch.world.silhouette.builders import builder
 from ratouch.world.silhouette.parts import Part
 from ratouch.world.silhouette.primitives import Grid
 

@@ -1,5 +1,6 @@
-"""Serving the app while the pipeline loads: `BackgroundPipeline` loads it in a thread, so the
-UI answers within seconds of launch and queries wait for the models instead of the page."""
+"""Serving while the models load: `BackgroundPipeline` loads an answerer in a thread, so a
+server (the app) answers within seconds of launch and queries wait for the models instead of
+the page. It is an `Answerer` (`ratouch.serve.request`) wrapping the one it loads."""
 
 from __future__ import annotations
 

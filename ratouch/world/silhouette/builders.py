@@ -1,4 +1,4 @@
-"""The silhouette families, by name, in a fixed order.
+"""The silhouette families, by name, in a fixed order: each family's builder.
 
 Each builder takes the four variant numbers (a, b, c, d) in [0, 1] and returns the parts in
 drawing order: additive parts are OR-ed in, subtractive ones cut what was drawn before them.

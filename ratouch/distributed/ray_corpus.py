@@ -63,7 +63,7 @@ from ratouch.search.index import ONDISK_KINDS, IndexConfig, VectorIndex
 from ratouch.search.retrieval import CorpusIndex, index_folder
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import check_writable
-from ratouch.world.generator import World
+from ratouch.world.sampler import World
 
 log = logging.getLogger(__name__)
 

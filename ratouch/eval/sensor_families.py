@@ -2,8 +2,8 @@
 (`ratouch eval families`).
 
 On validation renders (training-split indices far beyond any training run's, the same
-distribution but unseen; never the test split), for each family (`ratouch.world.tactile.
-FAMILIES`), without and with the sensor's background frame:
+distribution but unseen; never the test split), for each family (`ratouch.world.sensors.
+SENSOR_FAMILIES`), without and with the sensor's background frame:
 
 * **material probe**: a linear probe's material accuracy on the tactile embeddings (fitted on
   one half of the renders of every family, scored on the other half, and the other way round);
@@ -26,9 +26,9 @@ from sklearn.preprocessing import StandardScaler
 from ratouch.eval.retrieval import entry_materials
 from ratouch.train.trust import VALIDATION_START, render_samples
 from ratouch.world.config import WorldConfig
-from ratouch.world.generator import World
 from ratouch.world.material import material
-from ratouch.world.tactile import FAMILIES
+from ratouch.world.sampler import World
+from ratouch.world.sensors import family_names
 
 #: First training-split index of these renders (beyond the trust and cascade calibrations').
 FAMILIES_START = VALIDATION_START + 300_000
@@ -83,7 +83,7 @@ def evaluate_families(pipeline, n: int = 600, seed: int = 0, k: int = 5) -> dict
             rows[kind]["miss"] = np.array([s != "contact" for s in press])
             rows[kind]["false_alarm"] = np.array([s == "contact" for s in blank])
             rows[kind]["uncertain"] = np.array([s == "uncertain" for s in press + blank])
-    for fam in FAMILIES:
+    for fam in family_names():
         sel = families == fam
         both = np.r_[sel, sel]  # "uncertain" runs over presses, then blanks
         out["families"][fam] = {"n": int(sel.sum()), **{

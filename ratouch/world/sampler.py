@@ -1,4 +1,4 @@
-"""The world generator: (seed, split, index) -> a visuo-tactile sample, deterministically.
+"""The world sampler: (seed, split, index) -> a visuo-tactile sample, deterministically.
 
 Every random choice of a sample comes from a generator seeded by (seed, split, index), and
 texture tiles depend only on their pattern specs, so any process regenerates byte-identical
