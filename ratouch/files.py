@@ -20,8 +20,10 @@ from __future__ import annotations
 
 import ctypes
 import errno
+import glob
 import json
 import os
+import secrets
 import shutil
 import sys
 import tempfile
@@ -32,12 +34,18 @@ from pathlib import Path
 
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """The hidden temporary path (``.<name>.partial`` beside `path`, parent folders created)
-    to write `path`'s content to; renamed over `path` when the block ends without an error,
-    removed otherwise."""
+    """The hidden temporary path (``.<name>.partial-<pid>-<random>`` beside `path`, parent
+    folders created) to write `path`'s content to; renamed over `path` when the block ends
+    without an error, removed otherwise. Temporary files of `path` that a killed process left
+    behind are removed first; a running writer's are not (each writer has its own)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.partial")
+    prefix = f".{path.name}.partial"
+    for stale in path.parent.glob(f"{glob.escape(prefix)}*"):
+        owner = staging_owner(stale, prefix + "-")
+        if stale.is_file() and (owner is None or not pid_alive(owner)):
+            stale.unlink(missing_ok=True)
+    tmp = path.with_name(f"{prefix}-{os.getpid()}-{secrets.token_hex(4)}")
     try:
         yield tmp
         os.replace(tmp, path)

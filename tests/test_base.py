@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 
 import numpy as np
 import pytest
@@ -91,3 +92,32 @@ def test_registries_are_the_command_lines_choices():
     with pytest.raises(SystemExit):
         parser.parse_args(["eval", "tvl", "--system", "ra_touch", "--out", "x.json"])
     assert parser.parse_args(["train", "cascade"]).encoders == ",".join(CHAIN_SETS)
+
+
+def test_a_killed_writers_temporary_file_is_removed_by_the_next_write(tmp_path):
+    from ratouch.files import write_atomic
+
+    path = tmp_path / "report.md"
+    write_atomic(path, "old")
+    dead = tmp_path / f".report.md.partial-{2**22 + 12345}-abcd"  # no process has that pid
+    older = tmp_path / ".report.md.partial"  # an older version's name, without a pid
+    alive = tmp_path / f".report.md.partial-{os.getpid()}-beef"  # a writer running now
+    for p in (dead, older, alive):
+        p.write_text("half")
+    write_atomic(path, "new")
+    assert path.read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["report.md", alive.name])
+
+
+def test_replace_folder_swaps_a_whole_folder_in(tmp_path):
+    from ratouch.files import replace_folder, staged_beside
+
+    out = tmp_path / "ck"
+    out.mkdir()
+    (out / "a").write_text("old")
+    (out / "b").write_text("old")
+    with staged_beside(out) as tmp:
+        (tmp / "a").write_text("new")
+        replace_folder(tmp, out)
+    assert sorted(p.name for p in out.iterdir()) == ["a"] and (out / "a").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ck"]  # the old version is gone

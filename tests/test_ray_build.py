@@ -98,7 +98,7 @@ def _assert_clean_shards(folder: Path) -> None:
     assert on_disk <= set(listed), f"unlisted files: {on_disk - set(listed)}"
     for name in on_disk:
         assert sha256_file(shards / name) == listed[name], name
-    assert not list(folder.rglob("*.partial")) and not list(folder.rglob(".partial*"))
+    assert not list(folder.rglob("*partial*"))
 
 
 @pytest.fixture(scope="module")
