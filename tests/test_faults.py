@@ -205,3 +205,31 @@ def test_bench_memory_prints_each_mode_and_the_burst(capsys):
     assert [row["mode"] for row in r["rows"]] == ["I;16", "1", "L"]
     assert all(not row["errors"] for row in r["rows"]) and r["burst"]["n"] == 3
     assert not r["burst"]["errors"]
+
+
+@pytest.mark.skipif(not Path("/dev/zero").exists(), reason="needs /dev/zero")
+def test_a_device_as_an_input_is_called_what_it_is(tmp_path, capsys):
+    img = tmp_path / "v.png"
+    Image.new("RGB", (64, 64)).save(img)
+    assert main(["query", "--vision", "/dev/zero"]) == 2
+    assert "visual image /dev/zero is a character device, not an image file" in \
+        capsys.readouterr().err
+    assert main(["query", "--vision", str(img), "--tactile", "/dev/zero"]) == 2
+    assert "tactile image /dev/zero is a character device" in capsys.readouterr().err
+    with pytest.raises(DataError, match="/dev/zero is a character device, not an image"):
+        QueryRequest.decode("/dev/zero", None)  # the app's and the API's way in too
+
+
+def test_k_is_capped_at_the_apps_twenty_everywhere(tmp_path, capsys):
+    from ratouch.errors import ConfigError
+    from ratouch.serve.request import MAX_K
+
+    img = tmp_path / "v.png"
+    Image.new("RGB", (64, 64)).save(img)
+    assert MAX_K == 20 and QueryRequest.decode(str(img), None, k=20).k == 20
+    for k in (21, 10_000):
+        with pytest.raises(ConfigError, match=f"from 1 to 20 .*got k={k}"):
+            QueryRequest.decode(str(img), None, k=k)
+    assert main(["query", "--vision", str(img), "--k", "10000"]) == 2
+    err = capsys.readouterr().err
+    assert "k must be a whole number from 1 to 20" in err and err.count("\n") == 1
