@@ -391,15 +391,30 @@ def failure_table(pipe, options: dict, compute: bool, progress=None) -> dict | N
                                     **options)
 
 
+#: After a failed computation of the failure table (about 30 s of CPU), how long Compute
+#: refuses to start it again: at most one computation runs at a time (the event's
+#: concurrency limit), a finished table is kept (`shared`), and a failing one cannot be
+#: repeated back to back by whoever posts the event.
+FAILED_COMPUTE_PAUSE_S = 600.0
+
+
 def failures_tab(pipe, options: dict, shared: dict, compute: bool, subset: str,
                  condition: str, view_label: str, limit: int = 50, progress=None
                  ) -> FailureView:
     """The Failure cases tab: the table from `shared` (the app's, loaded once), else from
     the cache, else computed when `compute`; then filtered and sorted."""
+    wait = FAILED_COMPUTE_PAUSE_S - (time.monotonic() - shared.get("failed_at", -1e9))
+    if compute and shared.get("table") is None and wait > 0:  # anyone may press Compute (or
+        # post its event): a computation that failed is not run again at once
+        return FailureView(f"✖ the failure table's computation failed "
+                           f"({shared.get('failure')}); try again in {wait / 60:.0f} min",
+                           None, None)
     try:
         if shared.get("table") is None:
             shared["table"] = failure_table(pipe, options, compute, progress)
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
+        if compute:
+            shared["failed_at"], shared["failure"] = time.monotonic(), _fail(e)
         return FailureView(f"✖ cannot {'compute' if compute else 'load'} the failure "
                            f"table: {_fail(e)}", None, None)
     return failure_view(shared["table"], subset, condition, view_label, limit)

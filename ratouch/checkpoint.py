@@ -1,8 +1,11 @@
 """The one module that reads and writes weight files.
 
 The project's own checkpoints describe themselves: safetensors weights, the config JSON beside
-them, and a sha256 manifest; loading verifies the checksums and loads strictly, reporting
-missing and unexpected keys. Checkpoints made elsewhere (TVL's `.pth`, OpenCLIP's) are read by
+them, and a sha256 manifest of every file the checkpoint holds (a generator's LoRA adapter and
+tokenizer too); loading verifies the checksums and loads strictly, reporting missing and
+unexpected keys. A checkpoint is published as a whole: written complete beside the current one
+and swapped in with one atomic rename (`ratouch.files.replace_folder`), so a killed training
+run leaves the old checkpoint or the new one, never a mixture. Checkpoints made elsewhere (TVL's `.pth`, OpenCLIP's) are read by
 `read_foreign_weights`. Nothing pickled is ever executed."""
 
 from __future__ import annotations
@@ -13,8 +16,8 @@ import json
 import os
 import pickle
 import re
-from collections.abc import Iterable, Mapping, Sequence
-from pathlib import Path
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 import torch
@@ -22,7 +25,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
-from ratouch.files import json_text, publish, staged
+from ratouch.files import json_text, replace_folder, staged_beside, write_atomic
 
 WEIGHTS = "model.safetensors"
 CONFIG = "config.json"
@@ -37,47 +40,144 @@ def sha256_file(path: str | os.PathLike) -> str:
     return h.hexdigest()
 
 
+def rebuild_command(folder: str | os.PathLike) -> str:
+    """The command that writes a checkpoint folder again, told by where it sits (the shipped
+    layout: ``encoders/<set>``, ``retriever/<set>``, ``generator/<set>/<kind>``)."""
+    folder = Path(folder)
+    if folder.parent.name == "encoders":
+        return f"ratouch train encoders --model {folder.name}"
+    if folder.parent.name == "retriever":
+        return f"ratouch train retriever --encoder {folder.name}"
+    if folder.parent.parent.name == "generator":
+        return f"ratouch train generator --encoder {folder.parent.name}"
+    return "the command that trained it (`ratouch train all` for the shipped assets)"
+
+
+def _bad(folder: Path, what: str) -> DataError:
+    return DataError(f"checkpoint {folder}: {what}; rebuild it with `{rebuild_command(folder)}`")
+
+
 def save_checkpoint(folder: str | os.PathLike, state: dict[str, torch.Tensor], config: dict,
-                    meta: dict | None = None, half: bool = False) -> Path:
-    """Write weights, config and manifest into `folder` atomically (manifest last).
+                    meta: dict | None = None, half: bool = False,
+                    extra: Callable[[Path], None] | None = None) -> Path:
+    """Publish a checkpoint as a whole: weights, config, `extra` files and a manifest of
+    every file's sha256 are written into a staging folder beside `folder`, which then takes
+    `folder`'s place in one atomic step (`ratouch.files.replace_folder`); staging that a
+    killed run left behind is removed first.
 
     Args:
-        folder: destination folder (created).
+        folder: destination folder (replaced as a whole; its parent is created).
         state: tensors to save (contiguous copies are made).
         config: the architecture config; travels beside the weights.
         meta: anything else worth keeping (training figures, seed, ...).
         half: store floating tensors as float16 (halves the size; loading casts back).
+        extra: writes further files (an adapter, a tokenizer) into the folder it is given;
+            they are checked on load like the weights.
     """
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     tensors = {}
     for k, v in state.items():
         v = v.detach().cpu()
         if half and v.is_floating_point():
             v = v.half()
         tensors[k] = v.contiguous()
-    with staged(folder) as tmp:
+    with staged_beside(folder) as tmp:
+        if extra is not None:
+            extra(tmp)
         save_file(tensors, tmp / WEIGHTS)
         (tmp / CONFIG).write_text(json_text(config, indent=2, newline=False))
-        manifest = {"files": {WEIGHTS: sha256_file(tmp / WEIGHTS), CONFIG: sha256_file(tmp / CONFIG)},
-                    "dtype": "float16" if half else "float32", "meta": meta or {}}
+        manifest = {"files": _hashes(tmp), "dtype": "float16" if half else "float32",
+                    "meta": meta or {}}
         (tmp / MANIFEST).write_text(json_text(manifest, indent=2, newline=False))
-        publish(tmp, folder, (WEIGHTS, CONFIG, MANIFEST))  # the manifest last
+        replace_folder(tmp, folder)
     return folder
 
 
-def read_manifest(folder: str | os.PathLike) -> dict:
-    """A checkpoint folder's manifest (checksums and metadata), without reading the weights."""
+def _hashes(folder: Path) -> dict[str, str]:
+    """{relative POSIX path: sha256} of every file under `folder` but the manifest and hidden
+    ones (staging), the weights and config first."""
+    names = sorted(rel.as_posix() for rel in (p.relative_to(folder) for p in folder.rglob("*")
+                                              if p.is_file())
+                   if rel.as_posix() != MANIFEST and not any(x.startswith(".") for x in rel.parts))
+    names.sort(key=lambda n: (n != WEIGHTS, n != CONFIG, n))
+    return {n: sha256_file(folder / n) for n in names}
+
+
+def rehash_manifest(folder: str | os.PathLike) -> dict[str, str]:
+    """Record every file of an existing checkpoint in its manifest (the weights' and config's
+    recorded checksums must still hold; dtype and meta are kept), for checkpoints written
+    before the manifest covered adapters and tokenizers. The manifest is replaced atomically.
+
+    Returns:
+        The files newly recorded, with their sha256.
+
+    Raises:
+        DataError: the manifest is unreadable, or a file it already records has changed.
+    """
     folder = Path(folder)
-    if not (folder / MANIFEST).is_file():
-        raise DataNotFoundError(f"no checkpoint in {folder} ({MANIFEST} missing)")
+    manifest = read_manifest(folder)
+    _verify(folder, manifest["files"])
+    files = _hashes(folder)
+    added = {n: d for n, d in files.items() if n not in manifest["files"]}
+    manifest["files"] = files
+    write_atomic(folder / MANIFEST, json_text(manifest, indent=2, newline=False))
+    return added
+
+
+def read_manifest(folder: str | os.PathLike) -> dict:
+    """A checkpoint folder's manifest (checksums and metadata), without reading the weights.
+
+    Raises:
+        DataNotFoundError: the folder holds no manifest.
+        DataError: the manifest cannot be read or is not a checkpoint manifest (the message
+            names the file and the command that writes the checkpoint again).
+    """
+    folder = Path(folder)
+    path = folder / MANIFEST
+    if not path.exists():
+        raise DataNotFoundError(f"no checkpoint in {folder} ({MANIFEST} missing); build it "
+                                f"with `{rebuild_command(folder)}`")
     try:
-        manifest = json.loads((folder / MANIFEST).read_text())
-        if not isinstance(manifest["files"], dict):
-            raise TypeError(f"'files' is a {type(manifest['files']).__name__}, not a mapping")
-    except (json.JSONDecodeError, KeyError, TypeError) as e:
-        raise DataError(f"checkpoint {folder}: {MANIFEST} is unreadable: {e}") from e
+        manifest = json.loads(path.read_bytes().decode("utf-8"))
+        if not isinstance(manifest, dict):
+            raise TypeError(f"it holds a {type(manifest).__name__}, not an object")
+        if not isinstance(manifest.get("files"), dict):
+            raise TypeError("its 'files' is not a mapping of file names to sha256")
+        for name, digest in manifest["files"].items():
+            parts = PurePosixPath(name).parts
+            if not isinstance(digest, str) or not parts or name.startswith("/") or ".." in parts:
+                raise TypeError(f"its entry {name!r}: {digest!r} is not a file and a sha256")
+    except (OSError, UnicodeDecodeError, ValueError, TypeError) as e:
+        raise _bad(folder, f"{MANIFEST} is unreadable ({type(e).__name__}: {first_line(e)})"
+                   ) from e
     return manifest
+
+
+def _verify(folder: Path, files: Mapping[str, str]) -> None:
+    for name, digest in files.items():
+        path = folder / name
+        if not path.is_file():
+            raise DataNotFoundError(f"checkpoint {folder}: {name} is missing; rebuild it with "
+                                    f"`{rebuild_command(folder)}`")
+        try:
+            ok = sha256_file(path) == digest
+        except OSError as e:
+            raise _bad(folder, f"{name} is unreadable ({first_line(e)})") from e
+        if not ok:
+            raise _bad(folder, f"{name} is corrupt (sha256 mismatch)")
+
+
+def require_files(folder: str | os.PathLike, manifest: dict, names: Iterable[str]) -> None:
+    """Refuse a checkpoint whose manifest does not record files the loader is about to read
+    (a checkpoint written before the manifest covered them: they could not be checked).
+
+    Raises:
+        DataError: naming the first such file and the command that rebuilds the checkpoint.
+    """
+    for name in names:
+        if name not in manifest["files"]:
+            raise _bad(Path(folder), f"{name} is not recorded in {MANIFEST}, so it cannot be "
+                       "checked (the checkpoint was written by an older version)")
 
 
 def checkpoint_fingerprint(folder: str | os.PathLike) -> str:
@@ -97,21 +197,20 @@ def files_fingerprint(paths: Sequence[str | os.PathLike]) -> str:
     return hashlib.sha256(json.dumps(parts).encode()).hexdigest()
 
 
-def read_checkpoint(folder: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict, dict]:
-    """Verify and read a checkpoint folder: (state, config, manifest)."""
+def read_checkpoint(folder: str | os.PathLike, require: Iterable[str] = ()
+                    ) -> tuple[dict[str, torch.Tensor], dict, dict]:
+    """Verify and read a checkpoint folder: (state, config, manifest). Every file the manifest
+    records is checked against its sha256; `require` names further files the caller will
+    read, which the manifest must record (`require_files`)."""
     folder = Path(folder)
     manifest = read_manifest(folder)
-    for name, digest in manifest["files"].items():
-        path = folder / name
-        if not path.is_file():
-            raise DataNotFoundError(f"checkpoint {folder}: {name} is missing")
-        if sha256_file(path) != digest:
-            raise DataError(f"checkpoint {folder}: {name} is corrupt (sha256 mismatch)")
+    require_files(folder, manifest, (WEIGHTS, CONFIG, *require))
+    _verify(folder, manifest["files"])
     try:
         state = load_file(folder / WEIGHTS)
-        config = json.loads((folder / CONFIG).read_text())
-    except (SafetensorError, OSError, json.JSONDecodeError) as e:
-        raise DataError(f"checkpoint {folder} is unreadable: {e}") from e
+        config = json.loads((folder / CONFIG).read_bytes().decode("utf-8"))
+    except (SafetensorError, OSError, ValueError) as e:
+        raise _bad(folder, f"it is unreadable ({type(e).__name__}: {first_line(e)})") from e
     return state, config, manifest
 
 

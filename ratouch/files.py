@@ -7,16 +7,25 @@ sees half a file and an interrupted write leaves the old file (or nothing) behin
   are built on it.
 * `staged` and `publish`: several files (a checkpoint, a corpus, a data set, a shard) written
   into a hidden folder first and moved into place in a given order, the last one (a manifest)
-  marking completion; `replace_folder` swaps a whole folder in. A staging folder's name carries
-  the writing process's id, so `clean_stale_staging` can remove the ones a killed job left
-  behind without touching a running job's.
+  marking completion; `replace_folder` swaps a whole folder in.
+* `staged_beside` and `replace_folder`: a whole folder (a checkpoint) written complete beside
+  the live one and swapped in with one atomic rename (Linux's ``RENAME_EXCHANGE``), so a reader
+  sees the old folder or the new one, never a mixture, whenever the writer is killed.
+
+A staging folder's name carries the writing process's id, so `clean_stale_staging` can remove
+the ones a killed job left behind without touching a running job's.
 """
 
 from __future__ import annotations
 
+import ctypes
+import errno
+import glob
 import json
 import os
+import secrets
 import shutil
+import sys
 import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -25,12 +34,18 @@ from pathlib import Path
 
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """The hidden temporary path (``.<name>.partial`` beside `path`, parent folders created)
-    to write `path`'s content to; renamed over `path` when the block ends without an error,
-    removed otherwise."""
+    """The hidden temporary path (``.<name>.partial-<pid>-<random>`` beside `path`, parent
+    folders created) to write `path`'s content to; renamed over `path` when the block ends
+    without an error, removed otherwise. Temporary files of `path` that a killed process left
+    behind are removed first; a running writer's are not (each writer has its own)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.partial")
+    prefix = f".{path.name}.partial"
+    for stale in path.parent.glob(f"{glob.escape(prefix)}*"):
+        owner = staging_owner(stale, prefix + "-")
+        if stale.is_file() and (owner is None or not pid_alive(owner)):
+            stale.unlink(missing_ok=True)
+    tmp = path.with_name(f"{prefix}-{os.getpid()}-{secrets.token_hex(4)}")
     try:
         yield tmp
         os.replace(tmp, path)
@@ -109,11 +124,79 @@ def publish(staging: str | os.PathLike, folder: str | os.PathLike,
 
 def replace_folder(staging: str | os.PathLike, folder: str | os.PathLike) -> None:
     """Put a complete folder (`staging`, made beside `folder` on the same file system) in the
-    place of `folder`, which is removed first if it exists."""
+    place of `folder` in one atomic step: a reader of `folder` sees the old folder or the new
+    one, never a mixture and never nothing. Where `folder` exists the two are exchanged
+    (``renameat2(RENAME_EXCHANGE)``) and the old one, now at `staging`, is removed; a process
+    killed before that removal leaves it there for `clean_stale_staging`. Where the system
+    cannot exchange, the old folder is first renamed to a ``.<name>.old-<pid>-`` backup, which
+    `restore_backup` puts back if the process dies before the new one is in place."""
+    staging, folder = Path(staging), Path(folder)
+    if not folder.exists():
+        os.rename(staging, folder)  # nothing to keep: one rename is atomic
+        return
+    if _exchange(staging, folder):
+        shutil.rmtree(staging, ignore_errors=True)
+        return
+    backup = Path(tempfile.mkdtemp(prefix=f".{folder.name}.old-{os.getpid()}-",
+                                   dir=folder.parent))
+    os.replace(folder, backup)  # an empty folder is replaced
+    os.rename(staging, folder)
+    shutil.rmtree(backup, ignore_errors=True)
+
+
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux ``renameat2`` with ``RENAME_EXCHANGE``); False where
+    the system or file system cannot, so the caller falls back to two renames."""
+    if not sys.platform.startswith("linux"):
+        return False
+    libc = ctypes.CDLL(None, use_errno=True)
+    renameat2 = getattr(libc, "renameat2", None)
+    if renameat2 is None:  # a C library older than glibc 2.28
+        return False
+    if renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
+        return False
+    raise OSError(err, os.strerror(err), str(a), None, str(b))
+
+
+def restore_backup(folder: str | os.PathLike) -> Path | None:
+    """Where a process was killed between `replace_folder`'s two fallback renames (`folder`
+    missing, its ``.<name>.old-`` backup beside it), put the backup back; returns it."""
     folder = Path(folder)
-    if folder.exists():
-        shutil.rmtree(folder)
-    os.replace(staging, folder)
+    if folder.exists() or not folder.parent.is_dir():
+        return None
+    for backup in sorted(folder.parent.glob(f".{folder.name}.old-*")):
+        if backup.is_dir() and any(backup.iterdir()):
+            os.rename(backup, folder)
+            return backup
+    return None
+
+
+@contextmanager
+def staged_beside(folder: str | os.PathLike) -> Iterator[Path]:
+    """A hidden folder beside `folder` (``.<name>.partial-<pid>-<random>``) to write a whole new
+    version of it into, before `replace_folder` swaps it in; removed, with whatever it holds
+    then (the old version, after a swap), when the block ends. Staging a killed process left
+    beside `folder` (or, from older versions, inside it) is removed first, and a backup the
+    fallback swap left is put back."""
+    folder = Path(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    restore_backup(folder)
+    for kind in ("partial", "old"):
+        clean_stale_staging(folder.parent, prefix=f".{folder.name}.{kind}-")
+    clean_stale_staging(folder)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.partial-{os.getpid()}-",
+                                dir=folder.parent))
+    try:
+        yield tmp
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def pid_alive(pid: int) -> bool:

@@ -27,6 +27,7 @@ import ctypes.util
 import logging
 import math
 import os
+import stat
 import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -350,14 +351,32 @@ def _decode_pil(img: Image.Image, what: str, max_side: int | None) -> np.ndarray
     return np.array(img, dtype=np.uint8)
 
 
+def not_a_file(path: str | os.PathLike[str]) -> str | None:
+    """What a path that exists is when it is not a regular file ("a directory", "a character
+    device", ...), for messages; None for a regular file or a path that does not exist."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return None
+    for test, kind in ((stat.S_ISREG, None), (stat.S_ISDIR, "a directory"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return "not a regular file"
+
+
 def _open_image(path: str | os.PathLike[str], role: str = "image") -> Image.Image:
     """Open an image file lazily, with project errors (naming its role, e.g. "tactile
     image", and path) for missing or unreadable files."""
     path_str = os.fspath(path)
     if not os.path.exists(path_str):
         raise DataNotFoundError(f"{role} file not found: {path_str}")
-    if os.path.isdir(path_str):
+    kind = not_a_file(path_str)
+    if kind == "a directory":
         raise DataError(f"{role}: expected an image file, got a directory: {path_str}")
+    if kind is not None:  # /dev/zero would be read for ever
+        raise DataError(f"{role} {path_str} is {kind}, not an image file")
     try:
         return Image.open(path_str)
     except Image.DecompressionBombError as e:

@@ -3,6 +3,8 @@
 One module owns these folders so that no other module works them out from its own `__file__`
 (which moves when a module moves). Every folder can be overridden by an environment variable:
 
+* ``$RATOUCH_ASSETS`` — the weights and calibrations a query loads (default the shipped
+  ``assets/``; e.g. a copy to try damaged files on);
 * ``$RATOUCH_CACHE`` — cached corpora, training data, experiment and failure results
   (default ``~/.cache/ratouch``);
 * ``$RATOUCH_TVL_JUDGE_DIR`` — the published TVL judge files (default
@@ -28,24 +30,30 @@ def cache_dir() -> Path:
     return Path(os.environ.get("RATOUCH_CACHE", Path.home() / ".cache" / "ratouch"))
 
 
+def assets_dir() -> Path:
+    """Where the weights and calibrations are read from and trained into: $RATOUCH_ASSETS,
+    else the shipped `assets/`."""
+    return Path(os.environ.get("RATOUCH_ASSETS", ASSETS))
+
+
 def encoder_weights(encoder: str) -> Path:
     """Shipped weights of a default-backend encoder."""
-    return ASSETS / "encoders" / encoder
+    return assets_dir() / "encoders" / encoder
 
 
 def retriever_weights(encoder: str) -> Path:
     """The shipped Tactile-Guided Retriever trained for an encoder."""
-    return ASSETS / "retriever" / encoder
+    return assets_dir() / "retriever" / encoder
 
 
 def generator_weights(encoder: str, kind: str) -> Path:
     """A shipped generator (`kind` "ra" or "baseline") for an encoder."""
-    return ASSETS / "generator" / encoder / kind
+    return assets_dir() / "generator" / encoder / kind
 
 
 def trust_calibration(encoder: str) -> Path:
     """The shipped trust calibration (novelty and no-contact thresholds) of an encoder."""
-    return ASSETS / "trust" / f"{encoder}.json"
+    return assets_dir() / "trust" / f"{encoder}.json"
 
 
 def geometry_calibration() -> Path:
@@ -55,7 +63,7 @@ def geometry_calibration() -> Path:
 
 def cascade_calibration(encoders: str = "default-tiny+default-s") -> Path:
     """The shipped cascade calibration (stages, confidence measure, thresholds)."""
-    return ASSETS / "cascade" / f"{encoders}.json"
+    return assets_dir() / "cascade" / f"{encoders}.json"
 
 
 def tvl_judge_dir() -> Path:

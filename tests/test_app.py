@@ -308,6 +308,10 @@ def test_failure_tab_reads_the_cache_and_computes_only_on_request(fake, monkeypa
     v = handlers.failures_tab(fake, opts, shared, True, "all", "all",
                               failures.VIEWS["ra_lowest"])
     assert "cannot compute the failure table" in v.status and "material" in v.status
+    v = handlers.failures_tab(fake, opts, shared, True, "all", "all",  # not again at once
+                              failures.VIEWS["ra_lowest"])
+    assert "computation failed" in v.status and "try again in 10 min" in v.status
+    shared["failed_at"] -= handlers.FAILED_COMPUTE_PAUSE_S  # ten minutes later
     calls = []
     monkeypatch.setattr(failures, "load_or_compute",
                         lambda pipe, **kw: calls.append(kw) or TABLE)

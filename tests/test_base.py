@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 
 import numpy as np
 import pytest
@@ -91,3 +92,73 @@ def test_registries_are_the_command_lines_choices():
     with pytest.raises(SystemExit):
         parser.parse_args(["eval", "tvl", "--system", "ra_touch", "--out", "x.json"])
     assert parser.parse_args(["train", "cascade"]).encoders == ",".join(CHAIN_SETS)
+
+
+def test_a_killed_writers_temporary_file_is_removed_by_the_next_write(tmp_path):
+    from ratouch.files import write_atomic
+
+    path = tmp_path / "report.md"
+    write_atomic(path, "old")
+    dead = tmp_path / f".report.md.partial-{2**22 + 12345}-abcd"  # no process has that pid
+    older = tmp_path / ".report.md.partial"  # an older version's name, without a pid
+    alive = tmp_path / f".report.md.partial-{os.getpid()}-beef"  # a writer running now
+    for p in (dead, older, alive):
+        p.write_text("half")
+    write_atomic(path, "new")
+    assert path.read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["report.md", alive.name])
+
+
+def test_replace_folder_swaps_a_whole_folder_in(tmp_path):
+    from ratouch.files import replace_folder, staged_beside
+
+    out = tmp_path / "ck"
+    out.mkdir()
+    (out / "a").write_text("old")
+    (out / "b").write_text("old")
+    with staged_beside(out) as tmp:
+        (tmp / "a").write_text("new")
+        replace_folder(tmp, out)
+    assert sorted(p.name for p in out.iterdir()) == ["a"] and (out / "a").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ck"]  # the old version is gone
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="reads the Linux process table")
+def test_a_killed_owners_tagged_processes_are_ended_by_its_reaper(tmp_path):
+    """What a process starts through another program (a local Ray's agents) carries its tag;
+    when the owner is killed (SIGKILL: no clean-up of its own), its reaper ends them all."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from ratouch.paths import REPO
+    from ratouch.processes import _running, end_orphans, tagged
+
+    owner_code = (
+        "import os, subprocess, sys, time\n"
+        "from ratouch.processes import TAG_VAR, start_reaper\n"
+        "tag = f'{os.getpid()}-test'\n"
+        "start_reaper(tag, sys.argv[1])\n"
+        "env = {**os.environ, TAG_VAR: tag}\n"
+        "kids = [subprocess.Popen(['sleep', '300'], env=env, start_new_session=True)\n"
+        "        for _ in range(2)]\n"
+        "print(' '.join(str(k.pid) for k in kids), flush=True)\n"
+        "time.sleep(300)\n")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    owner = subprocess.Popen([sys.executable, "-c", owner_code, str(REPO)], env=env,
+                             stdout=subprocess.PIPE, text=True)
+    kids = [int(k) for k in owner.stdout.readline().split()]
+    try:
+        assert all(tagged().get(k) == f"{owner.pid}-test" for k in kids)
+        owner.send_signal(signal.SIGKILL)
+        owner.wait()
+        deadline = time.monotonic() + 15
+        while time.monotonic() < deadline and any(_running(k) for k in kids):
+            time.sleep(0.1)
+        assert not [k for k in kids if _running(k)], "the owner's processes outlived it"
+        assert end_orphans() == []  # nothing of a dead owner is left
+    finally:
+        for k in kids:
+            if _running(k):
+                os.kill(k, signal.SIGKILL)

@@ -58,3 +58,30 @@ def test_a_failing_batch_answers_every_caller_with_its_error():
 
     out = QueryBatcher(SimpleNamespace(answer=broken)).answer([_request(), _request()])
     assert all(isinstance(e, RuntimeError) for e in out)
+
+
+def _answers(results) -> list[tuple]:
+    """What a user compares: both descriptions and every mode's neighbours, in order."""
+    return [(r.description, {m: [n["id"] for n in ns] for m, ns in r.neighbours.items()},
+             r.attention) for r in results]
+
+
+def test_an_answer_does_not_depend_on_who_else_is_asking(pipeline, world):
+    """The same 32 world pairs through the serving stack one at a time and 16 at a time:
+    identical descriptions and neighbour lists (encoding, search and prompts are per request;
+    entries tied in score, e.g. identical captions, are ranked by corpus id)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    requests = [QueryRequest.decode(s.visual, s.tactile, box=s.box, k=5)
+                for s in (world.sample("test", i) for i in range(0, 384, 12))]
+    batcher = QueryBatcher(pipeline, max_batch=16, max_wait_s=0.05)
+    alone = [answer_one(batcher, r) for r in requests]
+    with ThreadPoolExecutor(16) as pool:
+        together = list(pool.map(lambda r: answer_one(batcher, r), requests))
+    assert max(batcher.batches) > 4  # they were answered together
+    differ = [i for i, (a, b) in enumerate(zip(_answers(alone), _answers(together))) if a != b]
+    assert not differ, f"{len(differ)} of {len(requests)} answers changed under load"
+    ranked = [[(-n["score"], n["id"]) for n in ns] for r in together
+              for ns in r.neighbours.values()]
+    assert all(keys == sorted(keys) for keys in ranked)  # equal shown scores: by corpus id
+    assert any(len({s for s, _ in keys}) < len(keys) for keys in ranked)  # (there are ties)

@@ -4,6 +4,7 @@ serving ones over the debug pipeline (the real query path, untrained weights).""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -108,7 +109,8 @@ def test_cascade_batches_mixed_requests(debug_pipeline, world):
     first = QueryRequest.decode(a.visual, a.tactile, box=a.box)
     out = casc.answer([first,
                        QueryRequest.decode(b.visual, box=b.box),  # no tactile: no joint query
-                       QueryRequest.decode(a.visual, k=10_000)])  # more than the corpus has
+                       dataclasses.replace(QueryRequest.decode(a.visual),  # past MAX_K:
+                                           k=10_000)])  # more than the corpus has
     out[:2] = [r.to_dict() for r in out[:2]]
     assert out[0]["cascade"]["escalated"]
     assert out[1]["cascade"] == {**out[1]["cascade"], "stage": 0, "confidence": []}

@@ -127,3 +127,27 @@ def test_interrupted_write_leaves_nothing_half_written(tmp_path, monkeypatch):
         calls["n"] = 0
         write_split(WorldConfig(), existing, "train", n=60, workers=1, progress=False)
     assert sorted(os.listdir(existing)) == ["keep.txt"]
+
+
+def test_a_publish_killed_midway_names_the_command_with_its_size(tmp_path, monkeypatch):
+    """The command that finishes an interrupted publish is the one that was started: its
+    --n, --seed and regime included (a plain `--split train` would build 20,000 pairs)."""
+    import ratouch.world.dataset as ds
+    from ratouch.world.scarcity import ScarceRegime
+
+    real = ds.publish
+
+    def dying(staging, folder, names):
+        names = list(names)
+        real(staging, folder, [n for n in names if n.endswith(".csv")][:1])
+        raise KeyboardInterrupt  # killed with a CSV in place, its images not
+
+    monkeypatch.setattr(ds, "publish", dying)
+    out = tmp_path / "tvl"
+    with pytest.raises(KeyboardInterrupt):
+        write_split(WorldConfig(seed=4), out, "train", n=12, workers=1, progress=False,
+                    regime=ScarceRegime(regime="full", seed=4, draw=2))
+    with pytest.raises(DataError) as e:
+        read_tvl(out, "train")
+    assert f"`ratouch world build --out {out.resolve()} --split train --n 12 --seed 4 " \
+           "--regime full --draw 2`" in str(e.value)

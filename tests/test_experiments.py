@@ -186,3 +186,51 @@ def test_a_change_to_the_training_code_retrains_instead_of_reusing(tmp_path, mon
     new = lab_with_code("code after")
     assert new._key(RA_TOUCH) != old._key(RA_TOUCH)
     assert new._load(RA_TOUCH) is None  # evaluate() trains it again
+
+
+def test_a_report_write_killed_at_any_step_leaves_each_file_old_or_new(tmp_path, monkeypatch):
+    """`ratouch eval NAME --out R` rewrites R's files: a run that dies between any two of its
+    renames leaves every file whole (the previous report's or the new one's), never empty."""
+    import os
+
+    import plotly.graph_objects as go
+
+    from ratouch.eval.experiments import Report, write_report
+
+    def report(v: str) -> Report:
+        return Report("table4", f"Table 4 ({v})", f"| run | {v} |", go.Figure(go.Bar(y=[len(v)])),
+                      {"v": v})
+
+    def contents() -> dict[str, bytes]:
+        return {p.name: p.read_bytes() for p in out.iterdir() if not p.name.startswith(".")}
+
+    out = tmp_path / "new"
+    write_report(report("new"), out, png=False)
+    new = contents()
+    out = tmp_path / "R"
+    write_report(report("old"), out, png=False)
+    old = contents()
+    real, moves = os.replace, []
+
+    class Killed(BaseException):
+        pass
+
+    def dying(src, dst):
+        moves.append(dst)
+        if len(moves) == step:
+            raise Killed
+        return real(src, dst)
+
+    for step in range(1, 5):
+        write_report(report("old"), out, png=False)
+        moves.clear()
+        with monkeypatch.context() as m, pytest.raises(Killed):
+            m.setattr(os, "replace", dying)
+            write_report(report("new"), out, png=False)
+        seen = contents()
+        for name, data in seen.items():
+            if name.endswith(".html"):  # plotly gives each page a new div id: whole is enough
+                assert data.rstrip().endswith(b"</html>"), (step, name)
+            elif name in old:
+                assert data in (old[name], new[name]), (step, name)
+        assert seen["table4.md"] == (new if step > 1 else old)["table4.md"]

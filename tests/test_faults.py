@@ -212,3 +212,68 @@ def test_bench_memory_prints_each_mode_and_the_burst(capsys):
     assert [row["mode"] for row in r["rows"]] == ["I;16", "1", "L"]
     assert all(not row["errors"] for row in r["rows"]) and r["burst"]["n"] == 3
     assert not r["burst"]["errors"]
+
+
+@pytest.mark.skipif(not Path("/dev/zero").exists(), reason="needs /dev/zero")
+def test_a_device_as_an_input_is_called_what_it_is(tmp_path, capsys):
+    img = tmp_path / "v.png"
+    Image.new("RGB", (64, 64)).save(img)
+    assert main(["query", "--vision", "/dev/zero"]) == 2
+    assert "visual image /dev/zero is a character device, not an image file" in \
+        capsys.readouterr().err
+    assert main(["query", "--vision", str(img), "--tactile", "/dev/zero"]) == 2
+    assert "tactile image /dev/zero is a character device" in capsys.readouterr().err
+    with pytest.raises(DataError, match="/dev/zero is a character device, not an image"):
+        QueryRequest.decode("/dev/zero", None)  # the app's and the API's way in too
+
+
+def test_k_is_capped_at_the_apps_twenty_everywhere(tmp_path, capsys):
+    from ratouch.errors import ConfigError
+    from ratouch.serve.request import MAX_K
+
+    img = tmp_path / "v.png"
+    Image.new("RGB", (64, 64)).save(img)
+    assert MAX_K == 20 and QueryRequest.decode(str(img), None, k=20).k == 20
+    for k in (21, 10_000):
+        with pytest.raises(ConfigError, match=f"from 1 to 20 .*got k={k}"):
+            QueryRequest.decode(str(img), None, k=k)
+    assert main(["query", "--vision", str(img), "--k", "10000"]) == 2
+    err = capsys.readouterr().err
+    assert "k must be a whole number from 1 to 20" in err and err.count("\n") == 1
+
+
+@pytest.mark.slow
+def test_a_training_run_killed_while_saving_leaves_a_checkpoint_that_loads(tmp_path):
+    """`ratouch train generator` saves baseline/ and ra/ (weights, adapter, tokenizer,
+    manifest): a process SIGKILLed at random moments while saving one generator after another
+    leaves, each time, a checkpoint that loads (the old or the new one, never a mixture), and
+    the next save removes what the kill left."""
+    from ratouch.model.generator import load_generator, save_generator
+
+    folder = tmp_path / "generator" / "debug" / "baseline"
+    saver = ("import sys, torch\n"
+             "from ratouch.model.decoder import DecoderConfig, build_small_decoder\n"
+             "from ratouch.model.generator import (BaselinePrompt, PromptConfig,\n"
+             "                                     RATouchGenerator, save_generator)\n"
+             "from ratouch.vocabulary import TVL_ADJECTIVES\n"
+             "cfg = DecoderConfig(hidden=32, layers=1, heads=2, intermediate=32, lora_r=2)\n"
+             "for seed in range(10**6):\n"
+             "    torch.manual_seed(seed)\n"
+             "    dec = build_small_decoder(cfg, TVL_ADJECTIVES[:24], seed=seed)\n"
+             "    dec.add_lora()\n"
+             "    gen = RATouchGenerator(BaselinePrompt(PromptConfig(dim=16, out_dim=32)), dec)\n"
+             "    save_generator(sys.argv[1], gen)\n"
+             "    print(seed, flush=True)\n")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        proc = subprocess.Popen([sys.executable, "-c", saver, str(folder)], env=env,
+                                stdout=subprocess.PIPE, text=True)
+        proc.stdout.readline()  # one checkpoint saved: the next saves overwrite it
+        time.sleep(float(rng.uniform(0.0, 0.3)))
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        load_generator(folder)  # whichever version it is, it is whole
+    leftovers = [p for p in folder.parent.iterdir() if p.name.startswith(".")]
+    save_generator(folder, load_generator(folder))
+    assert not [p for p in folder.parent.iterdir() if p.name.startswith(".")], leftovers

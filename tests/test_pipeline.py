@@ -4,6 +4,7 @@ JSON) also on the debug pipeline, which needs no trained weights."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -222,7 +223,8 @@ def test_answer_is_query_and_batches_match_single_answers(debug_pipeline, world)
     requests = [QueryRequest.decode(s.visual, s.tactile, box=s.box, k=k, label=s.caption)
                 for s, k in zip(samples, (5, 3, 4))]
     requests += [QueryRequest.decode(samples[0].visual, k=2),  # image-only
-                 QueryRequest.decode(samples[0].visual, k=len(pipe.corpus.entries) + 1)]
+                 dataclasses.replace(QueryRequest.decode(samples[0].visual),  # past MAX_K:
+                                     k=len(pipe.corpus.entries) + 1)]  # the answerer's check
     batch = pipe.answer(requests)
     assert isinstance(batch[-1], ConfigError) and "K must be a whole number" in str(batch[-1])
     for req, got in zip(requests[:-1], batch[:-1]):

@@ -26,6 +26,7 @@ from ratouch.corpus.imagenet_t import build_corpus, load_corpus, world_lexicon
 from ratouch.corpus.recaption import OfflineRecaptioner
 from ratouch.distributed.ray_corpus import SHARD_DIR, plan_cpus
 from ratouch.errors import ConfigError
+from ratouch.processes import _running, tagged
 from ratouch.search.retrieval_side import embed_and_index, open_retriever
 
 REPO = Path(__file__).resolve().parents[1]
@@ -98,7 +99,7 @@ def _assert_clean_shards(folder: Path) -> None:
     assert on_disk <= set(listed), f"unlisted files: {on_disk - set(listed)}"
     for name in on_disk:
         assert sha256_file(shards / name) == listed[name], name
-    assert not list(folder.rglob("*.partial")) and not list(folder.rglob(".partial*"))
+    assert not list(folder.rglob("*partial*"))
 
 
 @pytest.fixture(scope="module")
@@ -182,8 +183,16 @@ def test_killed_build_resumes_with_finished_shards_kept(tmp_path, single):
             break
         time.sleep(0.2)
     assert p.poll() is None, "the build ended before it could be killed"
-    os.killpg(p.pid, signal.SIGKILL)
+    ours = [pid for pid, tag in tagged().items() if tag.startswith(f"{p.pid}-")]
+    assert len(ours) >= 3, "the build's local Ray processes carry its tag"
+    os.kill(p.pid, signal.SIGKILL)  # the driver alone, as `kill -9 PID` does
     p.wait()
+    # its reaper ends the local Ray: no ray::DashboardAgent / RuntimeEnvAgent left behind
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and any(_running(q) for q in ours):
+        time.sleep(0.2)
+    left = [psutil.Process(q).name() for q in ours if _running(q)]
+    assert not left, f"the killed build left {left} running"
     done = set(json.loads(manifest.read_text())["shards"])
     assert 1 <= len(done) < 3
     _assert_listed_shards_valid(folder)
@@ -192,6 +201,23 @@ def test_killed_build_resumes_with_finished_shards_kept(tmp_path, single):
     assert r["shards_built"] == 3 - len(done)
     _assert_same_corpus(single, folder)
     _assert_clean_shards(folder)
+
+
+def test_reindex_rebuilds_a_corrupt_index_on_ray_as_locally(ray_two_cores):
+    """An index refused as corrupt names `--reindex`; with it, the Ray engine removes the
+    index and builds it again from the finished shards (no Ray needed), as the local engine
+    does."""
+    folder, _ = ray_two_cores
+    index = folder / "index" / "default-s" / "text-flat" / "index.faiss"
+    good = index.read_bytes()
+    index.write_bytes(good[: len(good) // 2])
+    args = ["--out", str(folder), "--size", str(N), "--shard-size", str(SHARD)]
+    p = subprocess.run(_cli(*args), cwd=REPO, env=_env(), capture_output=True, text=True,
+                       timeout=BUILD_TIMEOUT_S)
+    assert p.returncode != 0 and "--reindex" in p.stderr
+    r = _run(_cli(*args, "--reindex"), BUILD_TIMEOUT_S)
+    assert r["shards_built"] == 0 and index.read_bytes() == good
+    open_retriever(folder, "default-s")
 
 
 # ---------------------------------------------------------------------------------------------

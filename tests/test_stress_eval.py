@@ -153,7 +153,7 @@ def test_report_files(result, tmp_path):
     md = (tmp_path / "rep" / "stress.md").read_text()
     assert "## Break points" in md and "tactile_noise" in md and "Collapse" in md
     assert "png" not in paths and "PNG: not requested" in md
-    assert not list((tmp_path / "rep").glob(".*partial"))
+    assert not list((tmp_path / "rep").glob(".*partial*"))
     table = format_table(result)
     assert "break points" in table and "align only" in table
 

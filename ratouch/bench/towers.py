@@ -53,7 +53,7 @@ from ratouch.encoders.factory import create_model, shipped_weights
 from ratouch.encoders.prior import load_prior
 from ratouch.encoders.prior_registry import PRIORS, prior_spec
 from ratouch.errors import ConfigError, DataError, RATouchError, ServiceError
-from ratouch.eval.report import png_bytes, write_plotly_js
+from ratouch.eval.report import png_bytes, write_figure_html
 from ratouch.eval.retrieval import material_precision
 from ratouch.files import write_atomic, write_json_atomic
 from ratouch.paths import DOCS
@@ -497,8 +497,7 @@ def write_towers(result: dict, png: str | os.PathLike | None = None) -> dict[str
         out["png"] = str(write_atomic(path, tower_chart(result)))
     except ServiceError as e:
         html = path.with_suffix(".html")
-        tower_figure(result).write_html(html, include_plotlyjs="directory", full_html=True)
-        write_plotly_js(path.parent)
+        write_figure_html(tower_figure(result), html)
         out["html"] = str(html)
         out["note"] = f"{e}; wrote the plotly HTML figure instead"
         log.warning("%s", out["note"])

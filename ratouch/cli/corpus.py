@@ -51,14 +51,20 @@ def _say_embedding_state(out: Path, args: argparse.Namespace) -> None:
         print(f"resuming the {args.encoder} embeddings of {out} at {done[0]} / {done[1]}",
               file=sys.stderr)
     if args.reindex:
-        for key in ("image", "text"):
-            folder = index_folder(out, args.encoder, key, args.index)
-            if folder.exists():
-                shutil.rmtree(folder)
-                print(f"removed the index {folder} (--reindex): built again", file=sys.stderr)
+        _remove_indexes(out, args)
     elif (embeddings_dir(out, args.encoder) / EMBED_MANIFEST).is_file():
         print(f"the {args.encoder} embeddings of {out} are finished: checked, not redone",
               file=sys.stderr)
+
+
+def _remove_indexes(out: Path, args: argparse.Namespace) -> None:
+    """--reindex: the encoder's indexes of the kind asked are removed, so the build makes
+    them again (the local engine and Ray alike)."""
+    for key in ("image", "text"):
+        folder = index_folder(out, args.encoder, key, args.index)
+        if folder.exists():
+            shutil.rmtree(folder)
+            print(f"removed the index {folder} (--reindex): built again", file=sys.stderr)
 
 
 def _run_corpus_ray(args: argparse.Namespace, rc) -> int:
@@ -67,6 +73,8 @@ def _run_corpus_ray(args: argparse.Namespace, rc) -> int:
 
     if args.no_embed:
         raise usage("--no-embed is not supported with --engine ray (it embeds as it goes)")
+    if args.reindex:
+        _remove_indexes(Path(args.out), args)
     opts = RayOptions(address=args.address, num_cpus=args.num_cpus, workers=args.workers,
                       batch_size=args.batch_size, shard_size=args.shard_size,
                       llm_concurrency=args.llm_concurrency, llm_rate=args.llm_rate)

@@ -15,6 +15,7 @@ from ratouch.eval.experiments import (
     results_markdown,
     run_experiments,
 )
+from ratouch.files import write_atomic
 
 
 def run(args: argparse.Namespace) -> int:
@@ -26,10 +27,9 @@ def run(args: argparse.Namespace) -> int:
     reports = run_experiments(names, cfg, args.out, lab)
     out = Path(args.out)
     doc = out / ("results.md" if args.eval_cmd == "all" else f"{args.eval_cmd}.md")
-    doc.write_text(results_markdown(reports, cfg, time.perf_counter() - t0,
-                                    out=out if args.eval_cmd == "all" else None,
-                                    counts=lab.counts),
-                   encoding="utf-8")
+    write_atomic(doc, results_markdown(reports, cfg, time.perf_counter() - t0,
+                                       out=out if args.eval_cmd == "all" else None,
+                                       counts=lab.counts))
     for rep in reports:
         print(f"## {rep.title}  ({rep.seconds:.0f} s)\n\n{rep.markdown}\n")
     print(f"wrote {doc} and its figures in {out / 'figures'}")

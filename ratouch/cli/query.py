@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 from ratouch.cli.common import usage
+from ratouch.images import not_a_file
 from ratouch.search.modes import RA_TOUCH_MODE
 from ratouch.serve.models import load_model
 from ratouch.serve.request import MAX_K, QueryRequest, answer_one, check_k
@@ -18,9 +19,12 @@ def run(args: argparse.Namespace) -> int:
     check_k(args.k, MAX_K)  # the app's bound, before the models load
     for role, path in (("visual image", args.vision), ("tactile image", args.tactile),
                        ("background image", args.background)):
-        if path is not None and Path(path).is_dir():
-            raise usage(f"{role} {path} is a directory, not an image file")
-        if path is not None and not Path(path).is_file():
+        if path is None:
+            continue
+        kind = not_a_file(path)
+        if kind is not None:  # /dev/zero, a folder, a pipe: say what it is
+            raise usage(f"{role} {path} is {kind}, not an image file")
+        if not Path(path).is_file():
             raise usage(f"{role} file {path} does not exist")
     swap = _neighbours_file(args.neighbours_from) if args.neighbours_from else None
     with intra_op_threads(1):  # the serving setting (see ratouch.threads)
@@ -28,9 +32,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _query(args: argparse.Namespace, swap: list[int] | None) -> int:
-    model = load_model(args.encoder, corpus=args.corpus, index=args.index)
     request = QueryRequest.decode(args.vision, args.tactile, box=args.box, k=args.k,
                                   label=args.label, background=args.background)
+    model = load_model(args.encoder, corpus=args.corpus, index=args.index)  # after the checks
     result = answer_one(model, request).to_dict()
     if args.drop is not None or swap is not None:
         ids = swap if swap is not None else [n["id"] for n in

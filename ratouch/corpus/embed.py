@@ -200,9 +200,11 @@ def load_embeddings(corpus: str | os.PathLike, encoder_name: str, dim: int | Non
                                 f"--encoder {encoder_name}` (with the options that built it; "
                                 f"it keeps the corpus and finishes the embeddings)")
     try:
-        manifest = json.loads(mpath.read_text())
-    except json.JSONDecodeError as e:
-        raise DataError(f"{mpath} is unreadable: {e}") from e
+        manifest = json.loads(mpath.read_bytes().decode("utf-8"))
+    except (OSError, ValueError) as e:  # ValueError: bad JSON or UTF-8
+        raise DataError(f"{mpath} is unreadable ({type(e).__name__}: {e}); build it again "
+                        f"with `ratouch corpus build --out {corpus} --encoder {encoder_name}`"
+                        ) from e
     if dim is not None and manifest["dim"] != dim:
         raise DataError(f"embeddings in {out} have dimension {manifest['dim']}, the encoder "
                         f"gives {dim}")

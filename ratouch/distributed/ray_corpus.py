@@ -19,13 +19,17 @@ Local Ray by default (this machine's cores); a cluster when an address is given 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
 import os
+import secrets
 import shutil
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,6 +40,7 @@ import pyarrow.parquet as pq
 import ray
 import torch
 
+from ratouch import processes
 from ratouch.checkpoint import sha256_file
 from ratouch.corpus.embed import (
     EMBED_MANIFEST,
@@ -367,27 +372,62 @@ class ShardStore:
         return entries, np.load(files["image.npy"]), np.load(files["text.npy"])
 
 
-def connect(opts: RayOptions) -> bool:
-    """Join the cluster at opts.address / $RAY_ADDRESS, else start a local Ray; True if this
-    call started the connection (the caller then shuts it down). Workers find this package
-    through PYTHONPATH (the same path on every node)."""
+@contextmanager
+def connect(opts: RayOptions) -> Iterator[None]:
+    """Join the cluster at opts.address / $RAY_ADDRESS, else start a local Ray, for the
+    block; a connection this opened is shut down at its end. Workers find this package
+    through PYTHONPATH (the same path on every node).
+
+    A local Ray's processes (GCS, raylet, its agents, workers) are tagged
+    (`ratouch.processes.TAG_VAR`) and a reaper ends them when this process ends, however it
+    ends: a killed build leaves no ``ray::DashboardAgent`` behind. Those a build killed
+    together with its reaper left are ended before a local Ray starts."""
     if ray.is_initialized():
-        return False
+        yield
+        return
     code = str(Path(__file__).resolve().parents[2])
     path = os.pathsep.join(p for p in (code, os.environ.get("PYTHONPATH", "")) if p)
     runtime_env = {"env_vars": {"PYTHONPATH": path}}
     address = opts.address or os.environ.get("RAY_ADDRESS") or None
+    with contextlib.ExitStack() as stack:
+        try:
+            if address:
+                ray.init(address=address, runtime_env=runtime_env, log_to_driver=False,
+                         logging_level=logging.WARNING)
+            else:
+                stack.enter_context(_tagged_local_processes(code))
+                ray.init(address="local", num_cpus=opts.num_cpus or os.cpu_count(),
+                         include_dashboard=False, runtime_env=runtime_env,
+                         log_to_driver=False, logging_level=logging.WARNING)
+        except (ConnectionError, RuntimeError, ValueError) as e:
+            raise ServiceError(f"cannot connect to Ray at address={address!r}: {e}") from e
+        try:
+            yield
+        finally:
+            ray.shutdown()
+
+
+@contextmanager
+def _tagged_local_processes(code: str) -> Iterator[None]:
+    """Tag the processes started in the block (through the environment they inherit) and
+    have a reaper end them when the block ends or this process dies."""
+    orphans = processes.end_orphans()
+    if orphans:
+        log.warning("ended %d processes a killed Ray build left behind", len(orphans))
+    tag = f"{os.getpid()}-{secrets.token_hex(6)}"
+    reaper = processes.start_reaper(tag, code)
+    before = os.environ.get(processes.TAG_VAR)
+    os.environ[processes.TAG_VAR] = tag
     try:
-        if address:
-            ray.init(address=address, runtime_env=runtime_env, log_to_driver=False,
-                     logging_level=logging.WARNING)
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(processes.TAG_VAR, None)
         else:
-            ray.init(address="local", num_cpus=opts.num_cpus or os.cpu_count(),
-                     include_dashboard=False,
-                     runtime_env=runtime_env, log_to_driver=False, logging_level=logging.WARNING)
-    except (ConnectionError, RuntimeError, ValueError) as e:
-        raise ServiceError(f"cannot connect to Ray at address={address!r}: {e}") from e
-    return True
+            os.environ[processes.TAG_VAR] = before
+        assert reaper.stdin is not None
+        reaper.stdin.close()  # the reaper ends what is left of this Ray, then itself
+        reaper.wait()
 
 
 def _dataset(table: pa.Table, todo: list[int], seed: int, recaption: RecaptionConfig,
@@ -582,18 +622,15 @@ def build_corpus_ray(out: str | os.PathLike, size: int | str = "10k", seed: int 
         log.info("resuming: %d of %d shards already finished", len(store.done()), store.n_shards)
     clock = StageClock()
     if todo:
-        started = connect(opts)
         try:
-            ds = _dataset(table, todo, seed, recaption, encoder, opts, image_list is None)
-            _stream_shards(ds, store, todo, clock)
+            with connect(opts):
+                ds = _dataset(table, todo, seed, recaption, encoder, opts, image_list is None)
+                _stream_shards(ds, store, todo, clock)
         except ray.exceptions.RayError as e:  # finished shards stay; a re-run resumes
             raise ServiceError(f"the Ray pipeline failed ({len(store.done())} of "
                                f"{store.n_shards} shards finished, kept for a re-run): "
                                f"{str(e).splitlines()[0] if str(e) else type(e).__name__}"
                                ) from e
-        finally:
-            if started:
-                ray.shutdown()
     if recaption.backend == "llm":
         store.add_llm_stats(clock.llm_requests, clock.llm_fallbacks)
     ta = time.perf_counter()

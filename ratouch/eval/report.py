@@ -28,7 +28,13 @@ def save_png(fig, path: Path) -> Path | None:
     if data is None:
         log.warning("no PNG for %s (%s)", path.name, why)
         return None
-    path.write_bytes(data)
+    return write_atomic(path, data)
+
+
+def write_figure_html(fig, path: Path) -> Path:
+    """The figure as an HTML page (written atomically) referencing plotly.min.js beside it."""
+    write_atomic(path, fig.to_html(include_plotlyjs="directory", full_html=True))
+    write_plotly_js(path.parent)
     return path
 
 

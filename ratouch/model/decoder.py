@@ -191,10 +191,13 @@ class TactileTokenizer:
         if not path.is_file():
             raise DataNotFoundError(f"tokenizer file {path} does not exist")
         try:
-            data = json.loads(path.read_text())
+            data = json.loads(path.read_bytes().decode("utf-8"))
             words = data["words"]
-        except (json.JSONDecodeError, KeyError, TypeError) as e:
-            raise DataError(f"tokenizer file {path} is unreadable: {e}") from e
+            if not isinstance(words, list) or not all(isinstance(w, str) for w in words):
+                raise TypeError("its 'words' is not a list of strings")
+        except (OSError, ValueError, KeyError, TypeError) as e:  # ValueError: bad UTF-8, JSON
+            raise DataError(f"tokenizer file {path} is unreadable "
+                            f"({type(e).__name__}: {e})") from e
         return cls(words)
 
 

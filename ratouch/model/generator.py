@@ -33,7 +33,7 @@ from typing import Callable, Sequence
 import torch
 from torch import Tensor, nn
 
-from ratouch.checkpoint import load_into, read_checkpoint, save_checkpoint
+from ratouch.checkpoint import load_into, read_checkpoint, require_files, save_checkpoint
 from ratouch.errors import ConfigError, DataError
 from ratouch.model.decoder import (
     Decoder,
@@ -49,6 +49,8 @@ logger = logging.getLogger(__name__)
 
 STAGES = ("baseline", "ra")
 ADAPTER_DIR = "adapter"
+ADAPTER_CONFIG = "adapter_config.json"             # what peft's save_pretrained writes
+ADAPTER_WEIGHTS = "adapter_model.safetensors"
 TOKENIZER_FILE = "tokenizer.json"
 FORMAT = "ratouch-generator/1"
 
@@ -283,13 +285,15 @@ def save_generator(folder: str | os.PathLike, gen: RATouchGenerator,
         (asdict(icfg) if dataclasses.is_dataclass(icfg) and not isinstance(icfg, type) else {}),
         "lora": dec.has_lora,
     }
-    folder.mkdir(parents=True, exist_ok=True)
-    if dec.has_lora:
-        dec.save_adapter(folder / ADAPTER_DIR)
-    if isinstance(dec.tokenizer, TactileTokenizer):
-        dec.tokenizer.save(folder / TOKENIZER_FILE)
-    # The manifest is written last, so a checkpoint interrupted before it does not load.
-    return save_checkpoint(folder, state, config, meta, half=half)
+
+    def extra(staging: Path) -> None:  # checked on load like the weights (the manifest's)
+        if dec.has_lora:
+            dec.save_adapter(staging / ADAPTER_DIR)
+        if isinstance(dec.tokenizer, TactileTokenizer):
+            dec.tokenizer.save(staging / TOKENIZER_FILE)
+
+    # published as a whole: a run killed while saving leaves the previous checkpoint
+    return save_checkpoint(folder, state, config, meta, half=half, extra=extra)
 
 
 def load_generator(folder: str | os.PathLike,
@@ -311,7 +315,7 @@ def load_generator(folder: str | os.PathLike,
         continue training).
     """
     folder = Path(folder)
-    state, config, _ = read_checkpoint(folder)
+    state, config, manifest = read_checkpoint(folder)
     if config.get("format") != FORMAT:
         raise DataError(f"{folder} is not a generator checkpoint (format "
                         f"{config.get('format')!r}, expected {FORMAT!r})")
@@ -322,11 +326,15 @@ def load_generator(folder: str | os.PathLike,
         raise DataError(f"generator config in {folder} is unreadable: {e}") from e
     parts = _split_state(state)
     small = dcfg.kind == "small"
+    lora = bool(config.get("lora")) and not stage1
+    # every file read below must be one the manifest recorded (and so was checked)
+    require_files(folder, manifest, [TOKENIZER_FILE] * small + [
+        f"{ADAPTER_DIR}/{ADAPTER_CONFIG}", f"{ADAPTER_DIR}/{ADAPTER_WEIGHTS}"] * lora)
     tokenizer = TactileTokenizer.load(folder / TOKENIZER_FILE) if small else None
     decoder = build_decoder(dcfg, tokenizer)
     if small:
         load_into(decoder.model, parts.get("decoder", {}), f"{folder} (decoder)")
-    if config.get("lora") and not stage1:
+    if lora:
         decoder.load_adapter(folder / ADAPTER_DIR)
     prompt = BaselinePrompt(pcfg)
     load_into(prompt, parts.get("prompt", {}), f"{folder} (prompt)")

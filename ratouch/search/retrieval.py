@@ -107,6 +107,23 @@ class CorpusIndex:
             raise ConfigError(f"key modality {key!r} must be 'image' or 'text'")
         return self.indexes[key].search(queries, k)
 
+    def search_each(self, key: str, blocks: Sequence[np.ndarray], ks: Sequence[int]
+                    ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Each block of queries (one request's) searched on its own at its K, ties broken by
+        corpus id (`stable_top`): what a request gets never depends on the requests searched
+        with it (faiss takes another code path, with other float rounding, for a larger
+        batch of queries, and returns equal scores in no set order).
+
+        Returns:
+            Per block, its ((n, k) scores, (n, k) ids).
+        """
+        n = len(self.entries)
+        out = []
+        for q, k in zip(blocks, ks):
+            scores, ids = self.search(key, q, min(n, k + TIE_MARGIN))
+            out.append(stable_top(scores, ids, k))
+        return out
+
     def entry(self, i: int) -> CorpusEntry:
         return self.entries[i]
 
@@ -122,6 +139,20 @@ class CorpusIndex:
                 img = im.convert("RGB")
         img.thumbnail((size, size))
         return np.asarray(img)
+
+
+#: Candidates fetched beyond K, so that entries tied with the K-th are chosen by corpus id.
+TIE_MARGIN = 8
+#: Decimals a neighbour's score is ranked by (those a result shows); equal ones go by id.
+SCORE_DECIMALS = 4
+
+
+def stable_top(scores: np.ndarray, ids: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The first `k` of each row of search results, ranked by score at the decimals a result
+    shows, then by corpus id: entries tied at those decimals (e.g. identical captions) are
+    always ranked, and chosen at the K-th place, the same way."""
+    order = np.lexsort((ids, -np.round(scores, SCORE_DECIMALS)), axis=-1)[:, :k]  # (n, k)
+    return np.take_along_axis(scores, order, -1), np.take_along_axis(ids, order, -1)
 
 
 class CorpusSearch:

@@ -184,11 +184,13 @@ class Cascade:
         one); `encoded` is what that stage's `RATouchPipeline.encode` made."""
         conf = np.full(len(encoded), np.nan)
         rows = [j for j, e in enumerate(encoded) if RA_TOUCH_MODE in e.queries]
-        if rows:
-            scores, ids = self.stages[stage].corpus.search(
-                "text", np.concatenate([encoded[j].queries[RA_TOUCH_MODE] for j in rows]),
-                self.calibration.k)
-            conf[rows] = joint_confidence(scores, ids, self._classes, self.calibration.measure)
+        if rows:  # each request searched on its own: its confidence is its own
+            found = self.stages[stage].corpus.search_each(
+                "text", [encoded[j].queries[RA_TOUCH_MODE] for j in rows],
+                [self.calibration.k] * len(rows))
+            conf[rows] = joint_confidence(np.concatenate([sc for sc, _ in found]),
+                                          np.concatenate([ii for _, ii in found]),
+                                          self._classes, self.calibration.measure)
         return conf
 
     def answer(self, requests: Sequence[QueryRequest]) -> list[QueryResult | Exception]:

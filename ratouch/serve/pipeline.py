@@ -200,7 +200,11 @@ class RATouchPipeline(RetrievalSide):
     def encode(self, requests: Sequence[QueryRequest], clock: Laps) -> list[Encoded]:
         """Step 1: the crops' image embeddings, the frames' tactile ones, and from them each
         query mode's vectors (`QUERY_MODES`; a mode that needs a frame only where there is
-        one)."""
+        one). Each request is encoded on its own: a batched convolution rounds differently
+        from a single one, and a request's answer must not depend on who else is asking."""
+        return [self._encode_batch([r], clock)[0] for r in requests]
+
+    def _encode_batch(self, requests: Sequence[QueryRequest], clock: Laps) -> list[Encoded]:
         V, P, photos = self.encode_images([r.crop for r in requests])
         encoded = [Encoded(V[j:j + 1], None, {}, None if P is None else P[j:j + 1], photo,
                            [] if photo is None else [photo.note])
@@ -273,8 +277,9 @@ class RATouchPipeline(RetrievalSide):
 
     def _search(self, requests: Sequence[QueryRequest], encoded: Sequence[Encoded]
                 ) -> list[dict]:
-        """Step 3: every mode of every request against the text index, in one search at the
-        largest K: per request {mode: ((1, k) scores, (1, k) ids)}. The image neighbours of a
+        """Step 3: every mode of a request against the text index, in one search per request
+        (`CorpusIndex.search_each`: ties broken by corpus id; nothing depends on the other
+        requests): per request {mode: ((1, k) scores, (1, k) ids)}. The image neighbours of a
         crop the photo route answered are the route's ranking instead
         (`PhotoRoute.neighbours`: by the classifier's probability of the entry's class)."""
         found: list[dict] = [{} for _ in requests]
@@ -283,44 +288,38 @@ class RATouchPipeline(RetrievalSide):
                 assert self.photos is not None   # only the route makes a PhotoQuery
                 sc, ii = self.photos.neighbours(e.photo, requests[j].k)
                 found[j][IMAGE_MODE] = (sc[None], ii[None])
-        rows = [(j, m) for j, e in enumerate(encoded) for m in QUERY_MODES
-                if m in e.queries and m not in found[j]]
-        if not rows:
-            return found
-        scores, ids = self.corpus.search(
-            "text", np.concatenate([encoded[j].queries[m] for j, m in rows]),
-            max(requests[j].k for j, _ in rows))
-        for r, (j, m) in enumerate(rows):
-            k = requests[j].k
-            found[j][m] = (scores[r:r + 1, :k], ids[r:r + 1, :k])
+        modes = [[m for m in QUERY_MODES if m in e.queries and m not in found[j]]
+                 for j, e in enumerate(encoded)]
+        todo = [j for j, ms in enumerate(modes) if ms]
+        blocks = self.corpus.search_each(
+            "text", [np.concatenate([encoded[j].queries[m] for m in modes[j]]) for j in todo],
+            [requests[j].k for j in todo])
+        for j, (scores, ids) in zip(todo, blocks):
+            for r, m in enumerate(modes[j]):
+                found[j][m] = (scores[r:r + 1], ids[r:r + 1])
         return found
 
     def _generate(self, requests, encoded, found, touch, clock) -> tuple[dict, dict, dict]:
-        """Step 4: RA-Touch and baseline descriptions of the `touch` requests, decoded
-        together (one RA-Touch prompt batch per K), and RA-Touch's attention over each
+        """Step 4: RA-Touch and baseline descriptions of the `touch` requests (each request's
+        prompts made on its own, then decoded together), and RA-Touch's attention over each
         request's neighbours."""
         ra: dict[int, str] = {}
         base: dict[int, str] = {}
         attention: dict[int, dict] = {}
         if not touch:
             return ra, base, attention
-        V = np.concatenate([encoded[j].V for j in touch])
-        T = np.concatenate([encoded[j].T for j in touch])
-        by_k: dict[int, list[int]] = {}
-        for r, j in enumerate(touch):
-            by_k.setdefault(requests[j].k, []).append(r)
-        p_ra: list = [None] * len(touch)
-        for rows in by_k.values():
-            nb = np.concatenate([found[touch[r]][RA_TOUCH_MODE][1] for r in rows])
-            prefix, weights = self.ra_prefix(V[rows], T[rows], nb)
-            for n, r in enumerate(rows):
-                p_ra[r] = prefix[n]
-                attention[touch[r]] = {name: [round(float(x), 4) for x in w[n]]
-                                       for name, w in weights.items()}
-        with torch.inference_mode():
-            p_base = self.generator_base.prefix(torch.from_numpy(V), torch.from_numpy(T))
+        p_ra, p_base = [], []
+        for j in touch:  # each prompt on its own (a batched one rounds differently)
+            e = encoded[j]
+            prefix, weights = self.ra_prefix(e.V, e.T, found[j][RA_TOUCH_MODE][1])
+            p_ra.append(prefix[0])
+            attention[j] = {name: [round(float(x), 4) for x in w[0]]
+                            for name, w in weights.items()}
+            with torch.inference_mode():
+                p_base.append(self.generator_base.prefix(torch.from_numpy(e.V),
+                                                         torch.from_numpy(e.T))[0])
         texts_ra, texts_base = describe_together(
-            [self.generator_ra, self.generator_base], [torch.stack(p_ra), p_base],
+            [self.generator_ra, self.generator_base], [torch.stack(p_ra), torch.stack(p_base)],
             cache=self._stack)
         ra.update(zip(touch, texts_ra))
         base.update(zip(touch, texts_base))
@@ -331,11 +330,9 @@ class RATouchPipeline(RetrievalSide):
         """Step 5: the PCA plot's points of each request."""
         points = [self.pca_points(encoded[j].queries, found[j], None)
                   for j in range(len(requests))]
-        labelled = [j for j, r in enumerate(requests) if r.label]
-        if labelled:  # the ground-truth captions' embeddings in one encoder call
-            xy = self.pca.project(self.encoders.encode_text(
-                [requests[j].label for j in labelled]))
-            for j, (x, y) in zip(labelled, xy):
+        for j, r in enumerate(requests):  # the ground-truth caption's embedding, each alone
+            if r.label:
+                x, y = self.pca.project(self.encoders.encode_text([r.label]))[0]
                 points[j].append({"role": "ground_truth", "x": float(x), "y": float(y)})
         return points
 

@@ -30,6 +30,11 @@ from ratouch.images import (
 
 Box = tuple[int, int, int, int]
 
+#: The most neighbours per query mode a query may ask for, wherever it arrives (the app's
+#: slider, `ratouch query --k`, the HTTP API): a larger K buys no better description, only a
+#: larger answer (K = 10,000 made an 11 MB one).
+MAX_K = 20
+
 
 #: The largest K a person is offered: the app's slider and `/query` API, `ratouch query --k`
 #: (more neighbours per mode than a page shows side by side or a reader compares).
@@ -111,11 +116,11 @@ class QueryRequest:
             model: the model that should answer, where there is a choice.
 
         Raises:
-            ConfigError: k is not a whole number >= 1.
+            ConfigError: k is not a whole number from 1 to `MAX_K`.
             DataError, DataNotFoundError, OSError: an image or the box cannot be used.
         """
         t0 = time.perf_counter()
-        k = check_k(k)
+        k = check_k(k, MAX_K)
         width, height = oriented_size(visual, "visual image")
         warnings: list[str] = []
         used = clip_box(tvl_contact_box(width, height) if box is None else box, width, height)

@@ -158,7 +158,7 @@ def write_split(cfg: WorldConfig, out: str | os.PathLike, split: str, n: int | N
             indices = regime.train_indices(n) if regime is not None and split == "train" \
                 else list(range(n))
             counts = _write_into(cfg, tmp, split, indices, workers, progress)
-            _publish_split(tmp, out, split)
+            _publish_split(tmp, out, split, finish_command(out, split, n, cfg.seed, regime))
         except BaseException:
             stack.close()  # the staging folder goes first
             if created_out and not any(out.iterdir()):
@@ -199,13 +199,31 @@ def _journal_owner(journal: Path) -> int | None:
         return None
 
 
-def _publish_split(staging: Path, out: Path, split: str) -> None:
-    """Move a staged split into `out`: the journal first, the images, then the sidecars and
-    the CSVs (what a reader opens first) last, then the journal removed."""
+def finish_command(out: Path, split: str, n: int, seed: int, regime=None) -> str:
+    """The `ratouch world build` command that builds this split again (and so finishes an
+    interrupted publish of it): its folder, split, size, seed and regime."""
+    cmd = f"ratouch world build --out {out} --split {split}"
+    if split != "test":
+        cmd += f" --n {n}"
+    if seed:
+        cmd += f" --seed {seed}"
+    if regime is not None and split == "train":
+        if getattr(regime, "regime", "scarce") != "scarce":
+            cmd += f" --regime {regime.regime}"
+        if getattr(regime, "draw", 0):
+            cmd += f" --draw {regime.draw}"
+    return cmd
+
+
+def _publish_split(staging: Path, out: Path, split: str, finish: str) -> None:
+    """Move a staged split into `out`: the journal first (with `finish`, the command that
+    builds it again), the images, then the sidecars and the CSVs (what a reader opens first)
+    last, then the journal removed."""
     names = [str(p.relative_to(staging)) for p in sorted(staging.rglob("*")) if p.is_file()]
     names.sort(key=lambda n: (n.endswith(".csv"), n.endswith(".jsonl"), n))
     journal = journal_path(out, split)
-    write_json_atomic(journal, {"pid": os.getpid(), "split": split, "files": names})
+    write_json_atomic(journal, {"pid": os.getpid(), "split": split, "finish": finish,
+                                "files": names})
     publish(staging, out, names)
     journal.unlink()
 
@@ -269,10 +287,14 @@ def check_published(root: Path, split: str) -> None:
     for folder in (root, *root.parents):
         journal = journal_path(folder, split)
         if journal.is_file():
+            try:
+                finish = json.loads(journal.read_bytes().decode("utf-8"))["finish"]
+            except (OSError, ValueError, KeyError, TypeError):  # an older version's journal
+                finish = f"ratouch world build --out {folder} --split {split}"
             raise DataError(f"the {split} split in {folder} is incomplete: a world build was "
                             f"killed while publishing it ({journal.name} is present); run "
-                            f"`ratouch world build --out {folder} --split {split}` (with the "
-                            f"same options) again to finish it")
+                            f"`{finish}` (with the same stress options, if any) again to "
+                            f"finish it")
 
 
 def read_tvl(root: str | os.PathLike, split: str = "test") -> list[PairRecord]:

@@ -25,8 +25,8 @@ from ratouch.eval.experiments.tables import (
     table6_withheld,
 )
 from ratouch.eval.experiments.variants import ExperimentConfig, Report
-from ratouch.eval.report import git_commit, save_png
-from ratouch.files import write_json_atomic
+from ratouch.eval.report import git_commit, save_png, write_figure_html
+from ratouch.files import write_atomic, write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -45,13 +45,12 @@ def write_report(rep: Report, folder: str | os.PathLike, png: bool = True) -> di
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     out = {"md": folder / f"{rep.name}.md"}
-    out["md"].write_text(f"## {rep.title}\n\n{rep.markdown}\n", encoding="utf-8")
+    write_atomic(out["md"], f"## {rep.title}\n\n{rep.markdown}\n")
     write_json_atomic(folder / f"{rep.name}.data.json", rep.data)
     if rep.figure is not None:
         out["html"] = folder / f"{rep.name}.html"
-        rep.figure.write_html(out["html"], include_plotlyjs="directory", full_html=True)
-        out["json"] = folder / f"{rep.name}.json"
-        out["json"].write_text(rep.figure.to_json(), encoding="utf-8")
+        write_figure_html(rep.figure, out["html"])
+        out["json"] = write_atomic(folder / f"{rep.name}.json", rep.figure.to_json())
         path = save_png(rep.figure, folder / f"{rep.name}.png") if png else None
         if path is not None:
             out["png"] = path
