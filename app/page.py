@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import gradio as gr
 import numpy as np
 
 MAX_K = 20  # the app's largest K (neighbours per query mode); handlers.parse_k's default
@@ -50,13 +51,16 @@ class Outputs:
         """The outputs named `names` (each must exist)."""
         return Outputs({n: self[n] for n in names})
 
-    def values(self, named: Mapping[str, Any]) -> dict:
-        """{component: value} for a handler's {name: value}; a name that is not an output of
-        this event is a bug, raised here rather than shown in the wrong place."""
+    def values(self, named: Mapping[str, Any]) -> Any:
+        """{component: value} for a handler's {name: value} (`gr.skip()` for {}); a name that
+        is not an output of this event is a bug, raised here rather than shown in the wrong
+        place."""
         unknown = [n for n in named if n not in self._by_name]
         if unknown:
             raise KeyError(f"not outputs of this event: {unknown}; its outputs: "
                            f"{list(self._by_name)}")
+        if not named:  # nothing changes (gradio reads an empty dict as too few values)
+            return gr.skip()
         return {self._by_name[n]: v for n, v in named.items()}
 
 
