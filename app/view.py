@@ -385,9 +385,10 @@ _CASE_HEAD = (("condition", "condition"), ("#", "index"), ("subset", "subset"),
               ("material", "material"), ("ground-truth label", "label"),
               ("RA-Touch", "ra_touch"), ("RA score", "ra_score"), ("baseline", "baseline"),
               ("base score", "baseline_score"), ("Δ RA−base", "ra_delta"))
-# relative widths: the text columns wide, the numbers narrow (a column's longest word fits)
-_CASE_WEIGHTS = (11, 4, 8, 10, 14, 13, 6, 13, 6, 6)
-_PRECISION_WEIGHT = 6
+# widths in px: each column's longest word fits (the table scrolls sideways where the page
+# is narrower than their sum)
+_CASE_WIDTHS = (150, 52, 104, 136, 180, 180, 76, 180, 76, 84)
+_PRECISION_WIDTH = 84
 
 
 def precision_columns() -> tuple[tuple[str, str], ...]:
@@ -402,10 +403,8 @@ def case_columns() -> tuple[tuple[str, str], ...]:
 
 
 def case_widths() -> list[str]:
-    """The case table's column widths (percentages), one per `case_columns()`."""
-    weights = [*_CASE_WEIGHTS, *[_PRECISION_WEIGHT] * len(MODES)]
-    total = sum(weights)
-    return [f"{100 * w / total:.1f}%" for w in weights]
+    """The case table's column widths, one per `case_columns()`."""
+    return [f"{w}px" for w in (*_CASE_WIDTHS, *[_PRECISION_WIDTH] * len(MODES))]
 
 
 def summary_columns() -> tuple[tuple[str, str], ...]:

@@ -317,7 +317,8 @@ def test_the_answer_on_one_screen_in_chromium(app_url, page, world):
 # hyphenated word may wrap after its hyphen
 BROKEN_WORDS = """(root) => {
   const out = [];
-  for (const cell of document.querySelectorAll(root + ' td, ' + root + ' th')) {
+  const cells = ['td', 'th', '.body-cell', '.header-cell'].map(c => root + ' ' + c);
+  for (const cell of document.querySelectorAll(cells.join(', '))) {
     const walker = document.createTreeWalker(cell, NodeFilter.SHOW_TEXT);
     for (let n = walker.nextNode(); n; n = walker.nextNode()) {
       for (const m of n.textContent.matchAll(/[^\\s-]+/g)) {  // a break after "-" is fine
