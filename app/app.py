@@ -21,7 +21,6 @@ if __package__ in (None, ""):  # run as a script (`python app/app.py`, as `ratou
     sys.path[0] = str(Path(__file__).resolve().parents[1])  # let `app` name the package
 
 import gradio as gr  # noqa: E402
-
 from fastapi.responses import FileResponse, Response  # noqa: E402
 
 from app import benchmark_tab, explore_tab, failure_tab, handlers, view  # noqa: E402

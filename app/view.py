@@ -9,9 +9,9 @@ import base64
 import io
 import re
 from html import escape
-from urllib.parse import quote
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
+from urllib.parse import quote
 
 import numpy as np
 from PIL import Image
