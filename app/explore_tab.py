@@ -95,17 +95,24 @@ def _inputs(ui: SimpleNamespace, page: Page, n_corpus: int) -> None:
     with gr.Row(equal_height=True):
         largest = min(page.largest_k(), n_corpus)
         ui.k = gr.Slider(1, largest, value=min(5, n_corpus), step=1,
-                         label=f"K (neighbours per query, 1–{largest})", elem_id="k", scale=3)
+                         label=f"K neighbours (1–{largest})", elem_id="k", scale=3)
         # the encoder size; "cascade": the smallest confident encoder answers
         ui.model = gr.Dropdown(handlers.model_choices(models) or [""],
                                value=(models or [""])[0], label="model",
                                elem_id="model", interactive=len(models) > 1,
-                               visible=bool(models), scale=3)
-        ui.run = gr.Button("5 · Run query", variant="primary", elem_id="run", scale=2,
-                           min_width=120)
+                               visible=bool(models), scale=4)
+        if not models:  # Run beside K; with a model menu, on its own row below
+            ui.run = _run_button()
+    if models:
+        ui.run = _run_button()
     ui.model_about = gr.HTML(handlers.models_md(models) if models else "",
                              elem_id="model-about", visible=bool(models))
     ui.model_note = gr.Markdown(elem_id="model-note", elem_classes="ra-muted")
+
+
+def _run_button() -> gr.Button:
+    return gr.Button("5 · Run query", variant="primary", elem_id="run", scale=2,
+                     min_width=120)
 
 
 def _answer(ui: SimpleNamespace, page: Page, test_size: int) -> None:
@@ -236,7 +243,9 @@ def wire(demo: gr.Blocks, page: Page, ui: SimpleNamespace) -> SimpleNamespace:
                                             (a, b, c, d), history))
 
     def linked_query(linked, *args):
-        return show_query(*args) if linked else gr.skip()
+        if not linked:
+            return gr.skip()
+        return {**show_query(*args), ui.examples_box: gr.Accordion(open=False)}
 
     def select_example(evt: gr.EventData):
         return out.example.values(handlers.load_example(page.world, evt.index)._asdict())
@@ -280,7 +289,8 @@ def wire(demo: gr.Blocks, page: Page, ui: SimpleNamespace) -> SimpleNamespace:
                           outputs=ui.examples_box, **light)
 
     demo.load(from_link, None, linked_out.components, show_progress="hidden",
-              **private).then(linked_query, [ui.linked, *query_in], query_out,
+              **private).then(linked_query, [ui.linked, *query_in],
+                              [*query_out, ui.examples_box],
                               show_progress="hidden", **queries, **raw, **private)
     ui.model.change(model_note, ui.model, ui.model_note, **light)
     ui.visual.upload(lambda v: uploaded(handlers.visual_uploaded(v)), ui.visual,
