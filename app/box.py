@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from PIL import Image, ImageDraw
@@ -37,6 +37,8 @@ class Visual:
         title: what the image is, for the status line.
         label: the ground-truth tactile label, for examples from the test split.
         corner: the first corner clicked (image pixels) while waiting for the second.
+        example: where a world example came from ({"index", "condition", "box"}), so that a
+            link can reproduce its query; None for an upload.
     """
 
     source: str | np.ndarray
@@ -46,9 +48,11 @@ class Visual:
     title: str
     label: str | None = None
     corner: tuple[float, float] | None = None
+    example: Mapping[str, Any] | None = None
 
 
-def load_visual(source: str | np.ndarray, title: str, label: str | None = None) -> Visual:
+def load_visual(source: str | np.ndarray, title: str, label: str | None = None,
+                example: Mapping[str, Any] | None = None) -> Visual:
     """Read (and check) a visual image and make its preview.
 
     Raises:
@@ -62,7 +66,7 @@ def load_visual(source: str | np.ndarray, title: str, label: str | None = None) 
     # small (world) images are upscaled with NEAREST so their pixels stay visible for clicking
     resample = Image.NEAREST if scale >= 2 else Image.LANCZOS
     base = resize_array(image, size, resample)
-    return Visual(source, (w, h), base, size[0] / w, title, label)
+    return Visual(source, (w, h), base, size[0] / w, title, label, example=example)
 
 
 def default_box(visual: Visual) -> tuple[int, int, int, int]:

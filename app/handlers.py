@@ -10,11 +10,12 @@ reaches the server log, and even then the browser gets a message, not a stack tr
 from __future__ import annotations
 
 import logging
+import re
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable, Iterable, NamedTuple
 
 import gradio as gr
 import numpy as np
@@ -23,10 +24,12 @@ from PIL import Image
 from app import box as boxes
 from app import view
 from app.plot import pca_figure
+from ratouch.encoders.factory import model_config
 from ratouch.errors import DataError, RATouchError
 from ratouch.eval import failures
-from ratouch.eval.report import last_commit, weights_commit
 from ratouch.images import QUERY_MAX_SIDE, check_background_size, to_rgb_array
+from ratouch.paths import cascade_calibration
+from ratouch.serve.cascade import CASCADE, CascadeCalibration
 from ratouch.serve.request import MAX_K, QueryRequest, answer_one, check_k
 from ratouch.serve.trace import trace_retrieval
 
@@ -101,141 +104,166 @@ def _box_note(visual: boxes.Visual | None, box) -> str:
 
 # ---------------------------------------------------------------------- loading the images
 
-def upload_visual(value: Any) -> tuple:
-    """A visual image was uploaded (the component's value, raw or a path): check it, preview
-    it, clear the box.
+class BoxView(NamedTuple):
+    """The visual image and its contact box as the page shows them (fields named as the
+    page's outputs)."""
 
-    Returns:
-        (visual state, preview, x0, y0, x1, y1, box note)
-    """
+    state: boxes.Visual | None  # the session's visual image
+    visual: Any  # the preview, box drawn
+    x0: Any
+    y0: Any
+    x1: Any
+    y1: Any
+    box_note: str
+
+
+class ExampleView(NamedTuple):
+    """A world example (or failure case) loaded into Explore's inputs."""
+
+    state: boxes.Visual | None
+    visual: Any
+    tactile: Any
+    background: Any
+    x0: Any
+    y0: Any
+    x1: Any
+    y1: Any
+    box_note: str
+
+
+class TypedBox(NamedTuple):
+    """The preview redrawn for a typed box."""
+
+    state: boxes.Visual | None
+    visual: Any
+    box_note: str
+
+
+def upload_visual(value: Any) -> BoxView:
+    """A visual image was uploaded (the component's value, raw or a path): check it, preview
+    it, clear the box."""
     path = upload_path(value)
     if path is None:
-        return (None, None, *NO_BOX, "")
+        return BoxView(None, None, *NO_BOX, "")
     try:
         visual = boxes.load_visual(path, f"uploaded image {Path(path).name}")
     except USER_ERRORS as e:
-        return (None, None, *NO_BOX, f"✖ {_fail(e, {'visual image': path})}")
-    return (visual, boxes.draw(visual, None), *NO_BOX, _box_note(visual, None))
+        return BoxView(None, None, *NO_BOX, f"✖ {_fail(e, {'visual image': path})}")
+    return BoxView(visual, boxes.draw(visual, None), *NO_BOX, _box_note(visual, None))
 
 
-def visual_uploaded(value: Any) -> tuple:
+def visual_uploaded(value: Any) -> dict[str, Any]:
     """`upload_visual`, then the results: kept, or cleared (with the message) when the file
     cannot be used, so that an old answer is never mistaken for the new one.
 
     Returns:
-        (visual state, preview, x0, y0, x1, y1, box note, *QueryView)
+        the page's outputs by name: `BoxView`'s, and `QueryView`'s when cleared
     """
     out = upload_visual(value)
-    if out[0] is None and out[-1].startswith("✖"):
-        return (*out, *error_view(out[-1][2:]))
-    return (*out, *(gr.update() for _ in QueryView._fields))
+    if out.state is None and out.box_note.startswith("✖"):
+        return {**out._asdict(), **error_view(out.box_note[2:]).named()}
+    return out._asdict()
 
 
-def upload_tactile(value: Any) -> tuple:
+def upload_tactile(value: Any) -> dict[str, Any]:
     """A tactile image was uploaded (the component's raw value): decode it now (bounded, as
     the query will), so that an unreadable file is named, with its role, at once; it is then
     removed and the previous results are cleared.
 
     Returns:
-        (tactile image, *QueryView)
+        the page's outputs by name: {} when the file is usable, else the tactile input
+        emptied and `QueryView`'s outputs holding the message
     """
-    return _check_upload(value, "tactile image")
+    return _check_upload(value, "tactile image", "tactile")
 
 
-def upload_background(value: Any, tactile: Any = None) -> tuple:
+def upload_background(value: Any, tactile: Any = None) -> dict[str, Any]:
     """A sensor background was uploaded: checked at once like a tactile frame (readable; the
     tactile frame's size when one is loaded), else removed, with the reason.
 
     Returns:
-        (background image, *QueryView)
+        as `upload_tactile`, for the background input
     """
-    return _check_upload(value, "background image", against=upload_path(tactile))
+    return _check_upload(value, "background image", "background",
+                         against=upload_path(tactile))
 
 
-def _check_upload(value: Any, role: str, against: Any = None) -> tuple:
+def _check_upload(value: Any, role: str, output: str, against: Any = None) -> dict[str, Any]:
     """Decode an uploaded frame now (bounded, as the query will), and compare its size with
     `against` (the tactile frame a background belongs to): an unusable file is named, with
-    its role, at once; it is then removed and the previous results are cleared."""
+    its role, at once; it is then removed (`output`: its input's name) and the previous
+    results are cleared."""
     path = upload_path(value)
-    keep = tuple(gr.update() for _ in QueryView._fields)
     if path is None or not isinstance(path, str):
-        return (gr.update(), *keep)
+        return {}
     try:
         to_rgb_array(path, name=role, max_side=QUERY_MAX_SIDE)
         if isinstance(against, str) and against:
             with Image.open(path) as a, Image.open(against) as b:
                 check_background_size(a.size, b.size, f"the {role} {path}")
     except USER_ERRORS as e:
-        return (None, *error_view(_fail(e, {role: path})))
-    return (gr.update(), *keep)
+        return {output: None, **error_view(_fail(e, {role: path})).named()}
+    return {}
 
 
-def example_gallery(world, indices: list[int]) -> list[tuple[np.ndarray, str]]:
-    """Visual thumbnails of test-split examples, captioned with their ground-truth label."""
-    out = []
-    for i in indices:
-        s = world.sample("test", i)
-        out.append((s.visual, f"#{i}: {s.caption}"))
-    return out
+def example_item(world, index: int) -> tuple[np.ndarray, str]:
+    """A test-split example's visual image and ground-truth label."""
+    s = world.sample("test", index)
+    return s.visual, s.caption
 
 
-def load_example(world, index: Any) -> tuple:
+def load_example(world, index: Any) -> ExampleView:
     """Load test-split pair `index` (visual, tactile, its sensor's background, its contact
     box and label). The background fills the optional field, as TVL rows carry one: the
-    query reads the frame against it, as the evaluations do.
-
-    Returns:
-        (visual state, preview, tactile image, background image, x0, y0, x1, y1, box note)
-    """
+    query reads the frame against it, as the evaluations do."""
     try:
         i = int(index)
         s = world.sample("test", i)
         what = s.class_name or "close-up"
+        box = tuple(int(v) for v in s.box)
         visual = boxes.load_visual(s.visual, f"test example #{i} ({s.subset}: {what}, "
-                                   f"{s.material.replace('_', ' ')})", label=s.caption)
+                                   f"{s.material.replace('_', ' ')})", label=s.caption,
+                                   example={"index": i, "condition": None, "box": box})
     except (TypeError, ValueError, IndexError, *USER_ERRORS) as e:
         msg = _fail(e if isinstance(e, USER_ERRORS) else
                     DataError(f"no test example {index!r}: {e}"))
-        return (None, None, None, None, *NO_BOX, f"✖ {msg}")
-    box = tuple(int(v) for v in s.box)
-    return (visual, boxes.draw(visual, box), s.tactile, world.background_image(s.sensor), *box,
-            f"Ground-truth label: **{s.caption}** · {_box_note(visual, box)}")
+        return ExampleView(None, None, None, None, *NO_BOX, f"✖ {msg}")
+    return ExampleView(visual, boxes.draw(visual, box), s.tactile,
+                       world.background_image(s.sensor), *box,
+                       f"Ground-truth label: **{s.caption}** · {_box_note(visual, box)}")
 
 
 # ---------------------------------------------------------------------- the contact box
 
-def click_box(visual: boxes.Visual | None, x: float, y: float, fields: Fields) -> tuple:
-    """A click on the preview at (x, y) preview pixels.
-
-    Returns:
-        (visual state, preview, x0, y0, x1, y1, box note)
-    """
+def click_box(visual: boxes.Visual | None, x: float, y: float, fields: Fields) -> BoxView:
+    """A click on the preview at (x, y) preview pixels."""
     if visual is None:
-        return (None, None, *fields, "Upload a visual image or pick an example first.")
+        return BoxView(None, None, *fields, "Upload a visual image or pick an example first.")
     visual, box = boxes.click(visual, x, y)
     if box is None:  # first corner: keep the fields, show the corner over the old box
-        return (visual, boxes.draw(visual, _typed(fields)), *fields, _box_note(visual, None))
-    return (visual, boxes.draw(visual, box), *box, _box_note(visual, box))
+        return BoxView(visual, boxes.draw(visual, _typed(fields)), *fields,
+                       _box_note(visual, None))
+    return BoxView(visual, boxes.draw(visual, box), *box, _box_note(visual, box))
 
 
-def typed_box(visual: boxes.Visual | None, *fields) -> tuple:
-    """The box fields were edited: redraw. Returns (visual state, preview, box note)."""
+def typed_box(visual: boxes.Visual | None, *fields) -> TypedBox:
+    """The box fields were edited: redraw."""
     if visual is None:
-        return (None, None, "")
+        return TypedBox(None, None, "")
     try:
         box = boxes.fields_to_box(*fields)
     except DataError as e:  # often just half typed: say what is missing, draw the default
-        return (visual, boxes.draw(visual, None), str(e))
+        return TypedBox(visual, boxes.draw(visual, None), str(e))
     visual = boxes.replace(visual, corner=None)
-    return (visual, boxes.draw(visual, box), _box_note(visual, box))
+    return TypedBox(visual, boxes.draw(visual, box), _box_note(visual, box))
 
 
-def reset_box(visual: boxes.Visual | None) -> tuple:
-    """Back to the default box. Returns (visual state, preview, x0, y0, x1, y1, box note)."""
+def reset_box(visual: boxes.Visual | None) -> BoxView:
+    """Back to the default box."""
     if visual is None:
-        return (None, None, *NO_BOX, "")
+        return BoxView(None, None, *NO_BOX, "")
     visual = boxes.replace(visual, corner=None)
-    return (visual, boxes.draw(visual, None), *NO_BOX, _box_note(visual, None))
+    return BoxView(visual, boxes.draw(visual, None), *NO_BOX, _box_note(visual, None))
 
 
 def _typed(fields: Fields):
@@ -247,24 +275,47 @@ def _typed(fields: Fields):
 
 # ---------------------------------------------------------------------- the query
 
-class QueryView(NamedTuple):
-    """Everything the Explore tab shows for one query, in output order."""
+@dataclass(frozen=True)
+class QueryView:
+    """Everything the Explore tab shows for one query.
+
+    Attributes:
+        status: what was queried, with which box and model, and the notes.
+        galleries: per query mode (`QUERY_MODES`), its row of neighbour tiles (HTML).
+        tables: per query mode, its neighbour table (HTML).
+        plot: the PCA figure.
+        description: the trust line, both descriptions and what retrieval did.
+        timings: the per-stage timings line.
+        raw: the answer's JSON (None: no answer).
+    """
 
     status: str
-    gallery_image: str  # HTML: the mode's row of neighbour tiles
-    gallery_tactile: str
-    gallery_joint: str
-    table_image: str
-    table_tactile: str
-    table_joint: str
+    galleries: Mapping[str, str]
+    tables: Mapping[str, str]
     plot: Any
     description: str
     timings: str
     raw: dict | None
 
+    def named(self) -> dict[str, Any]:
+        """The view by output name: "status", "gallery_<mode>" and "table_<mode>" per mode,
+        "plot", "description", "timings", "raw"."""
+        return {"status": self.status,
+                **{f"gallery_{m}": html for m, html in self.galleries.items()},
+                **{f"table_{m}": html for m, html in self.tables.items()},
+                "plot": self.plot, "description": self.description, "timings": self.timings,
+                "raw": self.raw}
+
+
+def output_names(modes: Iterable[str] = view.MODES) -> list[str]:
+    """`QueryView.named`'s names for the query modes `modes`."""
+    return ["status", *(f"gallery_{m}" for m in modes), *(f"table_{m}" for m in modes),
+            "plot", "description", "timings", "raw"]
+
 
 def error_view(message: str) -> QueryView:
-    return QueryView(view.error_md(message), "", "", "", "", "", "", None, "", "", None)
+    return QueryView(view.error_md(message), {m: "" for m in view.MODES},
+                     {m: "" for m in view.MODES}, None, "", "", None)
 
 
 def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual | None,
@@ -295,19 +346,19 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
             progress(0.9, desc="thumbnails…")
         trace = trace_retrieval(result)
         attended = [a.rank for a in trace.attended] if trace else []
-        galleries = [view.neighbour_strip(result, m, thumbnail, attended) for m in view.MODES]
+        galleries = {m: view.neighbour_strip(result, m, thumbnail, attended) for m in view.MODES}
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         files = {"visual image": getattr(visual, "source", None), "tactile image": tactile,
                  "background image": background}
         return error_view(_fail(e, files))
-    tables = [view.neighbour_table(result, m) for m in view.MODES]
+    tables = {m: view.neighbour_table(result, m) for m in view.MODES}
     # a ground-truth label (test-split examples): score both descriptions against it; a failure
     # case's descriptions that its table row judged keep the row's scores
     scores = (failures.judge_scores(visual.label, result["description"], judge,
                                     judged_descriptions(visual)) if judge else {})
     render_ms = (time.perf_counter() - t0) * 1000
     return QueryView(view.status_md(visual.title, result["warnings"], result.get("box"), result),
-                     *galleries, *tables, pca_figure(result, visual.label),
+                     galleries, tables, pca_figure(result, visual.label),
                      view.description_md(result, visual.label, scores, trace),
                      view.timings_md(result["timings_ms"], render_ms, waited_ms), result)
 
@@ -370,6 +421,59 @@ def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k,
         raise gr.Error(user_message(e, files), print_exception=False) from e
 
 
+# ---------------------------------------------------------------------- the models
+
+def describe_model(name: str) -> tuple[str, str]:
+    """(a few words for the menu, one line for the page) on a model of the menu: from its
+    encoder config, or for the cascade from its shipped calibration."""
+    if name == CASCADE:
+        try:
+            cal = CascadeCalibration.load(cascade_calibration())
+        except RATouchError as e:
+            return "not calibrated", f"cascade: {e}"
+        first, *rest = cal.encoders
+        meta = cal.meta or {}
+        share = (meta.get("measures", {}).get(cal.measure, {}).get("answered_by") or [None])[0]
+        last = (meta.get("stages") or {}).get(cal.encoders[-1], {})
+        line = (f"cascade: each query is answered by `{first}` when it is sure (confidence "
+                f"“{cal.measure}” of its top-{cal.k} joint neighbours ≥ "
+                f"{cal.thresholds[0]:.3f}), else passed on to `{'` then `'.join(rest)}`"
+                + (f"; on {meta['n_validation']:,} validation renders as accurate as "
+                   f"`{cal.encoders[-1]}` alone (P@{cal.k} {last['precision']:.3f})"
+                   if meta.get("n_validation") and last.get("precision") else "")
+                + (f", {share:.0%} of them answered by `{first}`" if share is not None else ""))
+        return f"{first} when sure, else {' then '.join(rest)}", line
+    try:
+        cfg = model_config(name)
+    except RATouchError:
+        return "", f"{name}: not a shipped encoder set (no config describes it)"
+    w, h = cfg.get("tactile_size", ("?", "?"))
+    role = cfg.get("role", "encoder set")
+    return role, (f"{name}: {role} — {cfg['dim']}-d embeddings, tower width "
+                  f"{cfg.get('width', '?')}, tactile frames at {w}×{h} px, visual prior "
+                  f"{cfg.get('prior', 'none')}")
+
+
+def model_choices(models: Sequence[str]) -> list[tuple[str, str]]:
+    """The menu's (label, name) pairs: each name with a few words on what it is."""
+    out = []
+    for name in models:
+        short = describe_model(name)[0]
+        out.append((f"{name} — {short}" if short else name, name))
+    return out
+
+
+def models_md(models: Sequence[str]) -> str:
+    """Every model of the menu in one line each (what "cascade" does included)."""
+    lines = "".join(f"<div>{_md_code(describe_model(m)[1])}</div>" for m in models)
+    return (f"<details class='ra-about' id='models-about'><summary>What each model is "
+            f"({len(models)})</summary>{lines}</details>")
+
+
+def _md_code(text: str) -> str:
+    return re.sub(r"`([^`]+)`", r"<code>\1</code>", view.escape(text))
+
+
 # ---------------------------------------------------------------------- failure cases
 
 class FailureView(NamedTuple):
@@ -425,8 +529,8 @@ def failure_view(table: dict | None, subset: str, condition: str, view_label: st
     """The filtered, sorted worst cases of a table (None: not computed yet)."""
     if table is None:
         return FailureView("The failure-case table has not been computed for this pipeline "
-                           "yet: press **Compute** (about half a minute on a 2-core CPU; cached "
-                           "afterwards).",
+                           f"yet: press **Compute** ({view.FAILURE_WAIT} on a 2-core CPU when "
+                           "measured; cached afterwards).",
                            None, None)
     view_key = next((k for k, v in failures.VIEWS.items() if v == view_label), view_label)
     try:
@@ -457,9 +561,9 @@ def judged_descriptions(visual: boxes.Visual | None) -> dict[str, tuple[str | No
 
 def _row_judged(row: Any, label: str) -> dict[str, tuple[str | None, float]]:
     """A clicked failure-table row's judged descriptions; {} for a row without them (a row
-    holds the table's columns, `view.CASE_COLUMNS`, in order) or judged against another
+    holds the table's columns, `view.case_columns()`, in order) or judged against another
     label than the case's."""
-    keys = [key for _, key in view.CASE_COLUMNS]
+    keys = [key for _, key in view.case_columns()]
     if not isinstance(row, (list, tuple)) or len(row) != len(keys):
         return {}
     values = dict(zip(keys, row))
@@ -471,84 +575,93 @@ def _row_judged(row: Any, label: str) -> dict[str, tuple[str | None, float]]:
         return {}
 
 
-def open_case(world_cfg, row: Any) -> tuple:
+def open_case(world_cfg, row: Any) -> ExampleView:
     """Open a failure-table row (its condition and test index come first) in Explore. The
     session's image carries the row's judged descriptions (`CaseVisual`), so that the case
     view shows the table's scores.
-
-    Returns:
-        load_example's outputs: (visual state, preview, tactile image, background image,
-        x0, y0, x1, y1, note)
 
     Raises:
         gr.Error: the row does not name a case (so that a chained query does not run).
     """
     try:
         condition, index = row[0], int(row[1])
-        s = failures.case_sample(condition, index, world_cfg)
-        background = failures.case_world(condition, world_cfg).background_image(s.sensor)
-        loaded = boxes.load_visual(
-            s.visual, f"failure case #{index} under “{condition}” ({s.subset}: "
-            f"{s.class_name or 'close-up'}, {s.material.replace('_', ' ')})", label=s.caption)
+        loaded = load_case(world_cfg, condition, index)
     except (TypeError, ValueError, IndexError, *USER_ERRORS) as e:
         raise gr.Error(user_message(e if isinstance(e, USER_ERRORS) else
                                     DataError(f"not a failure case: {row!r}")),
                        print_exception=False) from e
-    visual = CaseVisual(**{f.name: getattr(loaded, f.name) for f in fields(loaded)},
-                        judged=_row_judged(row, s.caption))
-    box = tuple(int(v) for v in s.box)
-    return (visual, boxes.draw(visual, box), s.tactile, background, *box,
-            f"Ground-truth label: **{s.caption}** · condition **{condition}** · "
-            f"{_box_note(visual, box)}")
+    visual = CaseVisual(**{f.name: getattr(loaded.state, f.name)
+                           for f in fields(loaded.state)},
+                        judged=_row_judged(row, loaded.state.label))
+    return loaded._replace(state=visual)
 
 
-# ---------------------------------------------------------------------- benchmarks
+def load_case(world_cfg, condition: str, index: int) -> ExampleView:
+    """Test pair `index` under the stress condition `condition` (its stressed inputs, its
+    sensor's background, box and label).
 
-def figure_made(path: Path) -> tuple[str, str | None]:
-    """(date, commit) of a figure file: its last commit, else (an untracked copy) the day
-    it was written and no commit."""
-    made = last_commit(path)
-    if made is not None:
-        return made
-    return time.strftime("%Y-%m-%d", time.gmtime(path.stat().st_mtime)), None
-
-
-def benchmarks(docs: Path, slots: int) -> tuple:
-    """The Benchmarks tab: the report's markdown, then `slots` plot updates (the figures
-    found in docs/figures/, the rest hidden).
-
-    Returns:
-        (report markdown, figures note, gr.update per slot)
+    Raises:
+        ConfigError: an unknown condition; IndexError / DataError: no such pair.
     """
-    import plotly.io as pio
+    s = failures.case_sample(condition, index, world_cfg)
+    background = failures.case_world(condition, world_cfg).background_image(s.sensor)
+    box = tuple(int(v) for v in s.box)
+    visual = boxes.load_visual(
+        s.visual, f"failure case #{index} under “{condition}” ({s.subset}: "
+        f"{s.class_name or 'close-up'}, {s.material.replace('_', ' ')})", label=s.caption,
+        example={"index": index, "condition": condition, "box": box})
+    return ExampleView(visual, boxes.draw(visual, box), s.tactile, background, *box,
+                       f"Ground-truth label: **{s.caption}** · condition **{condition}** · "
+                       f"{_box_note(visual, box)}")
 
-    files = view.list_figures(docs)
-    weights = weights_commit()
-    updates, problems = [], []
-    for path in files:
-        if len(updates) == slots:
-            problems.append(f"{path.name} (only {slots} figures are shown)")
-            continue
+
+class LinkView(NamedTuple):
+    """What a link (`?example=N&model=…&k=…`) puts into Explore: the example and the
+    settings, by output name."""
+
+    example: ExampleView
+    k: int
+    model: str | None
+
+
+def open_link(world, world_cfg, params: Mapping[str, str], models: Sequence[str] | None,
+              largest_k: int = MAX_K) -> LinkView | None:
+    """The query a page link names (`record.RunRecord.link`): `example` (a test index),
+    optionally `condition` (a stress condition of the failure table), `model` (one of
+    `models`), `k` and `box` (x0,y0,x1,y1). None when the link names no example.
+
+    Raises:
+        DataError: a parameter that does not name what the page offers (with its value).
+    """
+    if not params.get("example"):
+        return None
+    try:
+        index = int(params["example"])
+    except ValueError as e:
+        raise DataError(f"link: example must be a test index, got {params['example']!r}") from e
+    condition = params.get("condition") or None
+    if condition:
         try:
-            fig = pio.from_json(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError, TypeError) as e:
-            problems.append(f"{path.name} ({type(e).__name__}: {str(e)[:120]})")
-            continue
-        # the width its maker chose (1,500 px for the trade-off) would be clipped by the
-        # page: every figure takes its container's width
-        fig.update_layout(width=None, autosize=True)
-        label = f"{view.figure_title(path)} — {view.figure_provenance(figure_made(path), weights)}"
-        updates.append(gr.update(value=fig, label=label, visible=True))
-    updates += [gr.update(value=None, visible=False)] * (slots - len(updates))
-    note = (f"{len(files)} figure file(s) in `docs/figures/`" if files else
-            "No figure files (`docs/figures/*.json`) yet: `ratouch bench tradeoff` writes the "
-            "speed-vs-accuracy chart.")
-    if files and not (Path(docs) / view.FIGURES_DIR / "tradeoff.json").is_file():
-        note += " · no speed-vs-accuracy chart yet (`ratouch bench tradeoff`)"
-    report = Path(docs) / view.REPORT_NAME
-    if report.is_file():
-        note += (f" · the report (`{view.REPORT_NAME}`) was "
-                 + view.figure_provenance(figure_made(report), weights))
-    if problems:
-        note += " · not shown: " + "; ".join(problems)
-    return (view.report_md(docs, files), note, *updates)
+            loaded = load_case(world_cfg, condition, index)
+        except (IndexError, *USER_ERRORS) as e:
+            raise DataError(f"link: no example {index} under condition {condition!r}: {e}"
+                            ) from e
+    else:
+        loaded = load_example(world, index)
+        if loaded.state is None:
+            raise DataError(f"link: {loaded.box_note[2:]}")
+    model = params.get("model") or None
+    if model is not None and model not in (models or []):
+        raise DataError(f"link: model {model!r} is not offered here; offered: "
+                        f"{', '.join(models or []) or 'none to choose'}")
+    k = check_k(params.get("k") or 5, largest_k)
+    if params.get("box"):
+        parts = params["box"].split(",")
+        if len(parts) != 4:
+            raise DataError(f"link: box must be x0,y0,x1,y1, got {params['box']!r}")
+        box = boxes.fields_to_box(*parts)
+        visual = loaded.state
+        loaded = loaded._replace(visual=boxes.draw(visual, box),
+                                 **dict(zip(("x0", "y0", "x1", "y1"), parts)),
+                                 box_note=_box_note(visual, box))
+    return LinkView(loaded, k, model)

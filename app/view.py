@@ -11,6 +11,7 @@ import re
 from html import escape
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
+from urllib.parse import quote
 
 import numpy as np
 from PIL import Image
@@ -22,6 +23,46 @@ MODES = QUERY_MODES
 MODE_TITLE = QUERY_MODES.field("title")  # live views of the registry's rows
 MODE_COLOUR = QUERY_MODES.field("colour")
 MODE_LETTER = QUERY_MODES.field("letter")
+STALE = "inputs changed — press Run"
+
+
+def strip_order() -> list[str]:
+    """The order the answer shows the modes' neighbour rows: the mode RA-Touch reads first
+    (its neighbours are the ones the answer is made from), then the others in the
+    registry's order."""
+    return [RA_TOUCH_MODE, *(m for m in MODES if m != RA_TOUCH_MODE)]
+
+
+def stale_html(shown: bool) -> str:
+    """The banner over an answer whose inputs have changed since it was answered ("" when
+    there is no answer on the page, or it is current)."""
+    if not shown:
+        return ""
+    return (f"<div class='ra-stale' role='status'>⚠ {STALE}: the answer below is for the "
+            "previous inputs</div>")
+
+
+def example_strip(items: Sequence[tuple[int, np.ndarray, str]]) -> str:
+    """The world's examples as a row of tiles (index, visual thumbnail, ground-truth label),
+    each label shown whole under its tile; a click loads the example and runs it."""
+    tiles = "".join(
+        f"<figure class='ra-example' data-example='{i}' role='button' tabindex='0' "
+        f"title='test example #{i}: {escape(label, quote=True)}'>"
+        f"<img src='{data_uri(image)}' alt='test example {i}'>"
+        f"<span class='ra-badge'>#{i}</span><figcaption>{escape(label)}</figcaption></figure>"
+        for i, image, label in items)
+    return f"<div class='ra-examples'>{tiles}</div>"
+
+
+#: A click on an example tile triggers the component's "click" event with its test index.
+EXAMPLE_CLICK_JS = (
+    "element.addEventListener('click', (e) => {"
+    " const f = e.target.closest('[data-example]');"
+    " if (f) trigger('click', {index: Number(f.dataset.example)}); });"
+    "element.addEventListener('keydown', (e) => {"
+    " const f = e.target.closest('[data-example]');"
+    " if (f && (e.key === 'Enter' || e.key === ' ')) {"
+    " e.preventDefault(); trigger('click', {index: Number(f.dataset.example)}); } });")
 
 
 def shared_modes(neighbours: dict[str, list[dict]]) -> dict[int, list[str]]:
@@ -317,33 +358,61 @@ def timings_md(timings: dict[str, float], render_ms: float | None = None,
 
 # ---------------------------------------------------------------------- failure cases
 
+#: What computing the app's default failure table took, measured (4 conditions × the 402
+#: test pairs, the default-s pipeline on the 10k corpus, a 2-core CPU).
+FAILURE_WAIT = "48–57 s"
+
 # (column header, row key) of the failure-case table; the first two identify the case
-CASE_COLUMNS = (("condition", "condition"), ("#", "index"), ("subset", "subset"),
-                ("material", "material"), ("ground-truth label", "label"),
-                ("RA-Touch", "ra_touch"), ("RA score", "ra_score"), ("baseline", "baseline"),
-                ("base score", "baseline_score"), ("Δ RA−base", "ra_delta"),
-                ("P@K image", "precision_image"), ("P@K tactile", "precision_tactile"),
-                ("P@K joint", "precision_joint"))
-CASE_WIDTHS = ["11%", "4%", "7%", "9%", "14%", "13%", "5%", "13%", "5%", "5%", "5%", "4%",
-               "5%"]
-SUMMARY_COLUMNS = (("condition", "condition"), ("subset", "subset"), ("n", "n"),
-                   ("base score [95% CI]", "baseline_score"), ("RA score [95% CI]", "ra_score"),
-                   ("Δ RA−base [95% CI]", "ra_delta"), ("F1 base / RA", "f1"),
-                   ("adjectives base / RA", "length"), ("P@K image", "precision_image"),
-                   ("P@K tactile", "precision_tactile"), ("P@K joint", "precision_joint"),
-                   ("joint loses", "joint_loses"))
+_CASE_HEAD = (("condition", "condition"), ("#", "index"), ("subset", "subset"),
+              ("material", "material"), ("ground-truth label", "label"),
+              ("RA-Touch", "ra_touch"), ("RA score", "ra_score"), ("baseline", "baseline"),
+              ("base score", "baseline_score"), ("Δ RA−base", "ra_delta"))
+# widths in px: each column's longest word fits (the table scrolls sideways where the page
+# is narrower than their sum)
+_CASE_WIDTHS = (150, 52, 104, 136, 180, 180, 76, 180, 76, 84)
+_PRECISION_WIDTH = 84
+
+
+def precision_columns() -> tuple[tuple[str, str], ...]:
+    """(header, row key) of each query mode's material precision@K, from the registry."""
+    return tuple((f"P@K {m}", f"precision_{m}") for m in MODES)
+
+
+def case_columns() -> tuple[tuple[str, str], ...]:
+    """(column header, row key) of the failure-case table; the first two identify the case,
+    then one precision column per query mode (`QUERY_MODES`)."""
+    return _CASE_HEAD + precision_columns()
+
+
+def case_widths() -> list[str]:
+    """The case table's column widths, one per `case_columns()`."""
+    return [f"{w}px" for w in (*_CASE_WIDTHS, *[_PRECISION_WIDTH] * len(MODES))]
+
+
+def summary_columns() -> tuple[tuple[str, str], ...]:
+    return ((("condition", "condition"), ("subset", "subset"), ("n", "n"),
+             ("base score [95% CI]", "baseline_score"), ("RA score [95% CI]", "ra_score"),
+             ("Δ RA−base [95% CI]", "ra_delta"), ("F1 base / RA", "f1"),
+             ("adjectives base / RA", "length"))
+            + precision_columns() + (("joint loses", "joint_loses"),))
 
 
 def _frame(rows: Sequence[dict], columns):
     import pandas as pd
 
-    return pd.DataFrame([[r[key] for _, key in columns] for r in rows],
+    # a mode registered after a table was computed has no column in it: shown empty
+    return pd.DataFrame([[_cell(key, r.get(key)) for _, key in columns] for r in rows],
                         columns=[name for name, _ in columns])
+
+
+def _cell(key: str, value):
+    # names with underscores ("brushed_aluminum") break where a cell wraps: shown as words
+    return value.replace("_", " ") if key == "material" and isinstance(value, str) else value
 
 
 def cases_frame(rows: Sequence[dict]):
     """The failure-case rows as the table shows them (a pandas DataFrame)."""
-    return _frame(rows, CASE_COLUMNS)
+    return _frame(rows, case_columns())
 
 
 def summary_frame(summary: Sequence[dict]):
@@ -358,7 +427,7 @@ def summary_frame(summary: Sequence[dict]):
              "f1": f"{s.get('baseline_f1', 0):.2f} / {s.get('ra_f1', 0):.2f}",
              "length": f"{s.get('baseline_mean_length', 0):.1f} / "
                        f"{s.get('ra_mean_length', 0):.1f}"} for s in summary]
-    return _frame(rows, SUMMARY_COLUMNS)
+    return _frame(rows, summary_columns())
 
 
 def failures_status_md(meta: dict, shown: int, matching: int, view: str) -> str:
@@ -422,6 +491,20 @@ def figure_title(path: Path) -> str:
     return Path(path).stem.replace("_", " ").replace("-", " ")
 
 
+DOCS_ROUTE = "ratouch-docs"  # the app's route for the docs folder (`app.app.launch`)
+
+
+def docs_url(docs: Path, target: str) -> str | None:
+    """The page's URL of a file of the docs folder named relative to it: the docs route
+    and the file's path inside the folder (never the server's own path); None when the
+    file is not there or lies outside the folder."""
+    local = (Path(docs) / target).resolve()
+    root = Path(docs).resolve()
+    if not (local.is_file() and local.is_relative_to(root)):
+        return None
+    return f"{DOCS_ROUTE}/{quote(local.relative_to(root).as_posix())}"
+
+
 def report_md(docs: Path, figures: Sequence[Path] = ()) -> str:
     """`docs/results.md` ready for gr.Markdown: an image whose figure is shown interactively
     becomes a pointer to it; other local images and links to local files (the figures'
@@ -442,18 +525,18 @@ def report_md(docs: Path, figures: Sequence[Path] = ()) -> str:
         if stem in interactive:
             return (f"*[figure “{alt or stem}”: the interactive chart "
                     f"**{figure_title(Path(stem))}** above]*")
-        local = (docs / target).resolve()
-        if local.is_file() and local.is_relative_to(docs.resolve()):
-            return f"![{alt}](/gradio_api/file={local})"
+        url = docs_url(docs, target)
+        if url:
+            return f"![{alt}]({url})"
         return f"*[figure “{alt or stem}” ({target}) not found]*"
 
     def link(m: re.Match) -> str:
         text, target = m.group(1), m.group(2)
         if re.match(r"^([a-z]+:|#|/)", target):
             return m.group(0)
-        local = (docs / target).resolve()
-        if local.is_file() and local.is_relative_to(docs.resolve()):
-            return f"[{text}](/gradio_api/file={local})"
+        url = docs_url(docs, target)
+        if url:
+            return f"[{text}]({url})"
         return text
 
     return _LINK.sub(link, _IMAGE_LINK.sub(image, text))

@@ -344,7 +344,12 @@ class FakePipeline:
                            "background": req.background is not None, "model": req.model})
         time.sleep(self.delay_s)
         k = req.k
-        starts = {"image": 0, "tactile": 2, "joint": 1} if frame is not None else {"image": 0}
+        # the built-in modes at fixed offsets; a mode registered by a test follows them
+        from ratouch.search.modes import QUERY_MODES
+
+        offsets = {"image": 0, "tactile": 2, "joint": 1}
+        starts = {m: offsets.get(m, 3 + i) for i, m in enumerate(QUERY_MODES)
+                  if frame is not None or not QUERY_MODES[m].needs_touch}
         neighbours = {m: [self._neighbour(i, 0.9 - 0.01 * r)
                           for r, i in enumerate(range(s, s + k))] for m, s in starts.items()}
         points = [{"role": f"query_{m}", "x": float(j), "y": 1.0} for j, m in enumerate(starts)]

@@ -129,14 +129,13 @@ def test_query_view_marks_neighbours_that_modes_share(fake, pair_files):
 
     visual = handlers.upload_visual(str(pair_files[0]))[0]
     v = handlers.run_query(fake, _thumb, visual, str(pair_files[1]), None, None, None, None, 5)
-    strips = dict(zip(("image", "tactile", "joint"), (v.gallery_image, v.gallery_tactile,
-                                                       v.gallery_joint)))
+    strips = v.galleries
     assert all(s.count("<figure") == 5 for s in strips.values())
     assert "Image query" in strips["image"] and "Joint query" in strips["joint"]
     assert "<span class='ra-badge'>1 · 0.90</span>" in strips["image"]  # id 0: image only
     assert "also found by the joint query" in strips["image"]  # id 1: image and joint
     assert ">I·T·J</span>" in strips["image"]  # id 2: all three
-    assert v.table_joint.count("◆◆ I·T·J") == 3
+    assert v.tables["joint"].count("◆◆ I·T·J") == 3
     assert {t.name for t in v.plot.data} >= {"image query", "joint neighbours"}
     assert "RA-Touch (with retrieval):** <mark class='ra-carried'" in v.description
     assert "What retrieval did:" in v.description and "Read most" in v.description
@@ -149,10 +148,10 @@ def test_no_tactile_image_gives_an_honest_image_only_view(fake, pair_files):
 
     visual = handlers.upload_visual(str(pair_files[0]))[0]
     v = handlers.run_query(fake, _thumb, visual, None, None, None, None, None, 5)
-    assert v.gallery_image.count("<figure") == 5 and "<figure" not in v.gallery_joint
-    assert "not available" in v.gallery_tactile
+    assert v.galleries["image"].count("<figure") == 5 and "<figure" not in v.galleries["joint"]
+    assert "not available" in v.galleries["tactile"]
     assert v.status.startswith("**Image-only query** (no tactile image)")
-    assert "image-only retrieval" in v.status and "not available" in v.table_tactile
+    assert "image-only retrieval" in v.status and "not available" in v.tables["tactile"]
     assert "needs a tactile image" in v.description
     assert "judge" not in v.description  # no label, no scores
 
@@ -191,7 +190,7 @@ def test_bad_uploads_give_messages_not_exceptions(fake, pair_files, tmp_path):
     for visual, tactile, box, expected in cases:
         v = handlers.run_query(fake, _thumb, visual, tactile, *box, 5)
         assert v.status.startswith("**✖") and expected in v.status, (box, v.status)
-        assert v.gallery_image == "" and v.raw is None
+        assert v.galleries["image"] == "" and v.raw is None
     assert "outside" in handlers.typed_box(good, 500, 500, 600, 600)[-1]
 
 
@@ -410,10 +409,17 @@ def _figure_json(title: str) -> str:
     return go.Figure(go.Scatter(x=[1, 2], y=[3, 4]), layout_title_text=title).to_json()
 
 
-def test_benchmarks_tab_without_and_with_a_report(tmp_path):
-    from app import handlers, view
+def _bench(docs, slots):
+    from app.benchmark_tab import benchmarks
 
-    report, note, *slots = handlers.benchmarks(tmp_path, 3)
+    out = benchmarks(docs, slots)
+    return out["report"], out["note"], *(out[f"figure_{i}"] for i in range(slots))
+
+
+def test_benchmarks_tab_without_and_with_a_report(tmp_path):
+    from app import view
+
+    report, note, *slots = _bench(tmp_path, 3)
     assert "Not generated yet" in report and "ratouch eval all" in report
     assert "ratouch bench tradeoff" in report and "ratouch bench tradeoff" in note
     assert all(u["visible"] is False for u in slots)
@@ -432,11 +438,12 @@ def test_benchmarks_tab_without_and_with_a_report(tmp_path):
         "| a | b |\n|---|---|\n")
     assert [p.name for p in view.list_figures(tmp_path)] == [
         "tradeoff.json", "b_recall.json", "broken.json"]
-    report, note, *slots = handlers.benchmarks(tmp_path, 3)
+    report, note, *slots = _bench(tmp_path, 3)
     assert "interactive chart **tradeoff** above" in report
-    assert f"/gradio_api/file={(figs / 'local.png').resolve()}" in report
+    # local files by their path inside the docs folder, never the server's own path
+    assert "(ratouch-docs/figures/local.png)" in report and str(tmp_path) not in report
     assert "gone.png) not found" in report and "| a | b |" in report
-    assert f"[interactive](/gradio_api/file={(figs / 'tradeoff.html').resolve()})" in report
+    assert "[interactive](ratouch-docs/figures/tradeoff.html)" in report
     assert " missing " in report and "[web](https://x.org/a)" in report
     assert [u["visible"] for u in slots] == [True, True, False]
     assert slots[0]["value"].layout.title.text == "speed vs accuracy"
@@ -448,7 +455,7 @@ def test_benchmarks_tab_without_and_with_a_report(tmp_path):
                    "ones of 2026-11-26 (b4e551b): not regenerated since")
     assert "on the shipped weights" in view.figure_provenance(("2026-11-27", None),
                                                               ("2026-11-26", "b4e551b"))
-    report, note, *slots = handlers.benchmarks(tmp_path, 1)  # more figures than slots
+    report, note, *slots = _bench(tmp_path, 1)  # more figures than slots
     assert "only 1 figures are shown" in note
 
 
@@ -463,14 +470,17 @@ def test_the_report_figures_are_served_and_nothing_else(tmp_path):
     demo = build_demo(FakePipeline(), docs=tmp_path)
     port = free_port()
     launch(demo, "127.0.0.1", port, block=False)
-    base = f"http://127.0.0.1:{port}/gradio_api/file="
+    base = f"http://127.0.0.1:{port}/"
     try:
-        with urllib.request.urlopen(base + str(tmp_path / "figures" / "fig.html")) as r:
+        with urllib.request.urlopen(base + "ratouch-docs/figures/fig.html") as r:
             assert r.read() == b"<html>the figure</html>"
-        for outside in (Path(__file__).resolve(), Path("/etc/passwd")):
+        for outside in ("ratouch-docs/../" + Path(__file__).name, "ratouch-docs/%2e%2e/x",
+                        "ratouch-docs//etc/passwd",
+                        f"gradio_api/file={tmp_path / 'figures' / 'fig.html'}",
+                        f"gradio_api/file={Path(__file__).resolve()}"):
             with pytest.raises(urllib.error.HTTPError) as e:
-                urllib.request.urlopen(base + str(outside))
-            assert e.value.code in (403, 404)
+                urllib.request.urlopen(base + outside)
+            assert e.value.code in (403, 404), outside
     finally:
         demo.close()
 
@@ -633,7 +643,7 @@ def test_real_pipeline_example_query(real_pipeline, world):
     assert not v.status.startswith("**✖"), v.status
     # one gallery item per distinct caption, the raw top-5 in the JSON and the tables
     for mode, g in zip(("image", "tactile", "joint"),
-                       (v.gallery_image, v.gallery_tactile, v.gallery_joint)):
+                       (v.galleries["image"], v.galleries["tactile"], v.galleries["joint"])):
         ns = v.raw["neighbours"][mode]
         # one tile per distinct caption (duplicates folded with a count)
         assert len(ns) == 5 and g.count("<figure") == len({n["caption"] for n in ns}), mode
@@ -641,7 +651,7 @@ def test_real_pipeline_example_query(real_pipeline, world):
     assert any(t.name == "ground truth" for t in v.plot.data)
     visual = handlers.load_example(world, 60)[0]
     v = handlers.run_query(real_pipeline, thumb, visual, None, None, None, None, None, 3)
-    assert len(v.raw["neighbours"]["image"]) == 3 and 1 <= v.gallery_image.count("<figure") <= 3
+    assert len(v.raw["neighbours"]["image"]) == 3 and 1 <= v.galleries["image"].count("<figure") <= 3
     assert "image-only" in v.status
 
 
@@ -823,26 +833,21 @@ def test_unreadable_tactile_upload_is_named_and_clears_old_results(fake, pair_fi
 
     good = handlers.upload_visual(str(pair_files[0]))[0]
     old = handlers.run_query(fake, _thumb, good, str(pair_files[1]), None, None, None, None, 5)
-    assert old.gallery_joint  # a previous answer is on the page
+    assert old.galleries["joint"]  # a previous answer is on the page
     text = _bytes_file(tmp_path, "notes.png", b"this is not an image")
     # the browser sends the upload undecoded (preprocess=False): {"path": ...}
-    tactile, *view_out = handlers.upload_tactile({"path": text, "orig_name": "notes.png"})
-    v = handlers.QueryView(*view_out)
-    assert tactile is None  # the unusable file is removed from the input
-    assert "tactile image notes.png" in v.status and v.status.startswith("**✖")
-    assert v.gallery_joint == "" and v.description == "" and v.raw is None
+    out = handlers.upload_tactile({"path": text, "orig_name": "notes.png"})
+    assert out["tactile"] is None  # the unusable file is removed from the input
+    assert "tactile image notes.png" in out["status"] and out["status"].startswith("**✖")
+    assert out["gallery_joint"] == "" and out["description"] == "" and out["raw"] is None
+    # every output is named: one gallery and one table per registered query mode
+    assert set(out) == {"tactile", *handlers.output_names()}
     # a bad visual upload also clears the results, and says which file and role
     out = handlers.visual_uploaded({"path": text})
-    v = handlers.QueryView(*out[7:])
-    assert out[0] is None and "visual image notes.png" in v.status and v.gallery_image == ""
+    assert out["state"] is None and "visual image notes.png" in out["status"]
+    assert out["gallery_image"] == ""
     # a good tactile upload leaves everything as it is
-    assert handlers.upload_tactile({"path": str(pair_files[1])})[1] == gr_update()
-
-
-def gr_update():
-    import gradio as gr
-
-    return gr.update()
+    assert handlers.upload_tactile({"path": str(pair_files[1])}) == {}
 
 
 @pytest.mark.parametrize("k", [2.5, 0, 21, "", None, "five", float("nan")])
@@ -944,3 +949,171 @@ def test_taking_retrieval_apart_regenerates_with_the_ticked_neighbours(fake, wor
     assert "tactile image" in handlers.regenerate(fake, visual, None, *fields, ids, v.raw)
     assert handlers.neighbour_picker(None).choices == []
 
+
+
+# ------------------------------------------------------------------------- issue 39: the page follows the registries
+
+@pytest.fixture
+def mean_mode():
+    """A fourth query mode (the mean of the image and tactile embeddings), registered in this
+    test only: nothing of the app names it."""
+    from ratouch.search.modes import QUERY_MODES, QueryMode
+
+    def mean(V, T, joint_query):
+        q = V + T
+        return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+    row = QueryMode("mean", "Mean of image and tactile", "M", "#9467bd",
+                    frozenset({"image", "tactile"}), mean)
+    QUERY_MODES.register(row)
+    try:
+        yield row
+    finally:
+        QUERY_MODES.unregister(row.name)
+
+
+def test_a_registered_mode_runs_through_the_run_handler(mean_mode, debug_pipeline, world):
+    """Issue 39: a fourth mode crashed Run (`QueryView.__new__() takes 12 positional
+    arguments but 14 were given`). Through the real pipeline's query path: its gallery and
+    table are named outputs, filled; the failure table has its column."""
+    from app import handlers, view
+
+    visual, _, tactile, bg, *box, _ = handlers.load_example(world, 7)
+    thumb = lambda i: np.zeros((8, 8, 3), np.uint8)  # noqa: E731
+    v = handlers.run_query(debug_pipeline, thumb, visual, tactile, *box, 4, background=bg)
+    assert not v.status.startswith("**✖"), v.status
+    named = v.named()
+    assert {"gallery_mean", "table_mean"} <= set(named) == set(handlers.output_names())
+    assert "Mean of image and tactile" in named["gallery_mean"]
+    assert named["gallery_mean"].count("<figure") >= 1
+    assert named["table_mean"].count("<tr") == 5  # header + K=4
+    assert view.strip_order()[0] == "joint" and view.strip_order()[-1] == "mean"
+    assert ("P@K mean", "precision_mean") in view.case_columns()
+    assert len(view.case_widths()) == len(view.case_columns())
+    # a table computed before the mode was registered has no such column: shown empty
+    frame = view.cases_frame([{k: "x" for _, k in view.case_columns()[:-1]}])
+    assert list(frame.columns)[-1] == "P@K mean" and frame.iloc[0, -1] is None
+    # without a frame the mode is not available, and says so
+    image_only = handlers.run_query(debug_pipeline, thumb, visual, None, *box, 4)
+    assert "not available" in image_only.galleries["mean"]
+
+
+def test_the_page_builds_its_outputs_from_the_registry(mean_mode):
+    """The Explore tab has one gallery and one table per registered mode, matched by name:
+    a value for an output the event does not have is an error, not a value in the wrong
+    place."""
+    from app import explore_tab
+    from app.app import build_demo
+    from app.page import Outputs
+
+    demo = build_demo(FakePipeline())
+    ids = {c.get("props", {}).get("elem_id") for c in demo.config["components"]}
+    assert {"gallery-mean", "table-mean", "gallery-joint", "stale", "export-json",
+            "compare-a"} <= ids
+    import gradio as gr
+
+    with gr.Blocks():
+        a, b = gr.Markdown(), gr.Markdown()
+    out = Outputs({"a": a, "b": b})
+    assert out.values({"b": "x"}) == {b: "x"}
+    with pytest.raises(KeyError, match="not outputs of this event: \\['c'\\]"):
+        out.values({"c": 1})
+    assert explore_tab.EXAMPLES  # the examples the page shows
+
+
+def test_export_link_history_and_comparison(fake, world, pair_files, tmp_path):
+    """Keep, share, compare: a run's record carries the inputs' sha256, the model, K, the
+    box and the commit; its JSON and neighbours CSV say so; an example's run has a link
+    that loads the same query; two runs side by side show what differs."""
+    import csv
+    import hashlib
+
+    from app import handlers, record
+    from app.explore_tab import answer_named
+    from app.page import Page
+
+    page = Page(fake, world, None, {"world": world.cfg}, tmp_path, ["small", "large"], 2,
+                None, _thumb, commit="abc1234")
+    visual, _, tactile, bg, *box, _ = handlers.load_example(world, 12)
+    v = handlers.run_query(fake, _thumb, visual, tactile, *box, 4, background=bg)
+    first = answer_named(page, v, visual, tactile, bg, 4, "small", tuple(box), [])
+    assert first["shown"] == 1 and first["stale"] == "" and len(first["history"]) == 1
+    rec = first["history"][0]
+    exported = json.loads(Path(first["export_json"].value["path"]).read_text())
+    assert exported["commit"] == "abc1234" and exported["model"] == "small"
+    assert exported["settings"] == {"k": 4, "box": [float(b) for b in box]}
+    sha = hashlib.sha256()
+    sha.update(f"{visual.source.shape}:{visual.source.dtype}:".encode())
+    sha.update(visual.source.tobytes())
+    assert exported["inputs"]["visual"]["sha256"] == sha.hexdigest()
+    assert exported["result"]["neighbours"]["joint"] == v.raw["neighbours"]["joint"]
+    rows = list(csv.DictReader(Path(first["export_csv"].value["path"]).open()))
+    assert len(rows) == 3 * 4 and rows[0]["commit"] == "abc1234"
+    assert rows[0]["visual_sha256"] == sha.hexdigest() and rows[0]["model"] == "fake"
+    # the link reproduces the query: the same example, model and K (and a changed box)
+    assert rec.link() == "?example=12&model=small&k=4"
+    assert "[Link to this query](?example=12&model=small&k=4)" in first["link"]
+    link = handlers.open_link(world, world.cfg, {"example": "12", "model": "small", "k": "4"},
+                              page.models)
+    assert link.k == 4 and link.model == "small" and link.example.state.label == visual.label
+    assert [int(x) for x in link.example[4:8]] == box
+    moved = handlers.open_link(world, world.cfg, {"example": "12", "box": "1,2,30,40"}, None)
+    assert moved.example.x0 == "1" and "Contact box [1, 2, 30, 40]" in moved.example.box_note
+    case = handlers.open_link(world, world.cfg, {"example": "3", "condition": "noisy touch"},
+                              None)
+    assert "under “noisy touch”" in case.example.state.title
+    assert handlers.open_link(world, world.cfg, {}, None) is None
+    for bad, says in (({"example": "x"}, "test index"), ({"example": "1", "model": "huge"},
+                                                           "not offered"),
+                      ({"example": "1", "k": "99"}, "K must be"),
+                      ({"example": "1", "condition": "underwater"}, "underwater")):
+        with pytest.raises(DataError, match=says):
+            handlers.open_link(world, world.cfg, bad, page.models)
+    # an uploaded pair: no link, the file's own bytes hashed
+    up = handlers.upload_visual(str(pair_files[0])).state
+    v2 = handlers.run_query(fake, _thumb, up, str(pair_files[1]), None, None, None, None, 5)
+    second = answer_named(page, v2, up, str(pair_files[1]), None, 5, "large",
+                          (None,) * 4, first["history"])
+    rec2 = second["history"][-1]
+    assert rec2.number == 2 and rec2.link() is None and "No link" in second["link"]
+    assert rec2.inputs["tactile"]["sha256"] == hashlib.sha256(
+        pair_files[1].read_bytes()).hexdigest()
+    assert rec2.inputs["tactile"]["name"] == "tactile.png"  # its name, not its server path
+    assert str(pair_files[1].parent) not in json.dumps(rec2.to_dict())
+    # side by side: the second against the first, what differs marked
+    html = second["comparison"]
+    assert "run 1" in html and "run 2" in html and "ra-differs" in html
+    assert "Joint query" in html and "what retrieval did" in html
+    assert second["compare_a"].value == 1 and second["compare_b"].value == 2
+    assert record.remember([rec] * record.HISTORY_SIZE, rec2)[-1] is rec2
+    assert len(record.remember([rec] * record.HISTORY_SIZE, rec2)) == record.HISTORY_SIZE
+    # an error keeps nothing and hides the exports
+    err = answer_named(page, handlers.error_view("x"), up, None, None, 5, "small",
+                       (None,) * 4, second["history"])
+    assert err["shown"] is None and "history" not in err
+
+
+def test_stale_answers_are_marked_and_every_model_is_explained():
+    from app import handlers, view
+
+    assert view.stale_html(False) == ""
+    assert "inputs changed — press Run" in view.stale_html(True)
+    line = handlers.describe_model("cascade")[1]
+    assert line.startswith("cascade: each query is answered by `default-tiny` when it is sure")
+    assert "else passed on to `default-s`" in line
+    md = handlers.models_md(["default-tiny", "default-s", "default-b", "cascade"])
+    assert md.count("<div>") == 4 and "ViT-Small row" in md
+    assert dict((v, k) for k, v in handlers.model_choices(["default-s", "cascade"])) == {
+        "default-s": "default-s — the paper's ViT-Small row",
+        "cascade": "cascade — default-tiny when sure, else default-s"}
+
+
+def test_the_benchmarks_story_dates_the_premise_and_the_real_frames():
+    from app.benchmark_tab import story_md
+    from ratouch.paths import DOCS
+
+    md = story_md(DOCS, ("2026-11-27", "5a9ccf2"))
+    assert "**refuted**" in md and "+0.051 [-0.004, +0.110]" in md  # the verdict's figures
+    assert "before the visual prior — made 2026-11-23" in md
+    assert "Taxim's GelSight / Mini | 72 / 72" in md and "reference DIGIT" in md
+    assert "ratouch-docs/premise.md" in md and str(DOCS) not in md

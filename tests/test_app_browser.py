@@ -14,7 +14,7 @@ import pytest
 from PIL import Image
 
 from conftest import HAVE_ASSETS, FakePipeline, free_port
-from ratouch.paths import DOCS
+from ratouch.paths import DOCS, REPO
 
 CHROMIUM = Path("/usr/bin/chromium")
 SCREENSHOT_COPY = Path("/tmp/ratouch_app.png")
@@ -42,6 +42,10 @@ def app_url(tmp_path_factory, request):
         (docs / "figures").mkdir()
         for f in (DOCS / "figures").glob("*.json"):
             shutil.copy(f, docs / "figures" / f.name)
+    # and the stored results the Benchmarks tab's story reads
+    for pattern in ("premise.md", "premise-result*.json", "frames-real-*.json"):
+        for f in DOCS.glob(pattern):
+            shutil.copy2(f, docs / f.name)
     demo = build_demo(pipe, failure_options=FAILURE_OPTIONS, docs=docs)
     port = free_port()
     launch(demo, "127.0.0.1", port, block=False)
@@ -113,7 +117,7 @@ def test_upload_mark_box_query_in_chromium(app_url, page, tmp_path, world):
 
     # an example pair from the test split brings its ground-truth label, and runs at once
     page.get_by_text("Start here: click an example").click()  # closed after a result
-    page.locator("#examples .thumbnail-item").first.click()
+    page.locator("#examples [data-example]").first.click()
     page.locator("#description").get_by_text("Ground-truth label:").wait_for()
 
 
@@ -137,6 +141,9 @@ def test_failure_cases_open_in_explore_in_chromium(app_url, page, tmp_path):
     shutil.copy(shot, FAILURES_COPY)
 
     assert grid.get_attribute("aria-rowcount") == "12"
+    # issue 39: cells wrap between words, never inside one ("brushed_alu/minum")
+    for table in ("#fail-cases", "#fail-summary"):
+        assert page.evaluate(BROKEN_WORDS, table) == [], table
     cell = lambda col: page.locator(f"#fail-cases [data-testid=cell-0-{col}]")  # noqa: E731
     condition, index = (cell(j).inner_text().strip() for j in (0, 1))
     cell(4).click()  # the first (worst) case's label
@@ -267,7 +274,7 @@ def test_the_answer_on_one_screen_in_chromium(app_url, page, world):
     page.set_viewport_size({"width": 1440, "height": 900})
     page.set_default_timeout(120_000)
     page.goto(app_url)
-    page.locator("#examples .thumbnail-item").first.click()  # one click: load and run
+    page.locator("#examples [data-example]").first.click()  # one click: load and run
     page.locator("#description").get_by_text("Baseline (no retrieval)").wait_for()
     page.locator("#pca .js-plotly-plot").wait_for()
     page.wait_for_timeout(1000)  # the examples close; the plot finishes drawing
@@ -304,3 +311,192 @@ def test_the_answer_on_one_screen_in_chromium(app_url, page, world):
         page.wait_for_timeout(1000)  # plotly re-lays its figures out on resize
         _fits(page, "#tab-benchmarks")
     page.screenshot(path=str(SCREENS / "benchmarks_1440x900.png"))
+
+
+# words split over two lines inside a table's cells (issue 39: "brushed_alu/minum"); a
+# hyphenated word may wrap after its hyphen
+BROKEN_WORDS = """(root) => {
+  const out = [];
+  const cells = ['td', 'th', '.body-cell', '.header-cell'].map(c => root + ' ' + c);
+  for (const cell of document.querySelectorAll(cells.join(', '))) {
+    const walker = document.createTreeWalker(cell, NodeFilter.SHOW_TEXT);
+    for (let n = walker.nextNode(); n; n = walker.nextNode()) {
+      for (const m of n.textContent.matchAll(/[^\\s-]+/g)) {  // a break after "-" is fine
+        const r = document.createRange();
+        r.setStart(n, m.index); r.setEnd(n, m.index + m[0].length);
+        const tops = new Set([...r.getClientRects()].map(x => Math.round(x.top)));
+        if (tops.size > 1) out.push(m[0]);
+      }
+    }
+  }
+  return out.slice(0, 10);
+}"""
+# elements wider than the box that holds them (issue 39: a 1,710 px text block in 1,216 px)
+WIDER_THAN_BOX = """(root) => {
+  const out = [];
+  for (const el of document.querySelectorAll(root + ' *')) {
+    const r = el.getBoundingClientRect(), p = el.parentElement;
+    if (!p || r.width === 0 || r.height === 0) continue;
+    const pos = getComputedStyle(el).position;
+    if (pos === 'absolute' || pos === 'fixed') continue;
+    let clipped = false;  // inside a scrolling or clipping box: not sticking out
+    for (let q = p; q && q !== document.body; q = q.parentElement) {
+      const o = getComputedStyle(q).overflowX;
+      if (o === 'auto' || o === 'scroll' || o === 'hidden') { clipped = true; break; }
+    }
+    const b = p.getBoundingClientRect();
+    if (!clipped && (r.right > b.right + 1 || r.left < b.left - 1))
+      out.push((el.id || el.className || el.tagName) + ' ' + Math.round(r.width) + ' in '
+               + Math.round(b.width));
+  }
+  return out.slice(0, 10);
+}"""
+# the contrast ratio (WCAG) of each element's text against the background behind it
+CONTRAST = """(sel) => {
+  const rgb = (c) => (c.match(/[\\d.]+/g) || []).map(Number);
+  const lum = (c) => { const [r, g, b] = rgb(c).slice(0, 3).map(v => { v /= 255;
+      return v <= 0.03928 ? v / 12.92 : Math.pow((v + 0.055) / 1.055, 2.4); });
+    return 0.2126 * r + 0.7152 * g + 0.0722 * b; };
+  const behind = (el) => { for (let e = el; e; e = e.parentElement) {
+      const c = getComputedStyle(e).backgroundColor, v = rgb(c);
+      if (v.length === 3 || (v.length === 4 && v[3] > 0.5)) return c; }
+    return 'rgb(255, 255, 255)'; };
+  return [...document.querySelectorAll(sel)].map(el => {
+    const f = lum(getComputedStyle(el).color), b = lum(behind(el));
+    return (Math.max(f, b) + 0.05) / (Math.min(f, b) + 0.05); });
+}"""
+# captions of the examples that do not show whole
+CUT_CAPTIONS = """() => [...document.querySelectorAll('#examples figcaption')].filter(c => {
+    const r = c.getBoundingClientRect(), box = document.querySelector('#examples')
+      .getBoundingClientRect();
+    return c.scrollHeight > c.clientHeight + 1 || c.scrollWidth > c.clientWidth + 1
+      || r.bottom > box.bottom + 1 || r.right > box.right + 1; }).map(c => c.textContent)"""
+# URLs that carry the checkout's or the docs folder's path, and links to any server path
+# (gradio's own upload cache, /gradio_api/file=/tmp/gradio/<hash>/..., serves the images)
+SERVER_PATHS = """(paths) => [...document.querySelectorAll('a[href], img[src]')]
+  .map(e => [e.tagName, e.getAttribute('href') || e.getAttribute('src')])
+  .filter(([tag, u]) => paths.some(p => u.includes(p)) || (tag === 'A' && u.includes('file=/')))
+  .map(([tag, u]) => u)"""
+SHOTS = Path("/tmp/shots39")
+
+
+@pytest.mark.parametrize("theme", ["light", "dark"])
+@pytest.mark.parametrize("size", [(1440, 900), (1280, 800)], ids=["1440x900", "1280x800"])
+def test_nothing_stale_nothing_unreadable_in_chromium(app_url, page, size, theme):
+    """Issue 39 at 1440x900 and 1280x800, light and dark: the examples' labels whole; one
+    click answers, and the descriptions, the joint query's tiles and the Run button are in
+    the window; RA-Touch's highlighted words and the page's warnings readable (contrast
+    >= 4.5); nothing wider than its box; changing K marks the answer stale until Run; no
+    URL carries a server path; two runs side by side."""
+    w, h = size
+    page.set_viewport_size({"width": w, "height": h})
+    page.set_default_timeout(120_000)
+    page.goto(app_url + ("?__theme=dark" if theme == "dark" else ""))
+    page.locator("#examples [data-example]").first.wait_for()
+    assert page.evaluate(CUT_CAPTIONS) == []
+    page.locator("#examples [data-example='40']").click()
+    d = page.locator("#description")
+    d.get_by_text("Baseline (no retrieval)").wait_for()
+    page.locator("#pca .js-plotly-plot").wait_for()
+    page.wait_for_timeout(1000)  # the examples close; the plot finishes drawing
+    assert page.evaluate("window.scrollY") == 0
+    for text in ("RA-Touch (with retrieval)", "Baseline (no retrieval)"):
+        assert _in_view(page, d.get_by_text(text).first), (text, size)
+    assert _in_view(page, page.locator("#run")), size
+    assert _in_view(page, page.locator("#gallery-joint figure").first), size
+    assert page.evaluate("document.body.classList.contains('dark')") == (theme == "dark")
+    ratios = page.evaluate(CONTRAST, "mark.ra-carried, .ra-warn, #description, #status")
+    assert ratios and min(ratios) >= 4.5, ratios
+    for root in ("#tab-explore", "#header"):
+        assert page.evaluate(WIDER_THAN_BOX, root) == [], (root, size)
+    _fits(page, "#tab-explore")
+    assert page.evaluate(SERVER_PATHS, [str(DOCS), str(REPO)]) == []
+    assert page.locator("#export-json").is_visible() and page.locator("#export-csv").is_visible()
+    SHOTS.mkdir(exist_ok=True)
+    page.screenshot(path=str(SHOTS / f"answer_{w}x{h}_{theme}.png"))
+
+    # K changed: the answer is marked stale (banner, faded) until Run answers again
+    page.locator("#k input[type=number]").fill("3")
+    page.locator("#k input[type=number]").press("Enter")
+    page.locator("#stale").get_by_text("inputs changed — press Run").wait_for()
+    page.wait_for_function("() => Number(getComputedStyle(document.querySelector("
+                           "'#description')).opacity) < 0.6", timeout=5000)  # faded
+    assert min(page.evaluate(CONTRAST, ".ra-stale")) >= 4.5
+    page.screenshot(path=str(SHOTS / f"stale_{w}x{h}_{theme}.png"))
+    page.locator("#run").click()
+    page.wait_for_function("() => !document.querySelector('#stale .ra-stale')")
+    page.wait_for_function(
+        "() => document.querySelectorAll('#table-joint tr').length === 4")  # K=3 + header
+    # the two runs side by side
+    page.get_by_text("History: this session's runs").click()
+    page.locator("#comparison").get_by_text("run 2").first.wait_for()
+    assert "what retrieval did" in page.locator("#comparison").inner_text()
+
+    page.get_by_role("tab", name="Benchmarks").click()
+    story = page.locator("#bench-story")
+    story.get_by_text("The paper's premise").wait_for()
+    assert "refuted" in story.inner_text() and "Taxim's GelSight / Mini" in story.inner_text()
+    page.wait_for_timeout(1500)  # plotly lays its figures out
+    for root in ("#bench-story", "#bench-report"):
+        assert page.evaluate(WIDER_THAN_BOX, root) == [], (root, size)
+        assert page.evaluate(BROKEN_WORDS, root) == [], (root, size)
+    _fits(page, "#tab-benchmarks")
+    assert page.evaluate(SERVER_PATHS, [str(DOCS), str(REPO)]) == []
+    page.screenshot(path=str(SHOTS / f"benchmarks_{w}x{h}_{theme}.png"))
+
+
+def test_a_link_reproduces_a_query_in_chromium(app_url, page):
+    """Issue 39: `?example=N&k=K` loads the world's example and answers it with that K."""
+    page.set_viewport_size({"width": 1280, "height": 800})
+    page.set_default_timeout(120_000)
+    page.goto(app_url + "?example=60&k=3")
+    page.locator("#status").get_by_text("test example #60").wait_for()
+    page.wait_for_function(
+        "() => document.querySelectorAll('#table-joint tr').length === 4")
+    assert page.locator("#k input[type=number]").input_value() == "3"
+    href = page.locator("#link a").get_attribute("href")
+    assert href == "?example=60&k=3"
+
+
+@pytest.fixture
+def mean_app_url(request):
+    """The app with a fourth query mode registered before the page is built (the real
+    pipeline on a small corpus where the assets exist, else the fake one, which answers
+    every registered mode)."""
+    import numpy as np
+
+    from app.app import build_demo, launch
+    from ratouch.search.modes import QUERY_MODES, QueryMode
+
+    def mean(V, T, joint_query):
+        q = V + T
+        return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+    QUERY_MODES.register(QueryMode("mean", "Mean of image and tactile", "M", "#9467bd",
+                                   frozenset({"image", "tactile"}), mean))
+    try:
+        pipe = request.getfixturevalue("real_pipeline") if HAVE_ASSETS else FakePipeline()
+        demo = build_demo(pipe, failure_options=FAILURE_OPTIONS)
+        port = free_port()
+        launch(demo, "127.0.0.1", port, block=False)
+        yield f"http://127.0.0.1:{port}/"
+        demo.close()
+    finally:
+        QUERY_MODES.unregister("mean")
+
+
+def test_a_registered_mode_is_a_fourth_row_in_chromium(mean_app_url, page):
+    """Issue 39: a mode registered in `ratouch/search/modes.py`'s registry alone gets its
+    row of tiles and its table on the page, after the built-in ones."""
+    page.set_viewport_size({"width": 1440, "height": 900})
+    page.set_default_timeout(120_000)
+    page.goto(mean_app_url)
+    page.locator("#examples [data-example='60']").click()
+    page.locator("#description").get_by_text("Baseline (no retrieval)").wait_for()
+    strip = page.locator("#gallery-mean")
+    strip.locator("figure").first.wait_for()
+    assert "Mean of image and tactile" in strip.inner_text()
+    assert page.locator("#table-mean tr").count() == 6  # header + K=5
+    ids = page.evaluate("[...document.querySelectorAll('[id^=gallery-]')].map(e => e.id)")
+    assert ids == ["gallery-joint", "gallery-image", "gallery-tactile", "gallery-mean"]
+    page.screenshot(path=str(SHOTS / "fourth_mode_1440x900.png"), full_page=True)

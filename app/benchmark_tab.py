@@ -1,0 +1,174 @@
+"""The Benchmarks tab: the story first (the paper's premise, tested, and its verdict; the
+real-frame checks), then the report's figures and text, each dated against the shipped
+weights.
+
+Everything shown is read from files the evaluation commands wrote into the docs folder
+(`docs/premise-result*.json`, `docs/frames-real-*.json`, `docs/results.md`,
+`docs/figures/*.json`); nothing is computed here.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import gradio as gr
+import plotly.io as pio
+
+from app import view
+from app.page import Outputs, Page
+from ratouch.eval.frames import summarise
+from ratouch.eval.report import last_commit, weights_commit
+
+MAX_FIGURES = 12  # plot slots of the tab
+#: The premise's results, newest last: (file, what it was run on).
+PREMISES = (("premise-result.json", "before the visual prior"),
+            ("premise-result-prior.json", "with the visual prior (the shipped weights' recipe)"))
+FRAMES_GLOB = "frames-real-*.json"
+
+
+def layout() -> SimpleNamespace:
+    """Place the tab's components (inside a `gr.Tab`); returns them by name."""
+    ui = SimpleNamespace()
+    ui.story = gr.Markdown(elem_id="bench-story")
+    with gr.Row():
+        ui.note = gr.Markdown(elem_id="bench-note")
+        ui.reload = gr.Button("Reload", size="sm", min_width=80, scale=0)
+    # one figure per row: the charts' legends and axis labels need the full width
+    ui.figures = [gr.Plot(visible=False, elem_id=f"bench-fig-{i}") for i in range(MAX_FIGURES)]
+    ui.report = gr.Markdown(elem_id="bench-report")
+    return ui
+
+
+def wire(page: Page, ui: SimpleNamespace, tab: gr.Tab) -> None:
+    shown = Outputs({"story": ui.story, "report": ui.report, "note": ui.note,
+                     **{f"figure_{i}": f for i, f in enumerate(ui.figures)}})
+    gr.on([tab.select, ui.reload.click],
+          lambda: shown.values(benchmarks(page.docs, MAX_FIGURES)), None, shown.components,
+          api_visibility="private")
+
+
+def figure_made(path: Path) -> tuple[str, str | None]:
+    """(date, commit) of a file of the docs folder: its last commit, else (an untracked
+    copy) the day it was written and no commit."""
+    made = last_commit(path)
+    if made is not None:
+        return made
+    return time.strftime("%Y-%m-%d", time.gmtime(path.stat().st_mtime)), None
+
+
+def benchmarks(docs: Path, slots: int) -> dict:
+    """The tab by output name: "story", "report", "note", and "figure_<i>" for `slots`
+    plot slots (the figures found in docs/figures/, the rest hidden)."""
+    files = view.list_figures(docs)
+    weights = weights_commit()
+    updates, problems = [], []
+    for path in files:
+        if len(updates) == slots:
+            problems.append(f"{path.name} (only {slots} figures are shown)")
+            continue
+        try:
+            fig = pio.from_json(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError, TypeError) as e:
+            problems.append(f"{path.name} ({type(e).__name__}: {str(e)[:120]})")
+            continue
+        # the width its maker chose (1,500 px for the trade-off) would be clipped by the
+        # page: every figure takes its container's width
+        fig.update_layout(width=None, autosize=True)
+        label = f"{view.figure_title(path)} — {view.figure_provenance(figure_made(path), weights)}"
+        updates.append(gr.update(value=fig, label=label, visible=True))
+    updates += [gr.update(value=None, visible=False)] * (slots - len(updates))
+    note = (f"{len(files)} figure file(s) in `docs/figures/`" if files else
+            "No figure files (`docs/figures/*.json`) yet: `ratouch bench tradeoff` writes the "
+            "speed-vs-accuracy chart.")
+    if files and not (Path(docs) / view.FIGURES_DIR / "tradeoff.json").is_file():
+        note += " · no speed-vs-accuracy chart yet (`ratouch bench tradeoff`)"
+    report = Path(docs) / view.REPORT_NAME
+    if report.is_file():
+        note += (f" · the report (`{view.REPORT_NAME}`) was "
+                 + view.figure_provenance(figure_made(report), weights))
+    if problems:
+        note += " · not shown: " + "; ".join(problems)
+    return {"story": story_md(docs, weights), "report": view.report_md(docs, files),
+            "note": note, **{f"figure_{i}": u for i, u in enumerate(updates)}}
+
+
+def story_md(docs: Path, weights: tuple[str, str] | None) -> str:
+    """The premise's verdict with its figures, then the real-frame checks, each dated
+    against the shipped weights; what is missing is said, not made up."""
+    docs = Path(docs)
+    parts = ["### What the benchmarks say"]
+    if weights:
+        parts.append(f"<span class='ra-muted'>The shipped weights: {weights[0]} (commit "
+                     f"{weights[1]}). Each result below says when it was made.</span>")
+    parts.append(_premise_md(docs, weights))
+    parts.append(_frames_md(docs, weights))
+    return "\n\n".join(parts)
+
+
+def _read(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+def _premise_md(docs: Path, weights) -> str:
+    found = [(docs / name, what, _read(docs / name)) for name, what in PREMISES]
+    found = [(p, what, d) for p, what, d in found if d is not None]
+    page = view.docs_url(docs, "premise.md")
+    head = ("**The paper's premise** (retrieving from a visual corpus with tactile captions "
+            "improves descriptions where paired touch data is scarce), tested by "
+            "pre-registered criteria" + (f" ([how]({page}))" if page else ""))
+    if not found:
+        return head + ": *no result yet* (`ratouch eval premise --json > docs/premise-result.json`)."
+    rows = ["| run | verdict | group | baseline | RA-Touch | gain [95% CI] | shuffle drop, p "
+            "| copy ceiling | material oracle |", "|---|---|---|---|---|---|---|---|---|"]
+    for path, what, d in found:
+        when = view.figure_provenance(figure_made(path), weights)
+        for group in ("scarce", "seen"):
+            g = d.get("groups", {}).get(group)
+            if not g:
+                continue
+            lo, hi = g.get("ci95", (float("nan"), float("nan")))
+            run, verdict = ((f"{what} — {when}", f"**{d.get('verdict', '?')}**")
+                            if group == "scarce" else ("", ""))
+            nan = float("nan")
+            rows.append(
+                f"| {run} | {verdict} | {group} | {g['baseline']:.3f} | {g['ra_touch']:.3f} "
+                f"| {g['gain']:+.3f} [{lo:+.3f}, {hi:+.3f}] "
+                f"| {g.get('shuffle_drop', nan):+.3f}, p = {g.get('shuffle_p', nan):.3f} "
+                f"| {g.get('copy_ceiling', nan):.3f} | {g.get('material_oracle', nan):.3f} |")
+    latest = found[-1][2]
+    return (f"{head}: **{latest.get('verdict', '?')}** — {latest.get('verdict_reason', '')}."
+            "\n\n" + "\n".join(rows))
+
+
+def _frames_md(docs: Path, weights) -> str:
+    files = sorted(docs.glob(FRAMES_GLOB))
+    head = ("**Real frames** (Taxim's real presses of a rigid ball on GelSight and GelSight "
+            "Mini, the reference DIGIT frames, and their blank backgrounds), read for what "
+            "they are")
+    if not files:
+        return head + ": *no stored check* (`ratouch eval frames --real --json > docs/frames-real-DATE.json`)."
+    path = files[-1]
+    d = _read(path) or {}
+    rows = d.get("frames", [])
+    when = view.figure_provenance((d["measured"], None) if d.get("measured")
+                                  else figure_made(path), weights)
+    taxim = summarise([r for r in rows if r.get("sensor") in ("gelsight", "mini")])
+    digit = summarise([r for r in rows if r.get("sensor") == "digit"])
+    table = ["| frames | presses detected | contact region on the touch | read hard / soft "
+             "| blanks read as no contact |", "|---|---|---|---|---|"]
+    for name, s in (("Taxim's GelSight / Mini", taxim), ("reference DIGIT", digit)):
+        table.append(f"| {name} | {s['presses_detected']} / {s['presses']} "
+                     f"| {s['presses_region_on_touch']} / {s['presses']} "
+                     f"| {s['presses_read_hard']} / {s['presses_read_soft']} "
+                     f"| {s['blanks_no_contact']} / {s['blanks']} |")
+    source = view.docs_url(docs, path.name)
+    return (f"{head} — `{d.get('command', 'ratouch eval frames --real')}` with "
+            f"`{d.get('encoder', '?')}`, {when}"
+            + (f"; corpus: {d['corpus']}" if d.get("corpus") else "")
+            + (f" ([the rows]({source}))" if source else "") + ".\n\n" + "\n".join(table))
