@@ -56,6 +56,11 @@ def trust_calibration(encoder: str) -> Path:
     return assets_dir() / "trust" / f"{encoder}.json"
 
 
+def touch_gate(encoder: str) -> Path:
+    """The shipped touch gate of an encoder set (`ratouch.model.gate`)."""
+    return assets_dir() / "gate" / f"{encoder}.json"
+
+
 def geometry_calibration() -> Path:
     """The shipped geometry lookups (colour change to surface gradient, per sensor family)."""
     return ASSETS / "geometry" / "lookups.json"

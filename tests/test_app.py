@@ -4,6 +4,7 @@ the real input checks), the `/query` API through `gradio_client` against a real 
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import os
@@ -741,10 +742,15 @@ def test_real_pipeline_batched_queries_match_single_ones(real_pipeline, world):
     samples = [world.sample("test", i) for i in (60, 140, 290)]
     reqs = [{"visual": s.visual, "tactile": s.tactile, "box": s.box, "k": k, "label": s.caption}
             for s, k in zip(samples, (5, 5, 3))]
-    reqs += [{"visual": samples[0].visual, "k": 4},  # image-only
-             {"visual": samples[0].visual, "k": len(real_pipeline.corpus.entries) + 1}]
-    many = real_pipeline.answer([QueryRequest.decode(**req) for req in reqs])
+    reqs += [{"visual": samples[0].visual, "k": 4}]  # image-only
+    decoded = [QueryRequest.decode(**req) for req in reqs]
+    # a request whose K exceeds the corpus (decode caps K at MAX_K; a small corpus can be
+    # smaller) fails alone, in its slot
+    too_many = dataclasses.replace(decoded[3], k=len(real_pipeline.corpus.entries) + 1)
+    many = real_pipeline.answer([*decoded, too_many])
     assert isinstance(many[4], ConfigError) and "K must be" in str(many[4])  # K > the corpus
+    with pytest.raises(ConfigError, match="K must be a whole number from 1 to 20"):
+        QueryRequest.decode(samples[0].visual, k=21)
     with pytest.raises(DataError, match="box"):  # decoding says what is wrong with a request
         QueryRequest.decode(samples[0].visual, box=(9, 9, 2, 2))
     with pytest.raises(ConfigError, match="K must be"):

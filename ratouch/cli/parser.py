@@ -194,6 +194,14 @@ def _add_train(sub) -> None:
                     help="share of in-distribution validation inputs each signal may flag")
     tr.add_argument("--out", default=None,
                     help="calibration JSON (default: assets/trust/ENCODER.json)")
+    gt = tsub.add_parser("gate", help="fit the touch gate (how far touch steers the gated "
+                                      "query) on probe renders with clean, mismatched, blank "
+                                      "and noisy touch")
+    gt.add_argument("--encoder", default=DEFAULT_ENCODER)
+    gt.add_argument("--seed", type=_nonneg_int, default=0)
+    gt.add_argument("--n", type=_pos_int, default=1200, help="probe pairs (half fit, half measure)")
+    gt.add_argument("--out", default=None,
+                    help="gate JSON (default: assets/gate/ENCODER.json)")
     ge = tsub.add_parser("geometry", help="fit each sensor family's colour-to-gradient lookup "
                                           "(Taxim's real ball presses; the DIGIT shader's "
                                           "renders) and its contact floors on blank renders")

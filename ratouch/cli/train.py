@@ -17,6 +17,7 @@ from ratouch.ship.cascade import CascadeConfig, calibrate_cascade
 from ratouch.threads import intra_op_threads
 from ratouch.train import recipes
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
+from ratouch.train.gate import format_gate_report, gate_recipe
 from ratouch.train.geometry import calibrate as calibrate_geometry
 from ratouch.train.trust import TrustConfig, calibrate
 
@@ -40,6 +41,14 @@ def run(args: argparse.Namespace) -> int:
         return _train_cascade(args)
     if args.train_cmd == "geometry":
         return _train_geometry(args)
+    if args.train_cmd == "gate":
+        if args.n < 20:
+            raise usage(f"--n {args.n}: the gate needs at least 20 probe pairs")
+        with intra_op_threads(2):
+            rep = gate_recipe(args.encoder, args.seed, args.n, args.out)
+        print(format_gate_report(rep))
+        print(json.dumps({k: v for k, v in rep.items() if k != "by_variant"}))
+        return 0
     if args.train_cmd == "all":
         args.model, args.out, args.steps, args.threads = None, None, None, 2
         args.n_pairs, args.n_corpus = 12_000, 8_000

@@ -21,13 +21,19 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from ratouch.errors import ConfigError
 
-#: (V, T) -> joint queries: the Tactile-Guided Retriever (`RetrievalSide.joint_query`).
-JointQuery = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+class JointQuery(Protocol):
+    """(V, T) -> joint queries: the Tactile-Guided Retriever (`RetrievalSide.joint_query`);
+    `gated=True`: the trust-gated query (`ratouch.model.gate`)."""
+
+    def __call__(self, V: np.ndarray, T: np.ndarray, *, gated: bool = False) -> np.ndarray: ...
+
 #: The inputs a mode may need: the crops' image embeddings, the frames' tactile embeddings,
 #: the Tactile-Guided Retriever.
 INPUTS = ("image", "tactile", "retriever")
@@ -179,6 +185,10 @@ def _joint(V, T, joint_query):
     return joint_query(V, T)
 
 
+def _gated(V, T, joint_query):
+    return joint_query(V, T, gated=True)
+
+
 _BUILTIN = (
     QueryMode("image", "Image query", "I", "#1f77b4", frozenset({"image"}), _image,
               keys=("image", "text")),
@@ -186,6 +196,8 @@ _BUILTIN = (
               keys=("image", "text")),
     QueryMode("joint", "Joint query (Tactile-Guided Retriever)", "J", "#2ca02c",
               frozenset({"image", "tactile", "retriever"}), _joint),
+    QueryMode("gated", "Trust-gated query (touch weighed by trust)", "G", "#d62728",
+              frozenset({"image", "tactile", "retriever"}), _gated),
 )
 _BUILTIN_NAMES = frozenset(m.name for m in _BUILTIN)
 
@@ -194,6 +206,10 @@ QUERY_MODES = QueryModes(_BUILTIN)
 #: The mode whose neighbours RA-Touch reads (its prompt, "take retrieval apart", the cascade):
 #: the Tactile-Guided Retriever's, by definition of the method, wherever new rows go.
 RA_TOUCH_MODE = "joint"
+#: The retrieval systems RA-Touch can answer with, by the mode whose neighbours it reads:
+#: "paper", the paper's joint query; "gated", the joint query moved towards the image query as
+#: far as touch cannot be trusted (`ratouch.model.gate`).
+RETRIEVAL_SYSTEMS = {"paper": RA_TOUCH_MODE, "gated": "gated"}
 #: The mode every query has, whose neighbours stand in for a missing frame's modes.
 IMAGE_MODE = "image"
-assert {RA_TOUCH_MODE, IMAGE_MODE} <= _BUILTIN_NAMES and not QUERY_MODES[IMAGE_MODE].needs_touch
+assert {RA_TOUCH_MODE, IMAGE_MODE, *RETRIEVAL_SYSTEMS.values()} <= _BUILTIN_NAMES and not QUERY_MODES[IMAGE_MODE].needs_touch

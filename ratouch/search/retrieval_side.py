@@ -23,8 +23,9 @@ from ratouch.corpus.embed import EMBED_MANIFEST, embed_corpus, embeddings_dir, l
 from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
 from ratouch.encoders.factory import create_model, shipped_fingerprint
 from ratouch.errors import ConfigError
+from ratouch.model.gate import TouchGate
 from ratouch.model.retriever import RetrieverConfig, TactileGuidedRetriever
-from ratouch.paths import cache_dir, retriever_weights
+from ratouch.paths import cache_dir, retriever_weights, touch_gate
 from ratouch.search.index import IndexConfig
 from ratouch.search.retrieval import CorpusIndex, CorpusSearch
 
@@ -105,6 +106,17 @@ def load_tgr(encoder: str, folder: str | os.PathLike | None = None):
     return model.eval()
 
 
+def load_gate(encoder: str, trust) -> TouchGate | None:
+    """The shipped touch gate of an encoder set, reading novelty with `trust` (the encoder
+    set's trust calibration); None (logged) when either is missing."""
+    path = touch_gate(encoder)
+    if trust is None or not path.is_file():
+        log.warning("no touch gate for %s (%s%s): `ratouch train gate --encoder %s`", encoder,
+                    path, "" if trust is not None else "; no trust calibration either", encoder)
+        return None
+    return TouchGate.load(path).with_novelty(trust.tactile, trust.visual)
+
+
 # ---------------------------------------------------------------------------------------------
 # the joint query and its neighbours
 
@@ -127,6 +139,10 @@ class RetrievalSide:
         self._corpus_emb: dict[str, np.ndarray] = {"image": image_emb,
                                                    "tactile_caption": text_emb}
         self._emb_lock = threading.Lock()
+        #: the touch gate of the gated query (`ratouch.model.gate`), with the trust
+        #: calibration's novelty models; None: the gated query is the paper's (warned once)
+        self.gate: TouchGate | None = None
+        self._gate_warned = False
 
     @classmethod
     def load(cls, encoder: str = "default-s", corpus: str | os.PathLike | None = None,
@@ -136,14 +152,32 @@ class RetrievalSide:
         corpus = corpus or default_corpus(encoder, progress=progress)
         return cls(open_retriever(corpus, encoder, index), load_tgr(encoder))
 
-    def joint_query(self, V: np.ndarray, T: np.ndarray, tgr=None) -> np.ndarray:
+    def joint_query(self, V: np.ndarray, T: np.ndarray, tgr=None, gated: bool = False
+                    ) -> np.ndarray:
         """The Tactile-Guided Retriever's joint query Q for (N, D) visual and tactile
         embeddings (`tgr`: another trained retriever, e.g. an ablation's; default this
-        side's own)."""
+        side's own); `gated`: the trust-gated query instead (`gated_query`)."""
         with torch.no_grad():
-            return (tgr or self.tgr)(torch.from_numpy(np.ascontiguousarray(V, np.float32)),
-                                     torch.from_numpy(np.ascontiguousarray(T, np.float32))
-                                     ).query.numpy()
+            J = (tgr or self.tgr)(torch.from_numpy(np.ascontiguousarray(V, np.float32)),
+                                  torch.from_numpy(np.ascontiguousarray(T, np.float32))
+                                  ).query.numpy()
+        return self._gated(V, T, J)[0] if gated else J
+
+    def gated_query(self, V: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """((N, D) trust-gated queries, (N,) touch weights): the joint query moved towards
+        the image query as far as touch cannot be trusted (`ratouch.model.gate`)."""
+        return self._gated(V, T, self.joint_query(V, T))
+
+    def _gated(self, V: np.ndarray, T: np.ndarray, J: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+        if self.gate is None:
+            if not self._gate_warned:
+                log.warning("no touch gate for %s: the gated query is the paper's joint query "
+                            "(`ratouch train gate --encoder %s`)", self.encoders.name,
+                            self.encoders.name)
+                self._gate_warned = True
+            return J, np.ones(len(J))
+        return self.gate.query(V, T, J)
 
     def joint_neighbours(self, V: np.ndarray, T: np.ndarray, k: int, batch: int = 1024
                          ) -> np.ndarray:

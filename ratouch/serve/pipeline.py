@@ -25,6 +25,7 @@ import torch
 
 from ratouch.errors import ConfigError
 from ratouch.model.fastpath import StackCache
+from ratouch.model.gate import TouchGate
 from ratouch.model.generator import describe_together, load_generator
 from ratouch.model.geometry import GeometryCalibration
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
@@ -32,12 +33,13 @@ from ratouch.model.neighbour_tokens import KIND as NEIGHBOUR_TOKENS
 from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
 from ratouch.model.trust import TrustCalibration
 from ratouch.paths import generator_weights, geometry_calibration, trust_calibration
-from ratouch.search.modes import IMAGE_MODE, QUERY_MODES, RA_TOUCH_MODE
+from ratouch.search.modes import IMAGE_MODE, QUERY_MODES, RA_TOUCH_MODE, RETRIEVAL_SYSTEMS
 from ratouch.search.pca import PCA2D
 from ratouch.search.retrieval import CorpusSearch
 from ratouch.search.retrieval_side import (
     RetrievalSide,
     default_corpus,
+    load_gate,
     load_tgr,
     open_retriever,
 )
@@ -52,6 +54,10 @@ from ratouch.serve.request import (
 from ratouch.timing import Laps
 
 log = logging.getLogger(__name__)
+
+#: The retrieval system a request that names none is answered with (a key of
+#: `RETRIEVAL_SYSTEMS`), chosen by the measurements in docs/premise.md.
+DEFAULT_RETRIEVAL = "paper"
 
 
 def integrator_factory(cfg: dict):
@@ -128,9 +134,16 @@ class RATouchPipeline(RetrievalSide):
     """
 
     def __init__(self, retriever: CorpusSearch, tgr, generator_ra, generator_base,
-                 pca: PCA2D | None = None, trust: TrustCalibration | None = None):
+                 pca: PCA2D | None = None, trust: TrustCalibration | None = None,
+                 gate: TouchGate | None = None, retrieval: str = DEFAULT_RETRIEVAL):
         super().__init__(retriever, tgr)
         self.trust = trust  # None: queries say that nothing flags unfamiliar inputs
+        self.gate = gate
+        if retrieval not in RETRIEVAL_SYSTEMS:
+            raise ConfigError(f"unknown retrieval system {retrieval!r}; one of "
+                              f"{', '.join(RETRIEVAL_SYSTEMS)}")
+        #: the retrieval system a request that names none is answered with
+        self.retrieval = retrieval
         self.generator_ra = generator_ra
         self.generator_base = generator_base
         image_emb = self.corpus_embeddings("image")
@@ -147,17 +160,20 @@ class RATouchPipeline(RetrievalSide):
     @classmethod
     def load(cls, encoder: str = "default-s", corpus: str | os.PathLike | None = None,
              index: str = "flat", progress: bool = False,
-             generators: bool = True) -> "RATouchPipeline":
+             generators: bool = True, retrieval: str = DEFAULT_RETRIEVAL) -> "RATouchPipeline":
         """Load everything for an encoder; the default corpus is built on first use.
         `generators=False` loads no generators (for evaluating retrieval): `answer` then
-        needs them set first."""
+        needs them set first. `retrieval`: the retrieval system of requests that name none
+        ("paper" or "gated")."""
         corpus = corpus or default_corpus(encoder, progress=progress)
         retriever = open_retriever(corpus, encoder, index)
         gen_ra = gen_base = None
         if generators:
             gen_ra = load_for_serving(generator_weights(encoder, "ra"))
             gen_base = load_for_serving(generator_weights(encoder, "baseline"), integrator=False)
-        return cls(retriever, load_tgr(encoder), gen_ra, gen_base, trust=load_trust(encoder))
+        trust = load_trust(encoder)
+        return cls(retriever, load_tgr(encoder), gen_ra, gen_base, trust=trust,
+                   gate=load_gate(encoder, trust), retrieval=retrieval)
 
     @property
     def name(self) -> str:
@@ -259,8 +275,31 @@ class RATouchPipeline(RetrievalSide):
             box=[int(v) for v in req.box],
             encoder=self.encoders.name,
             visual_route=encoded[j].route,
-            trust=None if t is None else {m: t[m] for m in ("visual", "tactile")})
+            trust=None if t is None else {m: t[m] for m in ("visual", "tactile")},
+            retrieval=self._retrieval_block(req, encoded[j]))
             for j, (req, t) in enumerate(zip(requests, trust))]
+
+    def reads(self, request: QueryRequest) -> str:
+        """The query mode whose neighbours RA-Touch reads for `request`: its retrieval
+        system's (`RETRIEVAL_SYSTEMS`), or this pipeline's default."""
+        return RETRIEVAL_SYSTEMS[request.retrieval or self.retrieval]
+
+    def _retrieval_block(self, request: QueryRequest, encoded: Encoded) -> dict | None:
+        """The result's "retrieval": which neighbours RA-Touch read and how far touch was
+        trusted to steer them (None without a frame)."""
+        if encoded.T is None:
+            return None
+        system = request.retrieval or self.retrieval
+        out: dict = {"system": system, "reads": RETRIEVAL_SYSTEMS[system]}
+        if self.gate is None:
+            out.update(kind=None, touch_weight=1.0, features={},
+                       why=["no touch gate for this model: the gated query is the paper's"])
+        else:
+            out.update(self.gate.explain(encoded.V, encoded.T, encoded.queries[RA_TOUCH_MODE]))
+        if system == "paper":
+            out["why"] = ["the paper's joint query: touch steers the search fully"] + \
+                [f"(the gate would have weighed touch {out['touch_weight']:.2f})"]
+        return out
 
     def _assess(self, request: QueryRequest, encoded: Encoded) -> dict | None:
         """Step 2: the trust block of one request (None: no calibration)."""
@@ -311,7 +350,7 @@ class RATouchPipeline(RetrievalSide):
         p_ra, p_base = [], []
         for j in touch:  # each prompt on its own (a batched one rounds differently)
             e = encoded[j]
-            prefix, weights = self.ra_prefix(e.V, e.T, found[j][RA_TOUCH_MODE][1])
+            prefix, weights = self.ra_prefix(e.V, e.T, found[j][self.reads(requests[j])][1])
             p_ra.append(prefix[0])
             attention[j] = {name: [round(float(x), 4) for x in w[0]]
                             for name, w in weights.items()}
@@ -389,7 +428,7 @@ class RATouchPipeline(RetrievalSide):
 
         Returns:
             {"description": {"ra_touch"}, "neighbours": [entries as in a query's, scored by
-            the joint query], "attention": {"image"|"text": [per neighbour]}, "timings_ms",
+            the query RA-Touch reads], "attention": {"image"|"text": [per neighbour]}, "timings_ms",
             "warnings"}.
         """
         clock = Laps()
@@ -400,7 +439,7 @@ class RATouchPipeline(RetrievalSide):
         bg = request.background
         T = self.encoders.encode_tactile([request.frame], None if bg is None else [bg])
         clock.lap("encode")
-        q = self.joint_query(V, T)[0]
+        q = self.joint_query(V, T, gated=self.reads(request) != RA_TOUCH_MODE)[0]
         text = self.corpus_embeddings("tactile_caption")[ids]        # (K, D)
         scores = text @ q / np.maximum(np.linalg.norm(text, axis=1) * np.linalg.norm(q), 1e-12)
         p_ra, weights = self.ra_prefix(V, T, ids[None])

@@ -27,6 +27,7 @@ from ratouch.images import (
     to_rgb_array,
     tvl_contact_box,
 )
+from ratouch.search.modes import RETRIEVAL_SYSTEMS
 
 Box = tuple[int, int, int, int]
 
@@ -79,6 +80,9 @@ class QueryRequest:
         label: the ground-truth tactile caption, when known (plotted in the PCA).
         model: the model that should answer (an encoder set or "cascade"), for a server that
             offers a choice (`ratouch.serve.models.ModelChoice`); None: its default.
+        retrieval: the retrieval system RA-Touch answers with (a key of
+            `ratouch.search.modes.RETRIEVAL_SYSTEMS`: "paper" or "gated"); None: the
+            answerer's default.
         warnings: what decoding had to assume (no box, no tactile image, ...).
         decode_ms: what decoding took.
     """
@@ -92,11 +96,12 @@ class QueryRequest:
     model: str | None = None
     warnings: tuple[str, ...] = ()
     decode_ms: float = 0.0
+    retrieval: str | None = None
 
     @classmethod
     def decode(cls, visual: Any, tactile: Any = None, box=None, k: int = 5,
                label: str | None = None, background: Any = None,
-               model: str | None = None) -> "QueryRequest":
+               model: str | None = None, retrieval: str | None = None) -> "QueryRequest":
         """Check and decode one query's inputs.
 
         The work is bounded whatever the upload's size: the visual crop and the tactile frame
@@ -114,13 +119,18 @@ class QueryRequest:
                 None: used by the no-contact check (and by encoders trained on
                 background-subtracted frames).
             model: the model that should answer, where there is a choice.
+            retrieval: the retrieval system ("paper" or "gated"), or None: the default.
 
         Raises:
-            ConfigError: k is not a whole number from 1 to `MAX_K`.
+            ConfigError: k is not a whole number from 1 to `MAX_K`; an unknown retrieval
+                system.
             DataError, DataNotFoundError, OSError: an image or the box cannot be used.
         """
         t0 = time.perf_counter()
         k = check_k(k, MAX_K)
+        if retrieval is not None and retrieval not in RETRIEVAL_SYSTEMS:
+            raise ConfigError(f"unknown retrieval system {retrieval!r}; one of "
+                              f"{', '.join(RETRIEVAL_SYSTEMS)}")
         width, height = oriented_size(visual, "visual image")
         warnings: list[str] = []
         used = clip_box(tvl_contact_box(width, height) if box is None else box, width, height)
@@ -133,7 +143,7 @@ class QueryRequest:
         crop = crop_box(visual, used, max_side=QUERY_MAX_SIDE, name="visual image")
         frame, bg = _tactile_inputs(tactile, background, warnings)
         return cls(crop, frame, bg, used, k, label, model, tuple(warnings),
-                   round((time.perf_counter() - t0) * 1000, 2))
+                   round((time.perf_counter() - t0) * 1000, 2), retrieval)
 
 
 def _plain(box) -> list:
@@ -203,6 +213,9 @@ class QueryResult:
             {"novelty", "threshold", "novel", "contact", "contact_threshold", "no_contact",
             "background"} or None}, or None (no calibration). A uniform visual crop (a blank
             or flat photo) is novel whatever its distance (`model.trust.UNIFORM_SPREAD`).
+        retrieval: which neighbours RA-Touch read and how far touch steered them:
+            {"system" ("paper" or "gated"), "reads" (the query mode), "touch_weight",
+            "kind", "features", "why"}; None without a tactile frame.
         cascade: where a cascade answered, {"answered_by", "stage", "escalated",
             "confidence": [per stage tried], "thresholds", "measure"}; else None.
     """
@@ -218,13 +231,15 @@ class QueryResult:
     visual_route: dict
     trust: dict | None
     cascade: dict | None = field(default=None)
+    retrieval: dict | None = field(default=None)
 
     def to_dict(self) -> dict:
         """The JSON-ready dict, keys in this order ("cascade" only where a cascade answered)."""
         out = {"neighbours": self.neighbours, "description": self.description,
                "attention": self.attention, "pca": self.pca, "timings_ms": self.timings_ms,
                "warnings": self.warnings, "box": self.box, "encoder": self.encoder,
-               "visual_route": self.visual_route, "trust": self.trust}
+               "visual_route": self.visual_route, "trust": self.trust,
+               "retrieval": self.retrieval}
         if self.cascade is not None:
             out["cascade"] = self.cascade
         return out

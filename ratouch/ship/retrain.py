@@ -24,6 +24,7 @@ from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.ship.cascade import CascadeConfig, calibrate_cascade
 from ratouch.timing import Laps
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
+from ratouch.train.gate import gate_recipe
 from ratouch.train.geometry import calibrate as calibrate_geometry
 from ratouch.train.recipes import generator_recipe, retriever_recipe
 from ratouch.train.trust import TrustConfig, calibrate
@@ -65,6 +66,9 @@ def train_all(seed: int = 0, progress: bool = True, report=print, encoders: bool
         cal.save(trust_calibration(name))
         report({"trust": name, **cal.meta})
         lap(f"trust_{name}")
+        # the touch gate reads the retriever and the trust calibration's novelty models
+        report({"gate": name, **gate_recipe(name, seed=seed)})
+        lap(f"gate_{name}")
         prior = generator_weights(name, "prior")
         if prior.is_dir():
             shutil.rmtree(prior)  # trained on the old encoders' text embeddings
