@@ -32,9 +32,10 @@ def mean_mode():
 
 
 def test_built_in_modes_and_their_rows():
-    assert list(QUERY_MODES) == ["image", "tactile", "joint"] and RA_TOUCH_MODE == "joint"
-    assert QUERY_MODES.needing_touch() == ("tactile", "joint")
-    assert "".join(QUERY_MODES[m].letter for m in QUERY_MODES) == "ITJ"
+    assert list(QUERY_MODES) == ["image", "tactile", "joint", "gated"]
+    assert RA_TOUCH_MODE == "joint"
+    assert QUERY_MODES.needing_touch() == ("tactile", "joint", "gated")
+    assert "".join(QUERY_MODES[m].letter for m in QUERY_MODES) == "ITJG"
     with pytest.raises(ConfigError, match="'both'"):
         QUERY_MODES["both"]
     with pytest.raises(ConfigError, match="already registered"):

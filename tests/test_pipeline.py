@@ -18,7 +18,7 @@ from ratouch.serve.request import QueryRequest, QueryResult, answer_one
 def test_query_returns_every_documented_field(pipeline, world):
     s = world.sample("test", 120)
     r = pipeline.query(s.visual, s.tactile, box=s.box, k=5, label=s.caption)
-    assert set(r["neighbours"]) == {"image", "tactile", "joint"}
+    assert set(r["neighbours"]) == {"image", "tactile", "joint", "gated"}
     for items in r["neighbours"].values():
         assert len(items) == 5
         assert {"id", "score", "class_name", "caption"} <= set(items[0])
@@ -243,7 +243,7 @@ def test_answer_is_query_and_batches_match_single_answers(debug_pipeline, world)
     once = pipe.query(s.visual, s.tactile, box=s.box, k=5, label=s.caption)
     again = batch[0].to_dict()
     assert list(once) == ["neighbours", "description", "attention", "pca", "timings_ms",
-                          "warnings", "box", "encoder", "visual_route", "trust"]
+                          "warnings", "box", "encoder", "visual_route", "trust", "retrieval"]
     # the same request alone: the same answer (a batch's floats differ in the last bits)
     assert {k: v for k, v in once.items() if k not in ("timings_ms", "pca")} == \
         {k: v for k, v in again.items() if k not in ("timings_ms", "pca")}

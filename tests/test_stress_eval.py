@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from ratouch.errors import ConfigError
+from ratouch.search.modes import QUERY_MODES
 
 
 class FakeGenerator:
@@ -84,9 +85,9 @@ def test_structure_and_ranges(result):
                 g = p["generators"][s]
                 assert 1.0 <= g["judge"] <= 10.0
                 assert 0.0 <= g["identical"] <= 1.0 and 0.0 <= g["adj_jaccard"] <= 1.0
-        assert set(knob["break_points"]) == {f"P@5 {m}" for m in ("image", "tactile", "joint")} \
+        assert set(knob["break_points"]) == {f"P@5 {m}" for m in QUERY_MODES} \
             | {"judge baseline", "judge ra-touch"} \
-            | {f"overlap {m}" for m in ("image", "tactile", "joint")}
+            | {f"overlap {m}" for m in QUERY_MODES}
     assert len(result["_progress"]) >= 5
     json.dumps(result)  # JSON-able
 

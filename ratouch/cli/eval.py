@@ -90,7 +90,8 @@ def _eval_premise(args: argparse.Namespace) -> int:
         print(json.dumps(why_ignored(args.encoder), indent=1))
         return 0
     say = (lambda m: print(m, file=sys.stderr)) if args.json else print
-    r = run_premise(args.encoder, runs=args.runs, n=args.n, k=args.k, progress=say)
+    r = run_premise(args.encoder, runs=args.runs, n=args.n, k=args.k, progress=say,
+                    arm=not args.no_arm)
     print(json.dumps(r, indent=1) if args.json else format_premise(r))
     return 0
 

@@ -11,6 +11,7 @@ import math
 from ratouch.encoders.factory import CHAIN_SETS, DEFAULT_ENCODER, DEFAULT_SETS, OTHER_SETS
 from ratouch.eval.catalog import EXPERIMENT_HELP, SYSTEMS
 from ratouch.search.kinds import APPROXIMATE_KINDS, BENCH_KINDS, KINDS
+from ratouch.search.modes import RETRIEVAL_SYSTEMS
 
 DESCRIPTION = "The `ratouch` command line: a thin client of the library."
 
@@ -298,6 +299,8 @@ def _add_eval(sub) -> None:
                          "the others train into the cache on first use, ~8 min each)")
     pr.add_argument("--n", type=_pos_int, default=500, help="held-out pairs per group")
     pr.add_argument("--k", type=_pos_int, default=5, help="neighbours RA-Touch reads")
+    pr.add_argument("--no-arm", action="store_true",
+                    help="leave out the neighbour-token arm (it trains on first use)")
     pr.add_argument("--why", action="store_true",
                     help="instead: evidence for why the shipped generator does (not) read its "
                          "neighbours, on its training pairs (F1 of copying them, the "
@@ -415,6 +418,10 @@ def _add_query(sub) -> None:
                    help="neighbours per query mode (at most the app's largest K, "
                         "serve.request.MAX_K)")
     q.add_argument("--label", default=None, help="ground-truth caption, if known (for the PCA)")
+    q.add_argument("--retrieval", choices=tuple(RETRIEVAL_SYSTEMS), default=None,
+                   help="the neighbours RA-Touch reads: 'paper' (the joint query) or 'gated' "
+                        "(touch weighed by how far it can be trusted); default: the shipped "
+                        "choice")
     q.add_argument("--encoder", default=DEFAULT_ENCODER,
                    help="encoder set (default-tiny, default-s, default-b where trained), or "
                         "'cascade': the smallest confident one answers")

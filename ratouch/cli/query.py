@@ -33,12 +33,13 @@ def run(args: argparse.Namespace) -> int:
 
 def _query(args: argparse.Namespace, swap: list[int] | None) -> int:
     request = QueryRequest.decode(args.vision, args.tactile, box=args.box, k=args.k,
-                                  label=args.label, background=args.background)
+                                  label=args.label, background=args.background,
+                                  retrieval=args.retrieval)
     model = load_model(args.encoder, corpus=args.corpus, index=args.index)  # after the checks
     result = answer_one(model, request).to_dict()
     if args.drop is not None or swap is not None:
-        ids = swap if swap is not None else [n["id"] for n in
-                                             result["neighbours"][RA_TOUCH_MODE]]
+        reads = (result.get("retrieval") or {}).get("reads", RA_TOUCH_MODE)
+        ids = swap if swap is not None else [n["id"] for n in result["neighbours"][reads]]
         drop = set(args.drop or ())
         if drop - set(ids):
             raise usage(f"--drop: {sorted(drop - set(ids))} are not among the neighbours {ids}")
@@ -59,7 +60,7 @@ def _neighbours_file(path: str) -> list[int]:
         data = data.get("regenerated", data)
         nb = data.get("neighbours") if isinstance(data, dict) else None
         if isinstance(nb, dict):  # a query's output: {mode: [...]}
-            nb = nb.get(RA_TOUCH_MODE)
+            nb = nb.get((data.get("retrieval") or {}).get("reads", RA_TOUCH_MODE))
         data = [n.get("id") if isinstance(n, dict) else n for n in nb] \
             if isinstance(nb, list) else None
     if not isinstance(data, list) or not all(isinstance(i, int) and not isinstance(i, bool)

@@ -30,6 +30,8 @@ from ratouch.eval.judge import OfflineJudge
 from ratouch.model.generator import load_generator
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.paths import cache_dir, generator_weights
+from ratouch.search.modes import QUERY_MODES
+from ratouch.search.retrieval import mode_query
 from ratouch.serve.pipeline import RATouchPipeline, integrator_factory, load_for_serving
 from ratouch.timing import Progress, bars, say_to
 from ratouch.train.recipes import generator_recipe, token_arm_recipe, training_pairs
@@ -93,14 +95,39 @@ def _arm_scores(p: RATouchPipeline, gen, split: TestSplit, k: int, judge, seed: 
                                                ids[derangement(len(ids), seed)]))}
 
 
+def _gated_scores(p: RATouchPipeline, split: TestSplit, k: int, judge, seed: int
+                  ) -> dict[str, np.ndarray]:
+    """Judge scores of the `gated` system (RA-Touch reading the trust-gated query's
+    neighbours) with its own and with shuffled neighbours."""
+    ids = p.corpus.search("text", p.joint_query(split.V, split.T, gated=True), k)[1]
+    return {name: answer_split(p, split, RA_TOUCH, ids=nb, name=name, judge=judge).scores
+            for name, nb in (("gated", ids), ("gated_shuffled",
+                                              ids[derangement(len(ids), seed)]))}
+
+
+def mode_precision(p: RATouchPipeline, split: TestSplit, k: int) -> dict[str, float]:
+    """Material P@k of every query mode against the caption index on a split."""
+    entry_mats = np.asarray([e.material for e in p.corpus.entries])
+    mats = np.asarray(split.materials)
+    out = {}
+    for m in QUERY_MODES:
+        ids = p.corpus.search("text", mode_query(m, split.V, split.T, p.joint_query), k)[1]
+        out[m] = round(float((entry_mats[ids] == mats[:, None]).mean()), 4)
+    return out
+
+
 def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int = 5,
                 progress: Progress = False,
-                pipeline: RATouchPipeline | None = None, arm: bool = True) -> dict:
+                pipeline: RATouchPipeline | None = None, arm: bool = True,
+                gated: bool = True) -> dict:
     """Baseline against RA-Touch on seen and scarce materials, over `runs` runs, with controls.
 
     `pipeline`: the loaded retrieval side to use (default: `RATouchPipeline.load(encoder)`, on
     the default 10k corpus). `arm`: also train (on first use) and judge the neighbour-token
     arm, the second arm that bounds what retrieval can deliver (`neighbour_tokens` per group).
+    `gated`: also judge the `gated` system, the shipped RA-Touch reading the trust-gated
+    query (`gated` per group, with its own verdict, `gated_verdict`), and report every
+    mode's material P@k per group (`precision`).
 
     Returns:
         {"config", "scarce_materials", "groups": {group: {"baseline", "ra_touch", "gain",
@@ -121,19 +148,26 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
     for run in range(runs):
         ra, base = run_generators(encoder, run, progress)
         tokens = token_arm(encoder, run, progress) if arm else None
-        p = RATouchPipeline(pipe.retriever, pipe.tgr, ra, base, pca=pipe.pca, trust=pipe.trust)
+        p = RATouchPipeline(pipe.retriever, pipe.tgr, ra, base, pca=pipe.pca, trust=pipe.trust,
+                            gate=pipe.gate)
         for g in GROUPS:
             r = run_controls(p, k=k, shuffles=1, judge=judge, seed=run, split=splits[g],
                              keep_scores=True)
             if tokens is not None:
                 r["scores"].update(_arm_scores(p, tokens, splits[g], k, judge, seed=run))
+            if gated:
+                r["scores"].update(_gated_scores(p, splits[g], k, judge, seed=run))
             per_run[g].append(r)
             say(f"run {run} {g}: baseline {r['systems']['baseline']['mean']:.3f}, RA-Touch "
                 f"{r['systems']['ra_touch']['mean']:.3f}, shuffle drop "
                 f"{r['shuffle']['diff']:+.3f}")
     groups = {g: _aggregate(per_run[g], seed=0) for g in GROUPS}
     verdict, reason = decide(groups)
-    return {"config": {"encoder": encoder, "runs": runs, "n": n, "k": k, "judge": judge.name,
+    extra: dict = {}
+    if gated:
+        extra["precision"] = {g: mode_precision(pipe, splits[g], k) for g in GROUPS}
+        extra["gated_verdict"], extra["gated_verdict_reason"] = decide_gated(groups)
+    return {**extra,"config": {"encoder": encoder, "runs": runs, "n": n, "k": k, "judge": judge.name,
                        "regime": regime.tag, "draws": list(range(runs)),
                        "seeds": list(range(runs))},
             "scarce_materials": list(regime.scarce_materials()), "groups": groups,
@@ -168,7 +202,19 @@ def _aggregate(results: list[dict], seed: int) -> dict:
                "ci95": [round(x, 4) for x in pooled_ci(arm_gains, seed)],
                "shuffle_drop": round(float(np.mean([a.mean() for a in arm_drops])), 4),
                "shuffle_p": _p_value(arm_drops)}
+    gated = None
+    if "gated" in results[0]["scores"]:
+        g_gains = [r["scores"]["gated"] - r["scores"]["baseline"] for r in results]
+        g_drops = [r["scores"]["gated"] - r["scores"]["gated_shuffled"] for r in results]
+        gated = {"score": round(float(np.mean([r["scores"]["gated"].mean() for r in results])), 4),
+                 "gain": round(float(np.mean([a.mean() for a in g_gains])), 4),
+                 "ci95": [round(x, 4) for x in pooled_ci(g_gains, seed)],
+                 "shuffle_drop": round(float(np.mean([a.mean() for a in g_drops])), 4),
+                 "shuffle_drop_ci95": [round(x, 4) for x in pooled_ci(g_drops, seed)],
+                 "shuffle_p": _p_value(g_drops),
+                 "runs": [round(float(a.mean()), 4) for a in g_gains]}
     return {
+        "gated": gated,
         "n": results[0]["n"], "baseline": mean_of("baseline"), "ra_touch": mean_of("ra_touch"),
         "gain": round(float(run_gain.mean()), 4), "ci95": [round(lo, 4), round(hi, 4)],
         "ci95_runs": runs_ci,
@@ -238,6 +284,28 @@ def decide(groups: dict) -> tuple[str, str]:
     return "inconclusive", why
 
 
+def decide_gated(groups: dict) -> tuple[str, str]:
+    """The `gated` system's verdict by the criteria fixed before its first run (docs/premise.md,
+    "Trust-gated retrieval"), on the premise groups (the world test split's >= 7.60 is
+    measured apart, by `ratouch eval tvl`)."""
+    s, seen = groups["scarce"]["gated"], groups["seen"]["gated"]
+    lo, hi = s["ci95"]
+    seen_lo, seen_hi = seen["ci95"]
+    if s["gain"] >= PAPER_EFFECT and lo > 0 and s["shuffle_p"] < 0.01 \
+            and s["shuffle_drop"] > 0 and seen["gain"] >= -0.05:
+        return "supported", (f"on scarce materials gated gains {s['gain']:+.3f} [{lo:+.3f}, "
+                             f"{hi:+.3f}], shuffling costs {s['shuffle_drop']:+.3f} "
+                             f"(p = {s['shuffle_p']:.2g}), seen {seen['gain']:+.3f}")
+    if hi < PAPER_EFFECT or seen_hi < -0.05:
+        return "refuted", (f"on scarce materials gated gains {s['gain']:+.3f} [{lo:+.3f}, "
+                           f"{hi:+.3f}] (the criterion: >= +{PAPER_EFFECT}); seen "
+                           f"{seen['gain']:+.3f} [{seen_lo:+.3f}, {seen_hi:+.3f}]; shuffle drop "
+                           f"{s['shuffle_drop']:+.3f} (p = {s['shuffle_p']:.2g})")
+    return "inconclusive", (f"gated's scarce gain {s['gain']:+.3f} [{lo:+.3f}, {hi:+.3f}], "
+                            f"shuffle drop {s['shuffle_drop']:+.3f} (p = {s['shuffle_p']:.2g}), "
+                            f"seen {seen['gain']:+.3f}: neither criterion met")
+
+
 def format_premise(r: dict) -> str:
     """The premise's figures as a table, then the verdict."""
     c = r["config"]
@@ -261,12 +329,22 @@ def format_premise(r: dict) -> str:
             lines.append(f"  second arm (neighbour tokens, not the paper's method): {a['score']:.3f}, "
                          f"gain {a['gain']:+.3f} [{a['ci95'][0]:+.3f}, {a['ci95'][1]:+.3f}], "
                          f"shuffle drop {a['shuffle_drop']:+.3f} (p={a['shuffle_p']:.1g})")
+        gt = s.get("gated")
+        if gt:
+            lines.append(f"  gated (RA-Touch reading the trust-gated query): {gt['score']:.3f}, "
+                         f"gain {gt['gain']:+.3f} [{gt['ci95'][0]:+.3f}, {gt['ci95'][1]:+.3f}], "
+                         f"shuffle drop {gt['shuffle_drop']:+.3f} (p={gt['shuffle_p']:.1g})")
+        if r.get("precision"):
+            lines.append("  material P@k: " + ", ".join(
+                f"{m} {v:.3f}" for m, v in r["precision"][g].items()))
         for i, run in enumerate(s["runs"]):
             gd = run["gain"]
             lines.append(f"  run {i}: baseline {run['baseline']:.3f}, RA-Touch "
                          f"{run['ra_touch']:.3f}, gain {gd['diff']:+.3f} [{gd['ci_low']:+.3f}, "
                          f"{gd['ci_high']:+.3f}], shuffle drop {run['shuffle_drop']['diff']:+.3f}")
     lines.append(f"verdict: {r['verdict']}: {r['verdict_reason']} ({r['seconds']:.0f} s)")
+    if r.get("gated_verdict"):
+        lines.append(f"gated verdict: {r['gated_verdict']}: {r['gated_verdict_reason']}")
     return "\n".join(lines)
 
 

@@ -1,0 +1,158 @@
+"""The touch gate (`ratouch.model.gate`), its trainer, the gated query mode and the retrieval
+system a request names."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from conftest import HAVE_ASSETS
+from ratouch.cli import main
+from ratouch.errors import ConfigError, DataError, DataNotFoundError
+from ratouch.model.gate import FEATURES, TouchGate, fit_logistic, gate_features, mix
+from ratouch.model.trust import Novelty
+from ratouch.search.modes import QUERY_MODES, RETRIEVAL_SYSTEMS
+from ratouch.serve.request import QueryRequest
+
+
+def _novelty(dim: int, threshold: float = 1.5) -> Novelty:
+    return Novelty(np.zeros(dim), np.eye(dim)[:2], np.ones(2), 1.0, threshold)
+
+
+def _unit(x):
+    return x / np.linalg.norm(x, axis=1, keepdims=True)
+
+
+def test_mix_ends_are_the_two_queries():
+    rng = np.random.default_rng(0)
+    V, J = rng.normal(size=(3, 8)), rng.normal(size=(3, 8))
+    assert np.allclose(mix(V, J, np.ones(3)), _unit(J), atol=1e-6)
+    assert np.allclose(mix(V, J, np.zeros(3)), _unit(V), atol=1e-6)
+    half = mix(V, J, np.full(3, 0.5))
+    assert np.allclose(np.linalg.norm(half, axis=1), 1, atol=1e-6)
+    assert np.allclose(half, _unit(_unit(V) + _unit(J)), atol=1e-6)
+
+
+def test_rule_gate_turns_touch_off_where_it_is_novel():
+    nov = _novelty(4)
+    gate = TouchGate("rule").with_novelty(nov, nov)
+    V = np.ones((2, 4)) * 0.1
+    T = np.array([[0.1, 0.1, 0.1, 0.1], [9.0, 9.0, 9.0, 9.0]])  # familiar, far from the mean
+    w = gate.weights(V, T, V)
+    assert w.tolist() == [1.0, 0.0]
+    q, w2 = gate.query(V, T, np.array([[0, 0, 0, 1.0], [0, 0, 0, 1.0]]))
+    assert np.allclose(q[0], [0, 0, 0, 1.0]) and np.allclose(q[1], _unit(V)[1], atol=1e-6)
+    why = gate.explain(V[1:], T[1:], V[1:])
+    assert why["touch_weight"] == 0.0 and "unlike the training renders" in why["why"][0]
+
+
+def test_gate_needs_its_novelty_models():
+    with pytest.raises(ConfigError, match="novelty"):
+        TouchGate("rule").weights(np.ones((1, 4)), np.ones((1, 4)), np.ones((1, 4)))
+    with pytest.raises(ConfigError, match="kind"):
+        TouchGate("always")
+
+
+def test_logistic_fit_finds_the_separating_direction():
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(400, 3))
+    y = (X[:, 1] - 0.5 * X[:, 2] > 0).astype(float)
+    mean, scale, coef, b = fit_logistic(X, y)
+    p = 1 / (1 + np.exp(-(((X - mean) / scale) @ coef + b)))
+    assert ((p > 0.5) == (y > 0.5)).mean() > 0.95
+    assert coef[1] > 0 > coef[2] and abs(coef[0]) < abs(coef[1]) / 3
+    # weights: samples of weight 0 do not count
+    w = np.ones(400)
+    w[:200] = 0
+    y2 = y.copy()
+    y2[:200] = 1 - y2[:200]          # flipped labels, weight 0
+    _, _, coef2, _ = fit_logistic(X, y2, w)
+    assert coef2[1] > 0
+
+
+def test_gate_file_round_trip_and_bad_files(tmp_path):
+    nov = _novelty(4)
+    gate = TouchGate("learnt", np.arange(5.0), np.ones(5), np.array([1.0, -1, 0.5, 0, 2]), -0.3,
+                     report={"pairs": 10})
+    path = tmp_path / "g.json"
+    gate.save(path)
+    back = TouchGate.load(path).with_novelty(nov, nov)
+    rng = np.random.default_rng(2)
+    V, T, J = (rng.normal(size=(4, 4)) for _ in range(3))
+    assert np.allclose(back.weights(V, T, J), gate.with_novelty(nov, nov).weights(V, T, J))
+    assert back.report == {"pairs": 10}
+    assert gate_features(V, T, J, nov, nov).shape == (4, len(FEATURES))
+    with pytest.raises(DataNotFoundError, match="ratouch train gate"):
+        TouchGate.load(tmp_path / "missing.json")
+    path.write_bytes(b"\xff\xfe not json")
+    with pytest.raises(DataError, match="not a touch gate"):
+        TouchGate.load(path)
+    path.write_text(json.dumps({**gate.to_dict(), "features": ["x"]}))
+    with pytest.raises(DataError, match="not a touch gate"):
+        TouchGate.load(path)
+
+
+def test_the_gated_mode_and_the_retrieval_systems():
+    assert "gated" in QUERY_MODES and QUERY_MODES["gated"].needs_touch
+    assert set(RETRIEVAL_SYSTEMS) == {"paper", "gated"}
+    calls = []
+
+    def joint(V, T, gated=False):
+        calls.append(gated)
+        return V + T
+
+    V, T = np.ones((2, 3), np.float32), np.ones((2, 3), np.float32)
+    QUERY_MODES["gated"].vectors(V, T, joint)
+    QUERY_MODES["joint"].vectors(V, T, joint)
+    assert calls == [True, False]
+    with pytest.raises(ConfigError, match="unknown retrieval system 'best'"):
+        QueryRequest.decode(np.zeros((32, 32, 3), np.uint8), retrieval="best")
+    assert QueryRequest.decode(np.zeros((32, 32, 3), np.uint8), retrieval="gated").retrieval \
+        == "gated"
+
+
+def test_train_gate_rejects_too_few_pairs(capsys):
+    assert main(["train", "gate", "--n", "5"]) == 2
+    assert "at least 20" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_real_pipeline_reads_the_system_the_request_names(real_pipeline, world):
+    """With the shipped gate: a request naming "gated" has RA-Touch read the gated query's
+    neighbours, "paper" the joint query's; the result says which and how far touch steered;
+    touch that is pure noise is trusted less than the pair's own touch."""
+    s = world.sample("test", 40)
+    out = {}
+    for system in RETRIEVAL_SYSTEMS:
+        req = QueryRequest.decode(s.visual, s.tactile, s.box, 5, retrieval=system)
+        out[system] = real_pipeline.answer([req])[0].to_dict()
+    for system, res in out.items():
+        r = res["retrieval"]
+        assert r["system"] == system and r["reads"] == RETRIEVAL_SYSTEMS[system]
+        assert 0 <= r["touch_weight"] <= 1 and r["why"]
+        assert set(res["neighbours"]) >= {"joint", "gated"}
+    assert out["paper"]["retrieval"]["touch_weight"] == out["gated"]["retrieval"]["touch_weight"]
+    noise = np.random.default_rng(0).integers(0, 256, s.tactile.shape, dtype=np.uint8)
+    noisy = real_pipeline.answer([QueryRequest.decode(s.visual, noise, s.box, 5,
+                                                      retrieval="gated")])[0].to_dict()
+    if real_pipeline.gate is not None:
+        assert noisy["retrieval"]["kind"] == "learnt"
+        assert noisy["retrieval"]["touch_weight"] < out["gated"]["retrieval"]["touch_weight"]
+    image_only = real_pipeline.answer([QueryRequest.decode(s.visual, None, s.box, 5)])[0]
+    assert image_only.retrieval is None
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HAVE_ASSETS, reason="the trained weights are not in assets/")
+def test_fit_gate_on_a_few_probe_pairs(real_pipeline):
+    """The trainer end to end on 40 pairs: a learnt gate and a held-out table per variant."""
+    from ratouch.train.gate import VARIANTS, fit_gate, format_gate_report
+
+    gate = fit_gate(real_pipeline, real_pipeline.trust, n=40, seed=3, scarce=("cotton",))
+    assert gate.kind == "learnt" and np.isfinite(gate.coef).all()
+    assert set(gate.report["by_variant"]) == set(VARIANTS)
+    row = gate.report["by_variant"]["clean"]["all"]
+    assert row["n"] == 20 and all(0 <= row[m] <= 1 for m in ("paper", "image", "rule", "learnt"))
+    assert "mismatched" in format_gate_report(gate.report)
