@@ -91,6 +91,9 @@ def _inputs(ui: SimpleNamespace, page: Page, n_corpus: int) -> None:
                                  type="filepath", image_mode=None, format="png",
                                  sources=["upload"], height=TACTILE_HEIGHT,
                                  elem_id="background")
+    # the press read against the background as a height map (after a query), else the hint
+    # that a background gives one: one low strip, so that Run stays on the first screen
+    ui.geometry = gr.HTML(view.GEOMETRY_HINT, elem_id="geometry", elem_classes="ra-answer")
     models = page.models or []
     with gr.Row(equal_height=True):
         largest = min(page.largest_k(), n_corpus)
@@ -155,7 +158,7 @@ def outputs(ui: SimpleNamespace) -> SimpleNamespace:
                       **{f"gallery_{m}": c for m, c in ui.galleries.items()},
                       **{f"table_{m}": c for m, c in ui.tables.items()},
                       "plot": ui.plot, "description": ui.description,
-                      "timings": ui.timings, "raw": ui.raw})
+                      "timings": ui.timings, "raw": ui.raw, "geometry": ui.geometry})
     kept = Outputs({"stale": ui.stale, "shown": ui.shown, "history": ui.history,
                     "export_json": ui.export_json, "export_csv": ui.export_csv,
                     "link": ui.link, "compare_a": ui.compare_a, "compare_b": ui.compare_b,

@@ -259,7 +259,8 @@ class RATouchPipeline(RetrievalSide):
             box=[int(v) for v in req.box],
             encoder=self.encoders.name,
             visual_route=encoded[j].route,
-            trust=None if t is None else {m: t[m] for m in ("visual", "tactile")})
+            trust=None if t is None else {m: t[m] for m in ("visual", "tactile")},
+            height_map=None if t is None else t.get("height_map"))
             for j, (req, t) in enumerate(zip(requests, trust))]
 
     def _assess(self, request: QueryRequest, encoded: Encoded) -> dict | None:
