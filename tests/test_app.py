@@ -938,7 +938,7 @@ def test_a_background_of_another_size_is_named_alike_on_upload_and_on_run(pair_f
     Image.new("RGB", (50, 60)).save(bg)
     said = "is 50x60 (WxH) but the tactile image is 96x128; the background must be the same"
     upload = handlers.upload_background(str(bg), str(pair_files[1]))
-    assert upload[0] is None and said in upload[1]  # removed at once, and why
+    assert upload["background"] is None and said in upload["status"]  # removed, and why
     with pytest.raises(DataError, match=re.escape(said)):
         QueryRequest.decode(str(pair_files[0]), str(pair_files[1]), background=str(bg))
 
