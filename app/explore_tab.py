@@ -22,7 +22,7 @@ from app.page import Outputs, Page
 # A few structured close-ups (indices < 46), then wild scenes, spread over the test split.
 EXAMPLES = [0, 12, 40, 60, 140, 190, 290, 390]
 VISUAL_HEIGHT = 236  # the preview's display height: the inputs fit beside the answer
-TACTILE_HEIGHT = 118
+TACTILE_HEIGHT = 100  # with the height-map strip under them, Run stays on a 1280x800 screen
 SESSION_TTL_S = 2 * 3600
 EXPORTS = Path(tempfile.gettempdir()) / "ratouch-exports"  # gradio copies them to its cache
 
@@ -91,6 +91,9 @@ def _inputs(ui: SimpleNamespace, page: Page, n_corpus: int) -> None:
                                  type="filepath", image_mode=None, format="png",
                                  sources=["upload"], height=TACTILE_HEIGHT,
                                  elem_id="background")
+    # the press read against the background as a height map (after a query), else the hint
+    # that a background gives one: one low strip, so that Run stays on the first screen
+    ui.geometry = gr.HTML(view.GEOMETRY_HINT, elem_id="geometry", elem_classes="ra-answer")
     models = page.models or []
     with gr.Row(equal_height=True):
         largest = min(page.largest_k(), n_corpus)
@@ -155,7 +158,7 @@ def outputs(ui: SimpleNamespace) -> SimpleNamespace:
                       **{f"gallery_{m}": c for m, c in ui.galleries.items()},
                       **{f"table_{m}": c for m, c in ui.tables.items()},
                       "plot": ui.plot, "description": ui.description,
-                      "timings": ui.timings, "raw": ui.raw})
+                      "timings": ui.timings, "raw": ui.raw, "geometry": ui.geometry})
     kept = Outputs({"stale": ui.stale, "shown": ui.shown, "history": ui.history,
                     "export_json": ui.export_json, "export_csv": ui.export_csv,
                     "link": ui.link, "compare_a": ui.compare_a, "compare_b": ui.compare_b,

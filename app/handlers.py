@@ -287,6 +287,8 @@ class QueryView:
         description: the trust line, both descriptions and what retrieval did.
         timings: the per-stage timings line.
         raw: the answer's JSON (None: no answer).
+        geometry: the press read as a height map against the sensor's background, or
+            the hint that a background gives one (`view.geometry_html`).
     """
 
     status: str
@@ -296,21 +298,22 @@ class QueryView:
     description: str
     timings: str
     raw: dict | None
+    geometry: str = view.GEOMETRY_HINT
 
     def named(self) -> dict[str, Any]:
         """The view by output name: "status", "gallery_<mode>" and "table_<mode>" per mode,
-        "plot", "description", "timings", "raw"."""
+        "plot", "description", "timings", "raw", "geometry"."""
         return {"status": self.status,
                 **{f"gallery_{m}": html for m, html in self.galleries.items()},
                 **{f"table_{m}": html for m, html in self.tables.items()},
                 "plot": self.plot, "description": self.description, "timings": self.timings,
-                "raw": self.raw}
+                "raw": self.raw, "geometry": self.geometry}
 
 
 def output_names(modes: Iterable[str] = view.MODES) -> list[str]:
     """`QueryView.named`'s names for the query modes `modes`."""
     return ["status", *(f"gallery_{m}" for m in modes), *(f"table_{m}" for m in modes),
-            "plot", "description", "timings", "raw"]
+            "plot", "description", "timings", "raw", "geometry"]
 
 
 def error_view(message: str) -> QueryView:
@@ -339,7 +342,9 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
             progress(0.05, desc=wait_note or "encoding, retrieving, generating…")
         request = QueryRequest.decode(visual.source, tactile, box=box, k=k, label=visual.label,
                                       background=background, model=encoder or None)
-        result = answer_one(pipe, request).to_dict()
+        answered = answer_one(pipe, request)
+        result = answered.to_dict()
+        height = answered.height_map  # the press as geometry (with a background)
         t0 = time.perf_counter()
         waited_ms = (t0 - t_run) * 1000  # from Run: decoding, any wait for a model, answer
         if progress is not None:
@@ -356,11 +361,14 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
     # case's descriptions that its table row judged keep the row's scores
     scores = (failures.judge_scores(visual.label, result["description"], judge,
                                     judged_descriptions(visual)) if judge else {})
+    geometry = view.geometry_html(result, None if height is None else height.image(),
+                                  request.background is not None)
     render_ms = (time.perf_counter() - t0) * 1000
     return QueryView(view.status_md(visual.title, result["warnings"], result.get("box"), result),
                      galleries, tables, pca_figure(result, visual.label),
                      view.description_md(result, visual.label, scores, trace),
-                     view.timings_md(result["timings_ms"], render_ms, waited_ms), result)
+                     view.timings_md(result["timings_ms"], render_ms, waited_ms), result,
+                     geometry)
 
 
 def neighbour_picker(result: dict | None):

@@ -178,6 +178,10 @@ def _trust(result: Mapping) -> str:
                          f"{'unfamiliar' if t['novel'] else 'familiar'}")
             if "contact" in t:
                 cells.append(f"contact {t.get('state') or ('no contact' if t['no_contact'] else 'contact')}")
+            geo = t.get("geometry")
+            if geo:  # the press as a height map (read against a background)
+                cells.append(f"depth {geo['depth']:.3g} {geo['units']}, spread "
+                             f"{geo['spread']:.0%}, relief {geo['relief']:.3g}")
     return "; ".join(cells) or "not checked"
 
 

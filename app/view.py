@@ -91,14 +91,19 @@ def group_by_caption(neighbours: Sequence[dict]) -> list[tuple[int, dict, int]]:
     return [tuple(g) for g in groups.values()]
 
 
-def data_uri(image: np.ndarray | str) -> str:
-    """A thumbnail as an inline JPEG (a string passes through: already a URI)."""
+def data_uri(image: np.ndarray | str, png: bool = False) -> str:
+    """A thumbnail as an inline JPEG, or PNG (`png`: sharp colours of a false-colour map; a
+    string passes through: already a URI)."""
     if isinstance(image, str):
         return image
     buf = io.BytesIO()
-    Image.fromarray(np.asarray(image, dtype=np.uint8)).convert("RGB").save(buf, "JPEG",
-                                                                          quality=85)
-    return "data:image/jpeg;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+    picture = Image.fromarray(np.asarray(image, dtype=np.uint8)).convert("RGB")
+    if png:
+        picture.save(buf, "PNG")
+    else:
+        picture.save(buf, "JPEG", quality=85)
+    kind = "png" if png else "jpeg"
+    return f"data:image/{kind};base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
 def neighbour_strip(result: dict, mode: str, thumbnail: Callable[[int], np.ndarray | str],
@@ -245,6 +250,75 @@ def retrieval_md(trace: RetrievalTrace) -> str:
     return "\n".join(lines)
 
 
+# ---------------------------------------------------------------------- the press as geometry
+
+GEOMETRY_HINT = ("<div class='ra-geometry-note' id='geometry-hint'><b>Height map:</b> "
+                 "give the sensor's background (4: its frame with nothing pressed) to see the "
+                 "press as a height map, with its depth, spread and relief.</div>")
+#: How the height map's units are written, and what they are.
+UNITS = {"mm": ("mm", "millimetres: the family's lookup is fitted on a real sensor's "
+                      "calibrated ball presses"),
+         "render units": ("r.u.", "render units: no real calibration exists for this "
+                                  "family; its lookup is fitted on the world's renders, so "
+                                  "the depth is a guess in the renderer's own units")}
+
+
+def geometry_html(result: dict | None, picture: np.ndarray | None, background: bool) -> str:
+    """The press read as geometry, under the tactile inputs: its height map (`picture`,
+    `HeightMap.image`: dark is flat, white the deepest point) with its scale, depth, spread
+    and relief, and the structured-contact reading against the background. Without a
+    background the hint that one gives the height map; with one that nothing reads, why
+    there is none."""
+    tactile = ((result or {}).get("trust") or {}).get("tactile") or {}
+    if not background or result is None or not tactile.get("background", background):
+        return GEOMETRY_HINT
+    title = "<b>Height map</b> of the press against the background"
+    if not tactile:
+        return (f"<div class='ra-geometry-note'>{title}: none, the model has no trust "
+                "calibration, so the press is not read against its background.</div>")
+    geo, structure = tactile.get("geometry"), tactile.get("structure")
+    sensor = (tactile.get("sensor") or {}).get("family", "?")
+    if geo is None or picture is None:
+        why = ("no geometry calibration is loaded" if "geometry" not in tactile else
+               f"no geometry lookup reads the sensor family “{escape(sensor)}”")
+        return (f"<div class='ra-geometry-note'>{title}: none, {why}."
+                f"{structure_line(structure)}</div>")
+    unit, meaning = UNITS.get(geo["units"], (geo["units"], geo["units"]))
+    digits = 2 if unit == "mm" else 1
+    depth = f"{geo['depth']:.{digits}f} {unit}"
+    family = escape(geo["family"])
+    read = (f"<b class='ra-warn'>⚠ unfamiliar sensor</b>, read as {family} (a guess)"
+            if tactile.get("unfamiliar_sensor") else family)
+    named = "" if unit == geo["units"] else f" ({escape(geo['units'])})"
+    return (f"<div class='ra-geometry' id='geometry-map'>"
+            f"<img src='{data_uri(picture, png=True)}' alt='height map of the press (dark: "
+            f"flat; white: pushed in {depth})' title='dark: flat · white: pushed in {depth}'>"
+            f"<div class='ra-geometry-numbers'>"
+            f"<div><b>Height map</b> vs background · {read} · <span "
+            f"title='{escape(meaning, quote=True)}'>dark flat → white {depth}</span></div>"
+            f"<div>depth <b>{depth}</b>{named} · <span title='share of the gel pushed in by "
+            f"more than a third of the depth: a compliant object wraps the gel wide, a rigid "
+            f"one small and deep'>spread <b>{geo['spread']:.0%}</b></span> · <span "
+            f"title='RMS of the height map&#39;s fine detail: texture'>relief "
+            f"<b>{geo['relief']:.{digits + 1}f} {unit}</b></span></div>"
+            f"{structure_line(structure)}</div></div>")
+
+
+def structure_line(structure: dict | None) -> str:
+    """The structured-contact reading against the background: its score against the
+    family's threshold, and what it decides."""
+    if not structure:
+        return ""
+    score = structure.get("score")
+    shown = "n/a" if score is None else f"{score:.2f}"
+    mark = ("✓ contact" if structure.get("contact") else
+            "below: the trust line's contact check decides")
+    return (f"<div title='structured change against the background (edges and texture, the "
+            f"drift removed), in multiples of the family&#39;s blank floor; above the "
+            f"threshold is contact'>structured change <b>{shown}</b> × floor "
+            f"(contact &gt; {structure['threshold']:.2f}) {mark}</div>")
+
+
 TRUST_WORDS = ("no contact detected", "contact uncertain", "unlike the", "looks like none")
 
 
@@ -276,8 +350,9 @@ def trust_lines(result: dict) -> list[str]:
             cells.append(f"contact {score} (flag < {t['contact_threshold']:.2f}"
                          f"{against}) {mark}")
             sensor = t.get("sensor")
-            if sensor:
-                cells.append(f"sensor read as {escape(sensor['family'])} "
+            if sensor:  # an unfamiliar one is said whether or not a background is given
+                cells.append(("⚠ unfamiliar sensor, " if t.get("unfamiliar_sensor") else "")
+                             + f"sensor read as {escape(sensor['family'])} "
                              f"({escape(sensor['source'])})")
     line = "**Trust:** " + " · ".join(cells)
     # its warnings on the same line, marked but not shouting: the answer stays in view

@@ -18,7 +18,7 @@ import pytest
 from PIL import Image
 
 from conftest import HAVE_ASSETS, FakePipeline, free_port
-from ratouch.errors import DataError
+from ratouch.errors import DataError, RATouchError
 from ratouch.images import tvl_contact_box
 
 # the user's cache as it was before conftest isolated the tests from it (read at collection):
@@ -681,6 +681,75 @@ def test_real_failure_cases_show_their_table_scores(real_pipeline):
             assert f"{r['baseline']} · judge **{r['baseline_score']:.1f}**/10" in _plain(v.description)
 
 
+@pytest.mark.slow
+def test_the_press_against_its_background_is_a_height_map(real_pipeline, world, tmp_path):
+    """Issue 36 through the Run handler and the real pipeline: a world example with its
+    sensor's background, and a real Taxim GelSight press with its own, show the press as a
+    height map (its picture, depth, spread and relief in the sensor's units, the structured
+    contact reading), the same numbers as the answer's JSON and its export; without a
+    background, the hint; a real DIGIT frame of an unfamiliar unit is said to be one, with
+    and without its background."""
+    import base64
+
+    from app import handlers, view
+    from app.explore_tab import answer_named
+    from app.page import Page
+    from ratouch.eval.frames import digit_frames
+    from ratouch.eval.photos import reference_dir
+    from ratouch.world.taxim_optics import real_presses
+
+    thumb = lambda i: real_pipeline.corpus.thumbnail(i, 64)  # noqa: E731
+    visual, _, tactile, bg, *box, _ = handlers.load_example(world, 60)
+    v = handlers.run_query(real_pipeline, thumb, visual, tactile, *box, 5, background=bg)
+    tac = v.raw["trust"]["tactile"]
+    geo, structure = tac["geometry"], tac["structure"]
+    assert geo["family"] == "digit" and geo["units"] == "render units" and geo["depth"] > 0
+    assert structure["contact"] and structure["score"] > structure["threshold"]
+    assert f"depth <b>{geo['depth']:.1f} r.u.</b> (render units)" in v.geometry
+    assert f"spread <b>{geo['spread']:.0%}</b>" in v.geometry
+    assert f"structured change <b>{structure['score']:.2f}</b>" in v.geometry
+    # the picture is the press's height map: a bright patch on a dark, flat gel
+    png = v.geometry.split("data:image/png;base64,")[1].split("'")[0]
+    picture = np.asarray(Image.open(io.BytesIO(base64.b64decode(png))).convert("L"))
+    assert picture.shape == (160, 120)  # the DIGIT's working size, portrait
+    assert picture.max() > 200 and np.median(picture) < 60
+    # the export carries the numbers
+    page = Page(real_pipeline, world, None, {"world": world.cfg}, tmp_path, None, 1, None,
+                thumb)
+    kept = answer_named(page, v, visual, tactile, bg, 5, None, tuple(box), [])
+    exported = json.loads(Path(kept["export_json"].value["path"]).read_text())
+    assert exported["result"]["trust"]["tactile"]["geometry"] == geo
+    assert exported["result"]["trust"]["tactile"]["structure"] == structure
+    assert "height_map" not in exported["result"]  # the picture is the page's, not the JSON's
+
+    # the same frame without its background: the hint, and no geometry in the answer
+    v = handlers.run_query(real_pipeline, thumb, visual, tactile, *box, 5)
+    assert v.geometry == view.GEOMETRY_HINT and "geometry" not in v.raw["trust"]["tactile"]
+
+    # a real GelSight press against its background: millimetres
+    presses = real_presses("gelsight")
+    v = handlers.run_query(real_pipeline, thumb, visual, presses["frames"][3], *box, 5,
+                           background=presses["background"])
+    geo = v.raw["trust"]["tactile"]["geometry"]
+    assert geo["family"] == "gelsight" and geo["units"] == "mm"
+    assert 1.0 < geo["depth"] < 2.5  # docs/geometry.md: 1.39-1.83 mm on these presses
+    assert f"depth <b>{geo['depth']:.2f} mm</b>" in v.geometry and "✓ contact" in v.geometry
+
+    # a real DIGIT of another unit than the rendered ones: unfamiliar, said either way
+    frames = {f.name: f for f in digit_frames(reference_dir())}
+    if not frames:
+        pytest.skip("the real DIGIT frames are not in ../shared/data/reference_tactile")
+    for name in ("digit pressed", "digit pressed against the tacto background"):
+        f = frames[name]
+        v = handlers.run_query(real_pipeline, thumb, visual, f.frame, *box, 5,
+                               background=f.background)
+        assert v.raw["trust"]["tactile"]["unfamiliar_sensor"], name
+        assert "⚠ unfamiliar sensor, sensor read as digit" in v.description, name
+        assert "looks like none of the sensors" in v.description, name
+        if f.background is not None:
+            assert "⚠ unfamiliar sensor</b>, read as digit (a guess)" in v.geometry
+
+
 # ------------------------------------------------------------------------- load
 
 @pytest.mark.slow
@@ -875,9 +944,80 @@ def test_a_background_of_another_size_is_named_alike_on_upload_and_on_run(pair_f
     Image.new("RGB", (50, 60)).save(bg)
     said = "is 50x60 (WxH) but the tactile image is 96x128; the background must be the same"
     upload = handlers.upload_background(str(bg), str(pair_files[1]))
-    assert upload[0] is None and said in upload[1]  # removed at once, and why
+    assert upload["background"] is None and said in upload["status"]  # removed, and why
     with pytest.raises(DataError, match=re.escape(said)):
         QueryRequest.decode(str(pair_files[0]), str(pair_files[1]), background=str(bg))
+
+
+def test_a_background_of_another_size_on_run_is_a_message_not_a_trace(fake, pair_files,
+                                                                      tmp_path):
+    """Issue 36: Run with a background of another size than the tactile frame says so (both
+    sizes), shows no answer and no height map, and raises nothing."""
+    from app import handlers, view
+
+    bg = tmp_path / "small_bg.png"
+    Image.new("RGB", (50, 60)).save(bg)
+    visual = handlers.upload_visual(str(pair_files[0])).state
+    v = handlers.run_query(fake, _thumb, visual, str(pair_files[1]), None, None, None, None,
+                           5, background=str(bg))
+    assert v.raw is None and v.status.startswith("**✖ Cannot run this query:**")
+    assert "the background image is 50x60 (WxH) but the tactile image is 96x128" in v.status
+    assert "the background must be the same" in v.status
+    assert "Traceback" not in v.status and str(tmp_path) not in v.status
+    assert v.geometry == view.GEOMETRY_HINT and v.named()["geometry"] == view.GEOMETRY_HINT
+
+
+def _geometry_result(units: str = "mm", unfamiliar: bool = False, **tactile) -> dict:
+    geo = {"family": "gelsight" if units == "mm" else "digit", "units": units,
+           "depth": 1.5312, "spread": 0.0412, "relief": 0.0331}
+    return {"trust": {"visual": {"novelty": 1.0, "threshold": 1.5, "novel": False},
+                      "tactile": {"novelty": 1.0, "threshold": 1.5, "novel": False,
+                                  "contact": 7.2, "contact_threshold": 4.99,
+                                  "no_contact": False, "background": True,
+                                  "sensor": {"family": geo["family"], "distance": 0.9,
+                                             "source": "guessed from the frame's colours"},
+                                  "unfamiliar_sensor": unfamiliar,
+                                  "structure": {"contact": True, "score": 10.523,
+                                                "threshold": 1.163, "family": geo["family"]},
+                                  "geometry": geo, **tactile}}}
+
+
+def test_the_height_map_is_formatted_with_its_scale_and_numbers():
+    """Issue 36: the strip under the tactile inputs: the picture, its scale in the sensor's
+    units (mm for a calibrated lookup, render units for the DIGIT's), depth, spread, relief
+    and the structured-contact reading; a hint without a background; why there is no height
+    map where nothing reads the sensor; the unfamiliar sensor said."""
+    from app import view
+
+    picture = np.zeros((120, 160, 3), np.uint8)
+    html = view.geometry_html(_geometry_result(), picture, True)
+    assert html.count("<img src='data:image/png;base64,") == 1
+    for said in ("dark flat → white 1.53 mm", "depth <b>1.53 mm</b>", "spread <b>4%</b>",
+                 "relief <b>0.033 mm</b>", "structured change <b>10.52</b> × floor",
+                 "(contact &gt; 1.16) ✓ contact", "gelsight"):
+        assert said in html, said
+    assert "unfamiliar" not in html
+    ru = view.geometry_html(_geometry_result("render units", unfamiliar=True), picture, True)
+    assert "depth <b>1.5 r.u.</b> (render units)" in ru and "no real calibration" in ru
+    assert "⚠ unfamiliar sensor</b>, read as digit (a guess)" in ru
+    # without a background (or without a tactile frame, or before a query): the hint
+    for result, bg in ((_geometry_result(), False), (None, True), ({"trust": None}, False)):
+        assert view.geometry_html(result, None, bg) == view.GEOMETRY_HINT
+    assert "give the sensor's background" in view.GEOMETRY_HINT
+    # a background, but nothing reads it: said, never a picture
+    unread = view.geometry_html(_geometry_result(geometry=None, structure=None), None, True)
+    assert "none, no geometry lookup reads the sensor family “gelsight”" in unread
+    assert "<img" not in unread
+    assert "no geometry calibration is loaded" in view.geometry_html(
+        {"trust": {"tactile": {"background": True, "novelty": 1.0}}}, None, True)
+    assert "no trust calibration" in view.geometry_html({"trust": None}, None, True)
+    # the trust line names an unfamiliar sensor, with or without a background
+    for background in (True, False):
+        result = {**_geometry_result(unfamiliar=True), "warnings": []}
+        result["trust"]["tactile"]["background"] = background
+        assert "⚠ unfamiliar sensor, sensor read as gelsight" in view.trust_lines(result)[0]
+    assert "unfamiliar sensor" not in view.trust_lines({**_geometry_result(),
+                                                        "warnings": []})[0]
 
 
 def test_duplicate_captions_are_grouped_in_galleries_but_not_in_tables():
@@ -1073,7 +1213,8 @@ def test_export_link_history_and_comparison(fake, world, pair_files, tmp_path):
                                                            "not offered"),
                       ({"example": "1", "k": "99"}, "K must be"),
                       ({"example": "1", "condition": "underwater"}, "underwater")):
-        with pytest.raises(DataError, match=says):
+        # a bad K is the one check of K's ConfigError (issue 39), the others DataError
+        with pytest.raises(RATouchError, match=says):
             handlers.open_link(world, world.cfg, bad, page.models)
     # an uploaded pair: no link, the file's own bytes hashed
     up = handlers.upload_visual(str(pair_files[0])).state

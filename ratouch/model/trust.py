@@ -448,10 +448,14 @@ class TrustCalibration:
             "uniform"}, "tactile": {... plus
             "contact" (None when not a number), "contact_threshold", "state",
             "no_contact", "uncertain", "background", "sensor" (the family read, guessed from the
-            frame's colours), "unfamiliar_sensor"} or None,
-            "warnings": [...]}
+            frame's colours), "unfamiliar_sensor", and with a background "structure" and
+            "geometry"} or None,
+            "warnings": [...],
+            "height_map": the frame's `HeightMap` against the background (an object, not
+            JSON: its numbers are "geometry"), or None}
         """
-        out: dict[str, Any] = {"visual": self.visual_novelty(V, prior), "tactile": None}
+        out: dict[str, Any] = {"visual": self.visual_novelty(V, prior), "tactile": None,
+                               "height_map": None}
         warnings = []
         spread = None if crop is None else image_spread(crop)
         if spread is not None:
@@ -482,6 +486,7 @@ class TrustCalibration:
             if background is not None and self.geometry is not None:
                 tac["structure"] = None if read is None else read["structure"]
                 tac["geometry"] = None if read is None else read["height"].to_dict()
+                out["height_map"] = None if read is None else read["height"]
             unlike = distance > LOOK_LIMIT
             tac["sensor"] = {"family": name, "distance": round(distance, 3), "source": (
                 "the nearest guess: the frame looks like none of the families' units"

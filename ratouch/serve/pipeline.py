@@ -276,7 +276,8 @@ class RATouchPipeline(RetrievalSide):
             encoder=self.encoders.name,
             visual_route=encoded[j].route,
             trust=None if t is None else {m: t[m] for m in ("visual", "tactile")},
-            retrieval=self._retrieval_block(req, encoded[j]))
+            retrieval=self._retrieval_block(req, encoded[j]),
+            height_map=None if t is None else t.get("height_map"))
             for j, (req, t) in enumerate(zip(requests, trust))]
 
     def reads(self, request: QueryRequest) -> str:

@@ -27,6 +27,7 @@ from ratouch.images import (
     to_rgb_array,
     tvl_contact_box,
 )
+from ratouch.model.geometry import HeightMap
 from ratouch.search.modes import RETRIEVAL_SYSTEMS
 
 Box = tuple[int, int, int, int]
@@ -213,11 +214,19 @@ class QueryResult:
             {"novelty", "threshold", "novel", "contact", "contact_threshold", "no_contact",
             "background"} or None}, or None (no calibration). A uniform visual crop (a blank
             or flat photo) is novel whatever its distance (`model.trust.UNIFORM_SPREAD`).
+            With a background, "tactile" also holds "structure" (the structured-contact
+            reading: "score", "threshold", "family", "contact") and "geometry" (the height
+            map's "depth", "spread", "relief", "units", "family"), each None where no
+            geometry lookup reads the sensor.
         retrieval: which neighbours RA-Touch read and how far touch steered them:
             {"system" ("paper" or "gated"), "reads" (the query mode), "touch_weight",
             "kind", "features", "why"}; None without a tactile frame.
         cascade: where a cascade answered, {"answered_by", "stage", "escalated",
             "confidence": [per stage tried], "thresholds", "measure"}; else None.
+        height_map: the press read against the sensor's background as a height map
+            (`TrustCalibration.read_geometry`), for a picture of it (`HeightMap.image`);
+            None without a background or a geometry lookup. Not in `to_dict()`: its numbers
+            are trust's "geometry".
     """
 
     neighbours: dict[str, list[dict]]
@@ -232,6 +241,7 @@ class QueryResult:
     trust: dict | None
     cascade: dict | None = field(default=None)
     retrieval: dict | None = field(default=None)
+    height_map: HeightMap | None = field(default=None, compare=False, repr=False)
 
     def to_dict(self) -> dict:
         """The JSON-ready dict, keys in this order ("cascade" only where a cascade answered)."""
