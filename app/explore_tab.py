@@ -18,6 +18,8 @@ import gradio as gr
 
 from app import handlers, record, view
 from app.page import Outputs, Page
+from ratouch.search.modes import RETRIEVAL_SYSTEMS
+from ratouch.serve.pipeline import DEFAULT_RETRIEVAL
 
 # A few structured close-ups (indices < 46), then wild scenes, spread over the test split.
 EXAMPLES = [0, 12, 40, 60, 140, 190, 290, 390]
@@ -104,6 +106,9 @@ def _inputs(ui: SimpleNamespace, page: Page, n_corpus: int) -> None:
                                value=(models or [""])[0], label="model",
                                elem_id="model", interactive=len(models) > 1,
                                visible=bool(models), scale=4)
+        # the neighbours RA-Touch reads: the paper's joint query or the trust-gated one
+        ui.retrieval = gr.Radio(list(RETRIEVAL_SYSTEMS), value=DEFAULT_RETRIEVAL,
+                                label="retrieval", elem_id="retrieval", scale=2, min_width=140)
         if not models:  # Run beside K; with a model menu, on its own row below
             ui.run = _run_button()
     if models:
@@ -221,7 +226,8 @@ def wire(demo: gr.Blocks, page: Page, ui: SimpleNamespace) -> SimpleNamespace:
     """
     out = outputs(ui)
     fields = list(ui.fields.values())
-    query_in = [ui.state, ui.tactile, *fields, ui.k, ui.background, ui.model, ui.history]
+    query_in = [ui.state, ui.tactile, *fields, ui.k, ui.background, ui.model, ui.retrieval,
+                ui.history]
     query_out = (out.answer + out.kept).components
     # uploads reach the handlers undecoded (preprocess=False): the library decodes them with
     # its bounds and its messages, which name the file and its role
@@ -237,11 +243,12 @@ def wire(demo: gr.Blocks, page: Page, ui: SimpleNamespace) -> SimpleNamespace:
             return ""
         return view.model_state_md(model, *page.model_state(model), page.load_seconds())
 
-    def show_query(state, tac, a, b, c, d, k, bg, model, history, progress=gr.Progress()):
+    def show_query(state, tac, a, b, c, d, k, bg, model, retrieval, history,
+                   progress=gr.Progress()):
         v = handlers.run_query(page.pipeline, page.thumbnail, state, tac, a, b, c, d, k,
                                progress, background=bg, largest_k=page.largest_k(),
                                judge=page.judge, encoder=page.encoder(model),
-                               wait_note=model_note(model))
+                               wait_note=model_note(model), retrieval=retrieval or None)
         return answered.values(answer_named(page, v, state, tac, bg, k, model,
                                             (a, b, c, d), history))
 
@@ -306,7 +313,7 @@ def wire(demo: gr.Blocks, page: Page, ui: SimpleNamespace) -> SimpleNamespace:
     ui.visual.clear(lambda: out.box.values(handlers.reset_box(None)._asdict()), None,
                     out.box.components, **light)
     # K, the model and the box change what a query would answer: the answer shown is stale
-    gr.on([ui.k.input, ui.model.input, ui.reset.click, ui.visual.select,
+    gr.on([ui.k.input, ui.model.input, ui.retrieval.input, ui.reset.click, ui.visual.select,
            *(f.submit for f in fields)], **mark_stale)
     # one click starts: the example is loaded and run; the result closes the examples
     ui.examples.click(select_example, None, out.example.components, **private).success(

@@ -324,13 +324,14 @@ def error_view(message: str) -> QueryView:
 def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual | None,
               tactile: Any, x0, y0, x1, y1, k, progress=None, background: Any = None,
               largest_k: int = MAX_K, judge=None, encoder: str | None = None,
-              wait_note: str = "") -> QueryView:
+              wait_note: str = "", retrieval: str | None = None) -> QueryView:
     """Decode the session's image, the tactile image (and the sensor's background frame, if
     given) and the box into a request, have `pipe` answer it, and format the answer.
     `tactile` and `background` may be the components' raw values; `judge` scores the
     descriptions of labelled examples; `encoder` names the model where `pipe` offers a
     choice (`ModelChoice`); `wait_note` says, while the query waits, that its model is still
-    being prepared."""
+    being prepared; `retrieval` names the retrieval system RA-Touch answers with ("paper",
+    "gated"; None: the answerer's default)."""
     tactile, background = upload_path(tactile), upload_path(background)
     t_run = time.perf_counter()
     try:
@@ -341,7 +342,8 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
         if progress is not None:
             progress(0.05, desc=wait_note or "encoding, retrieving, generating…")
         request = QueryRequest.decode(visual.source, tactile, box=box, k=k, label=visual.label,
-                                      background=background, model=encoder or None)
+                                      background=background, model=encoder or None,
+                                      retrieval=retrieval)
         answered = answer_one(pipe, request)
         result = answered.to_dict()
         height = answered.height_map  # the press as geometry (with a background)

@@ -240,14 +240,25 @@ def retrieval_md(trace: RetrievalTrace) -> str:
                    if changes else "RA-Touch said the baseline's words in another order")
     spread = ("nearly even: no neighbour stands out" if trace.nearly_even else
               f"an even share is {trace.even_share:.0%}")
-    lines = [f"**What retrieval did:** {verdict}. Read most (the integrator's attention; "
-             f"{spread}):"]
+    lines = [f"**What retrieval did:** {verdict}. {touch_md(trace)} Read most (the "
+             f"integrator's attention; {spread}):"]
     for a in trace.attended:
         carries = (f" — carries *{', '.join(a.words)}*" if a.words else
                    " — carries none of RA-Touch's words")
-        lines.append(f"- joint #{a.rank} **{a.weight:.0%}** · {escape(a.class_name)}: "
-                     f"{escape(a.caption)}{carries}")
+        lines.append(f"- {trace.reads} #{a.rank} **{a.weight:.0%}** · "
+                     f"{escape(a.class_name)}: {escape(a.caption)}{carries}")
     return "\n".join(lines)
+
+
+def touch_md(trace: RetrievalTrace) -> str:
+    """Which neighbours the answer read and how far touch was trusted to steer them."""
+    title = QUERY_MODES[trace.reads].title if trace.reads in QUERY_MODES else trace.reads
+    text = f"Retrieval **{escape(trace.system)}**: read the *{escape(title)}*'s neighbours"
+    if trace.touch_weight is None:
+        return text + "."
+    text += f"; touch steered it **{trace.touch_weight:.0%}**"
+    why = [w for w in trace.touch_why if not w.startswith("(")]
+    return text + (f" ({escape('; '.join(why))})." if why else ".")
 
 
 # ---------------------------------------------------------------------- the press as geometry

@@ -20,6 +20,7 @@ from PIL import Image
 from conftest import HAVE_ASSETS, FakePipeline, free_port
 from ratouch.errors import DataError, RATouchError
 from ratouch.images import tvl_contact_box
+from ratouch.search.modes import QUERY_MODES
 
 # the user's cache as it was before conftest isolated the tests from it (read at collection):
 # the real-app load test serves the real default corpus from there
@@ -261,7 +262,9 @@ def _case(cond: str, i: int, subset: str, ra: float, base: float, pi: float, pt:
             "ra_touch": "hard", "baseline_score": base, "ra_score": ra,
             "ra_delta": ra - base, "precision_image": pi, "precision_tactile": pt,
             "precision_joint": pj, "best_unimodal": best, "joint_gap": best - pj,
-            "joint_loses": pj < best}
+            "joint_loses": pj < best,
+            # modes after the first three (the gated query, a test's): the joint's precision
+            **{f"precision_{m}": pj for m in list(QUERY_MODES)[3:]}}
 
 
 TABLE = {"meta": {"k": 5, "n_rows": 4, "conditions": {"natural": {}, "noisy touch": {}},
@@ -576,7 +579,7 @@ def test_query_api_through_gradio_client(served, pair_files):
     out = client.predict(handle_file(str(pair_files[0])), handle_file(str(pair_files[1])),
                          10, 20, 70, 90, 4, api_name="/query")
     assert set(out) == {"neighbours", "description", "attention", "pca", "timings_ms",
-                        "warnings", "box", "encoder", "visual_route", "trust"}
+                        "warnings", "box", "encoder", "visual_route", "trust", "retrieval"}
     assert out["box"] == [10, 20, 70, 90] and len(out["neighbours"]["joint"]) == 4
     assert out["description"]["ra_touch"] == "soft and grainy"
     json.dumps(out)
@@ -1194,7 +1197,7 @@ def test_export_link_history_and_comparison(fake, world, pair_files, tmp_path):
     assert exported["inputs"]["visual"]["sha256"] == sha.hexdigest()
     assert exported["result"]["neighbours"]["joint"] == v.raw["neighbours"]["joint"]
     rows = list(csv.DictReader(Path(first["export_csv"].value["path"]).open()))
-    assert len(rows) == 3 * 4 and rows[0]["commit"] == "abc1234"
+    assert len(rows) == len(QUERY_MODES) * 4 and rows[0]["commit"] == "abc1234"
     assert rows[0]["visual_sha256"] == sha.hexdigest() and rows[0]["model"] == "fake"
     # the link reproduces the query: the same example, model and K (and a changed box)
     assert rec.link() == "?example=12&model=small&k=4"

@@ -68,8 +68,8 @@ class FakePipeline:
         self.generator_base = FakeGenerator("hard, smooth")
         self.generator_ra = FakeGenerator("soft, fuzzy, fabric")
 
-    def joint_query(self, V, T):
-        return (V + 2 * T).astype(np.float32)
+    def joint_query(self, V, T, gated=False):
+        return (V + (1 if gated else 2) * T).astype(np.float32)
 
     def neighbour_embeddings(self, ids):
         z = np.zeros((*ids.shape, self.encoders.dim), np.float32)
@@ -87,10 +87,11 @@ def test_rows_hold_scores_precisions_and_the_joint_verdict(fake):
     assert [(r["condition"], r["index"]) for r in rows[:2]] == [("natural", 0), ("natural", 5)]
     judge = OfflineJudge()
     mats = np.array([e.material for e in fake.corpus.entries])
-    # the searches in order per condition: RA-Touch's joint one, then image, then tactile
-    q_joint, q_image, q_tac = fake.corpus.searches[:3]
+    # the searches in order per condition: RA-Touch's joint one, then image, tactile, gated
+    q_joint, q_image, q_tac, q_gated = fake.corpus.searches[:4]
     ids = {m: fake.corpus.search("text", q, 3)[1]
-           for m, q in (("joint", q_joint), ("image", q_image), ("tactile", q_tac))}
+           for m, q in (("joint", q_joint), ("image", q_image), ("tactile", q_tac),
+                        ("gated", q_gated))}
     first = rows[:len(INDICES)]  # one system's answers are judged together (its word rates)
     ra_scores = judge.score_many([(r["label"], r["ra_touch"]) for r in first])
     for j, r in enumerate(first):
@@ -170,8 +171,8 @@ def _row(cond, i, subset, ra, base, pi, pt, pj):
     return {"condition": cond, "index": i, "subset": subset, "ra_score": ra,
             "label": "hard, smooth", "ra_touch": "hard, smooth, flat", "baseline": "soft",
             "baseline_score": base, "ra_delta": ra - base, "precision_image": pi,
-            "precision_tactile": pt, "precision_joint": pj, "best_unimodal": best,
-            "joint_gap": best - pj, "joint_loses": pj < best}
+            "precision_tactile": pt, "precision_joint": pj, "precision_gated": pj,
+            "best_unimodal": best, "joint_gap": best - pj, "joint_loses": pj < best}
 
 
 def test_views_filter_and_sort():

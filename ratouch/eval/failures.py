@@ -190,7 +190,8 @@ def failure_cases(pipeline, world: WorldConfig | None = None, k: int = 5,
                                          split.materials, entry_mats) for mode in MODES}
         s_base, s_ra = base.scores, ra.scores
         for j, idx in enumerate(split.indices):
-            best = max(float(prec[m][j]) for m in MODES if m != RA_TOUCH_MODE)
+            # the best single-sense query (the modes the retriever does not make)
+            best = max(float(prec[m][j]) for m in MODES if "retriever" not in MODES[m].needs)
             pj = float(prec[RA_TOUCH_MODE][j])
             rows.append({
                 "condition": cond, "index": int(idx), "subset": split.subsets[j],
@@ -252,7 +253,8 @@ def settings(pipeline, world: WorldConfig | None = None, k: int = 5,
             "conditions": {c: CONDITIONS[c] for c in conditions},
             "indices": None if indices is None else [int(i) for i in indices],
             "corpus_size": len(pipeline.corpus.entries),
-            "judge": OfflineJudge().params, "assets": asset_manifests(pipeline)}
+            "judge": OfflineJudge().params, "assets": asset_manifests(pipeline),
+            "modes": list(MODES)}
 
 
 def cache_path(pipeline, world: WorldConfig | None = None, k: int = 5,

@@ -62,6 +62,11 @@ class RetrievalTrace:
         carried: each RA-Touch word that an attended neighbour's caption carries -> the ranks
             of those neighbours.
         in_neighbours: RA-Touch's words found in any joint neighbour's caption.
+        system: the retrieval system that answered ("paper" or "gated").
+        reads: the query mode whose neighbours RA-Touch read.
+        touch_weight: how far touch steered that query (1: fully, the paper's joint query;
+            None: not said).
+        touch_why: why touch was trusted as it was.
     """
 
     ra_words: tuple[str, ...]
@@ -73,6 +78,10 @@ class RetrievalTrace:
     even_share: float
     carried: dict[str, tuple[int, ...]] = field(default_factory=dict)
     in_neighbours: tuple[str, ...] = ()
+    system: str = "paper"
+    reads: str = RA_TOUCH_MODE
+    touch_weight: float | None = None
+    touch_why: tuple[str, ...] = ()
 
     @property
     def nearly_even(self) -> bool:
@@ -96,7 +105,9 @@ def trace_retrieval(result: QueryResult | Mapping[str, Any], top: int = 3
         raise DataError(f"top must be at least 1 (attended neighbours to show), got {top!r}")
     res = result.to_dict() if isinstance(result, QueryResult) else result
     description = res.get("description") or {}
-    joint = (res.get("neighbours") or {}).get(RA_TOUCH_MODE) or []
+    block = res.get("retrieval") or {}
+    reads = block.get("reads", RA_TOUCH_MODE)
+    joint = (res.get("neighbours") or {}).get(reads) or []
     ra_text = description.get("ra_touch") or ""
     if not ra_text or not joint:
         return None
@@ -120,7 +131,9 @@ def trace_retrieval(result: QueryResult | Mapping[str, Any], top: int = 3
     return RetrievalTrace(
         tuple(ra), tuple(base), ra_set == set(base), tuple(w for w in ra if w not in set(base)),
         tuple(w for w in base if w not in ra_set), attended, 1.0 / len(joint), carried,
-        tuple(w for w in ra if w in anywhere))
+        tuple(w for w in ra if w in anywhere), block.get("system", "paper"), reads,
+        (1.0 if block.get("system") == "paper" else block.get("touch_weight"))
+        if block else None, tuple(block.get("why") or ()))
 
 
 def _weights(attention: Mapping[str, Sequence[float]], k: int) -> list[tuple[float, float]]:
