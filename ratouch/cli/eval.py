@@ -148,12 +148,14 @@ def _eval_controls(args: argparse.Namespace) -> int:
 def _eval_tvl(args: argparse.Namespace) -> int:
     judge = make_judge(args)  # configuration errors before any work
     pipeline = RATouchPipeline.load(args.encoder)
-    records, summary = run_tvl(pipeline, args.system, args.k, judge, world_cfg(args))
+    records, summary = run_tvl(pipeline, args.system, args.k, judge, world_cfg(args),
+                               retrieval=args.retrieval)
     write_json_atomic(args.out, records)
     if args.json:
         print(json.dumps({**summary, "out": str(args.out)}, indent=1))
         return 0
-    print(f"{args.system} on the world's test split (seed {args.seed}, K={args.k}):")
+    print(f"{args.system} on the world's test split (seed {args.seed}, K={args.k}, retrieval "
+          f"{args.retrieval}):")
     print(format_summary(summary))
     if summary["families"]:
         print("per sensor family:")

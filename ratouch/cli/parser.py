@@ -241,6 +241,8 @@ def _add_eval(sub) -> None:
     t.add_argument("--out", required=True, help="results JSON to write (TVL format + scores)")
     t.add_argument("--encoder", default=DEFAULT_ENCODER)
     t.add_argument("--k", type=_pos_int, default=5, help="neighbours RA-Touch reads")
+    t.add_argument("--retrieval", choices=tuple(RETRIEVAL_SYSTEMS), default="paper",
+                   help="RA-Touch's retrieval: the paper's joint query or the trust-gated one")
     t.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
     _add_stress(t)
     _add_judge_options(t)

@@ -14,7 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ratouch.errors import DataError
+from ratouch.errors import ConfigError, DataError
 from ratouch.eval.answer import (  # noqa: F401 - describe, records_for, retrieve: re-exported
     SYSTEMS,
     answer_split,
@@ -30,6 +30,7 @@ from ratouch.eval.judge import (
     score_stats,
     subset_of,
 )
+from ratouch.search.modes import RETRIEVAL_SYSTEMS
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
 from ratouch.world.material import material
@@ -38,13 +39,19 @@ from ratouch.world.splits import TestSplit, encode_test_split
 
 
 def run_tvl(pipeline, system: str, k: int = 5, judge=None, world: WorldConfig | None = None,
-            split: TestSplit | None = None) -> tuple[list[dict], dict]:
+            split: TestSplit | None = None, retrieval: str = "paper"
+            ) -> tuple[list[dict], dict]:
     """Generate, judge and summarise one system on the world's test split (the summary also
-    holds the judge's mean per sensor family, "families")."""
+    holds the judge's mean per sensor family, "families"); `retrieval`: the retrieval system
+    RA-Touch reads with (`RETRIEVAL_SYSTEMS`: "paper" or "gated")."""
+    if retrieval not in RETRIEVAL_SYSTEMS:
+        raise ConfigError(f"unknown retrieval system {retrieval!r}; one of "
+                          f"{', '.join(RETRIEVAL_SYSTEMS)}")
     split = split or encode_test_split(pipeline.encoders, world)
-    ans = answer_split(pipeline, split, system, k=k, judge=judge or OfflineJudge())
+    ans = answer_split(pipeline, split, system, k=k, judge=judge or OfflineJudge(),
+                       mode=RETRIEVAL_SYSTEMS[retrieval])
     ans.summary.update({"system": system, "k": k, "world_seed": split.world.seed,
-                        "families": family_stats(ans.records)})
+                        "retrieval": retrieval, "families": family_stats(ans.records)})
     return ans.records, ans.summary
 
 
