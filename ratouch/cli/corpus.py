@@ -1,4 +1,6 @@
-"""`ratouch corpus build`: recaption, sample and embed ImageNet-T, in one process or on Ray.
+"""`ratouch corpus build`: recaption, sample and embed ImageNet-T, in one process or on Ray;
+`ratouch corpus recaption`: a folder of one's own images (FOLDER/<class>/<image>) recaptioned
+offline into a corpus folder, which `corpus build --from-list FOLDER` then embeds.
 
 Run again with the same `--out`, the command finishes what a killed run left: a corpus that is
 the one asked for is kept, its embeddings resume where they stopped and missing indexes are
@@ -16,13 +18,15 @@ from pathlib import Path
 
 from ratouch.cli.common import usage
 from ratouch.corpus.embed import EMBED_MANIFEST, embedding_progress, embeddings_dir
-from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
+from ratouch.corpus.imagenet_t import MANIFEST, build_corpus, read_image_folder
 from ratouch.corpus.recaption import RecaptionConfig
 from ratouch.search.retrieval import index_folder
 from ratouch.search.retrieval_side import embed_and_index
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.corpus_cmd == "recaption":
+        return _recaption(args)
     rc = RecaptionConfig(backend=args.captioner, endpoint=args.endpoint, model=args.model)
     out = Path(args.out)
     if args.overwrite and (out / MANIFEST).is_file():
@@ -41,6 +45,23 @@ def run(args: argparse.Namespace) -> int:
         manifest = {**manifest, **embed_and_index(out, args.encoder, args.index,
                                                   workers=args.workers)}
     print(json.dumps({**manifest, "resumed": resumed}))
+    return 0
+
+
+def _recaption(args: argparse.Namespace) -> int:
+    """Check the folder (every image opened), then recaption and write the corpus (nothing is
+    written when the folder is refused)."""
+    out = Path(args.out)
+    if (out / MANIFEST).is_file():
+        raise usage(f"{out} already holds a corpus; choose another --out")
+    rows = read_image_folder(args.images)
+    rc = RecaptionConfig(backend=args.recaptioner)
+    manifest = build_corpus(out, len(rows), recaption=rc, image_list=args.images,
+                            progress=sys.stderr.isatty())
+    print(json.dumps(manifest))
+    print(f"wrote {manifest['size']} entries of {manifest['n_classes']} classes to {out}; "
+          f"embed them with `ratouch corpus build --out {out} --from-list {args.images} "
+          f"--captioner {args.recaptioner}`", file=sys.stderr)
     return 0
 
 

@@ -34,6 +34,7 @@ from ratouch.eval.photos import (
 )
 from ratouch.eval.premise import format_premise, run_premise, why_ignored
 from ratouch.eval.presses import format_press_contact, press_contact
+from ratouch.eval.recaption import format_recaption_agreement, recaption_agreement
 from ratouch.eval.retrieval import evaluate_retrieval, format_retrieval_eval
 from ratouch.eval.sensor_families import evaluate_families, format_families
 from ratouch.eval.sensors import compare_sensors, format_sensors
@@ -50,6 +51,11 @@ from ratouch.world.taxim_optics import CALIBRATIONS
 def run(args: argparse.Namespace) -> int:
     if args.eval_cmd == "tvl":
         return _eval_tvl(args)
+    if args.eval_cmd == "recaption":
+        names = [x.strip() for x in args.recaptioners.split(",") if x.strip()]
+        r = recaption_agreement(names, n=args.n, seed=args.seed)
+        print(json.dumps(r, indent=1) if args.json else format_recaption_agreement(r))
+        return 0
     if args.eval_cmd == "ttest":
         return _eval_ttest(args)
     if args.eval_cmd == "stress":

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import math
 
+from ratouch.corpus.recaption import BACKENDS
 from ratouch.encoders.factory import CHAIN_SETS, DEFAULT_ENCODER, DEFAULT_SETS, OTHER_SETS
 from ratouch.eval.catalog import EXPERIMENT_HELP, SYSTEMS
 from ratouch.search.kinds import APPROXIMATE_KINDS, BENCH_KINDS, KINDS
@@ -125,12 +126,13 @@ def _add_corpus(sub) -> None:
                    help="corpus folder; one holding this corpus (a killed run's) is finished, "
                         "not rebuilt")
     b.add_argument("--seed", type=_nonneg_int, default=0)
-    b.add_argument("--captioner", choices=("offline", "llm"), default="offline")
+    b.add_argument("--captioner", choices=BACKENDS, default="offline",
+                   help="smollm2: SmolLM2-135M-Instruct on this machine (local engine only)")
     b.add_argument("--endpoint", help="OpenAI-compatible base URL for --captioner llm "
                                       "(key from $RATOUCH_LLM_API_KEY)")
     b.add_argument("--model", default="gpt-4o-mini")
-    b.add_argument("--from-list", help="CSV or Parquet of (image path, class, caption) for a "
-                                       "real corpus")
+    b.add_argument("--from-list", help="CSV or Parquet of (image path, class, caption), or a "
+                                       "folder FOLDER/<class>/<image>, for a real corpus")
     b.add_argument("--encoder", default=DEFAULT_ENCODER, help="encoder to embed with")
     b.add_argument("--index", choices=KINDS, default="flat",
                    help="with --engine ray, ivfflat/ivfpq are built from the shards on disk")
@@ -152,6 +154,17 @@ def _add_corpus(sub) -> None:
                    help="LLM requests in flight at once (ray)")
     b.add_argument("--llm-rate", type=_number, default=50.0,
                    help="LLM requests per second, 0 for no limit (ray)")
+
+
+    rc = csub.add_parser("recaption", help="recaption your own images offline: a folder in "
+                                           "ImageNet's layout (FOLDER/<class>/<image>) into "
+                                           "an ImageNet-T corpus folder `corpus build` embeds")
+    rc.add_argument("--images", required=True, help="FOLDER/<class>/<image>: the subfolder "
+                                                    "names are the class names")
+    rc.add_argument("--out", required=True, help="corpus folder to write (must hold none)")
+    rc.add_argument("--recaptioner", choices=("smollm2", "offline"), default="smollm2",
+                    help="smollm2: SmolLM2-135M-Instruct constrained to the TVL adjectives; "
+                         "offline: the lexicon recaptioner")
 
 
 def _add_train(sub) -> None:
@@ -351,7 +364,15 @@ def _add_eval(sub) -> None:
     pe.add_argument("--blanks", type=_pos_int, default=40, help="blank pairs per family")
     pe.add_argument("--seed", type=_nonneg_int, default=1)
     pe.add_argument("--json", action="store_true")
-    for p in (r, t, st, tt, c, pr, ph, fa, fr, se, pe):
+    rp = esub.add_parser("recaption", help="recaptioners against the world's own adjectives "
+                                           "on corpus entries: adjective F1 and offline judge, "
+                                           "with bootstrap 95 % CIs, and ms per caption")
+    rp.add_argument("--n", type=_pos_int, default=100, help="corpus entries (stratified)")
+    rp.add_argument("--recaptioners", default="smollm2,offline",
+                    help="comma-separated: smollm2, smollm2-greedy, offline")
+    rp.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the corpus")
+    rp.add_argument("--json", action="store_true")
+    for p in (r, t, st, tt, c, pr, ph, fa, fr, se, pe, rp):
         p.set_defaults(module="eval")
 
 

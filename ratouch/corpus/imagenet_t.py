@@ -4,7 +4,8 @@ Recaption every entry (class name + appearance-only description -> exactly five 
 adjectives), then draw stratified subsets across classes (10k, 50k, 100k, 150k). The default
 source is the procedural world (a pool of 1300 entries per class, like ImageNet's ~1300 images
 per class, images rendered on demand from their ids); a real list of (image path, class,
-caption) rows goes through the same builder.
+caption) rows, or a folder of images in ImageNet's layout (one subfolder per class,
+`read_image_folder`), goes through the same builder.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+from PIL import Image, UnidentifiedImageError
 
 from ratouch.corpus.recaption import RecaptionConfig, create_recaptioner
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
@@ -37,6 +39,11 @@ from ratouch.world.sampler import CORPUS_MAX_PER_CLASS, CORPUS_POOL_PER_CLASS, W
 
 log = logging.getLogger(__name__)
 
+#: The image files `read_image_folder` takes.
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+#: The appearance description of an image of a folder, which has none: the project has no
+#: image captioner, so the description is the class name in a plain sentence.
+FOLDER_DESCRIPTION = "a photo of a {class_name}"
 SUBSET_SIZES = {"10k": 10_000, "50k": 50_000, "100k": 100_000, "150k": 150_000}
 METADATA = "metadata.jsonl"
 MANIFEST = "manifest.json"
@@ -127,11 +134,57 @@ def stratified_world_ids(size: int, seed: int, n_classes: int = len(OBJECT_CLASS
     return ids
 
 
+def read_image_folder(folder: str | os.PathLike) -> list[tuple[str, str, str]]:
+    """(image path, class, description) rows of a folder in ImageNet's layout: one subfolder
+    per class (its name, "_" read as a space, is the class name), image files inside it
+    (`IMAGE_SUFFIXES`), sorted. Every image is opened and checked, so an unreadable one is
+    refused before anything is written. The description is `FOLDER_DESCRIPTION`.
+
+    Raises:
+        DataNotFoundError: the folder does not exist.
+        DataError: it is not a folder, holds no image in a class subfolder, or an image
+            cannot be read.
+    """
+    folder = Path(folder)
+    if not folder.exists():
+        raise DataNotFoundError(f"image folder {folder} does not exist")
+    if not folder.is_dir():
+        raise DataError(f"{folder} is not a folder of images")
+    rows = []
+    for sub in sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        class_name = " ".join(sub.name.replace("_", " ").split())
+        for img in sorted(sub.iterdir()):
+            if img.suffix.lower() not in IMAGE_SUFFIXES or img.name.startswith("."):
+                continue
+            _check_image(img)
+            rows.append((str(img.resolve()), class_name,
+                         FOLDER_DESCRIPTION.format(class_name=class_name)))
+    if not rows:
+        loose = [p.name for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+        hint = (f" ({len(loose)} image(s) lie in the folder itself: put each in a subfolder "
+                f"named after its class)") if loose else ""
+        raise DataError(f"{folder} holds no image in a class subfolder "
+                        f"(FOLDER/<class>/<image>, {', '.join(IMAGE_SUFFIXES)}){hint}")
+    return rows
+
+
+def _check_image(path: Path) -> None:
+    """Refuse an image file PIL cannot read (its header and data checked, not decoded)."""
+    try:
+        with Image.open(path) as im:
+            im.verify()
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as e:
+        raise DataError(f"image {path} is unreadable: {e}") from e
+
+
 def read_image_list(path: str | os.PathLike) -> list[tuple[str, str, str]]:
-    """Read a real corpus list: a CSV with columns path, class, caption (header optional), or
-    a Parquet file with columns path, class and optionally caption. Relative image paths are
-    resolved against the list's folder."""
+    """Read a real corpus list: a CSV with columns path, class, caption (header optional), a
+    Parquet file with columns path, class and optionally caption, or a folder of images in
+    ImageNet's layout (`read_image_folder`). Relative image paths are resolved against the
+    list's folder."""
     path = Path(path)
+    if path.is_dir():
+        return read_image_folder(path)
     if not path.is_file():
         raise DataNotFoundError(f"image list {path} does not exist")
     if path.suffix.lower() == ".parquet":
@@ -230,7 +283,7 @@ def build_corpus(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
     out = Path(out)
     check_writable(out)
     if (out / MANIFEST).exists():
-        asked = {"seed": seed, "source": "world" if image_list is None else str(image_list),
+        asked = {"seed": seed, "source": source_name(image_list),
                  "captioner": recaption.backend}
         existing = existing_corpus(out, asked, n)
         if resume:
@@ -250,7 +303,7 @@ def build_corpus(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
     else:
         rows = stratified_rows(read_image_list(image_list), n, seed)
         items = [(cls, cap, img, "") for img, cls, cap in rows]
-    recaptioner = create_recaptioner(recaption, world_lexicon())
+    recaptioner = create_recaptioner(recaption, world_lexicon(), progress=progress)
     pairs = [(cls, desc) for cls, desc, _, _ in items]
     captions = []
     for k in progress_bar(range(0, len(pairs), 512), desc="recaption", progress=progress):
@@ -260,12 +313,21 @@ def build_corpus(out: str | os.PathLike, size: int | str = "10k", seed: int = 0,
     stats = recaptioner.stats() if hasattr(recaptioner, "stats") else {}
     manifest = {
         "kind": "imagenet-t", "size": len(entries), "seed": seed,
-        "source": "world" if image_list is None else str(image_list),
+        "source": source_name(image_list),
         "n_classes": len({e.class_name for e in entries}),
         "captioner": recaption.backend, "captioner_stats": stats,
         "build_seconds": round(time.perf_counter() - t0, 2),
     }
     return write_corpus_metadata(out, entries, manifest)
+
+
+def source_name(image_list: str | os.PathLike | None) -> str:
+    """What a manifest calls a corpus's source: "world", a list's path as given, or an image
+    folder's absolute path (so `corpus build --from-list` finds the corpus `corpus recaption`
+    wrote from the same folder, however the folder is spelt)."""
+    if image_list is None:
+        return "world"
+    return str(Path(image_list).resolve()) if Path(image_list).is_dir() else str(image_list)
 
 
 def existing_corpus(out: Path, asked: dict, n: int) -> dict:

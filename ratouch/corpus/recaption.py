@@ -3,8 +3,9 @@
 ImageNet-T is built by asking a language model the paper's prompt (`PAPER_PROMPT`) for every
 corpus entry. `LLMRecaptioner` does that against any OpenAI-compatible chat-completions endpoint
 using only the standard library; `OfflineRecaptioner` is a deterministic lexicon-based stand-in
-that needs no network and also serves as the LLM's fallback. Every caption either recaptioner
-returns passes `validate_caption`.
+that needs no network and also serves as the LLM's fallback; `SmolLM2Recaptioner`
+(`corpus/smollm.py`) answers the same prompt offline with a real pretrained language model,
+constrained to the TVL vocabulary. Every caption a recaptioner returns passes `validate_caption`.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from ratouch.errors import ConfigError, DataError
 from ratouch.llm_http import (
@@ -33,6 +34,9 @@ from ratouch.vocabulary import (
     TVL_ADJECTIVES,
     banned_category,
 )
+
+if TYPE_CHECKING:
+    from ratouch.corpus.smollm import SmolLM2Recaptioner
 
 logger = logging.getLogger(__name__)
 
@@ -50,7 +54,8 @@ Description: {caption}
 Remember: Your ENTIRE response must be ONLY 5 adjectives separated by commas."""
 
 N_ADJECTIVES = 5
-BACKENDS = ("offline", "llm")
+#: The recaptioners `create_recaptioner` builds, by the name `RecaptionConfig.backend` gives.
+BACKENDS = ("offline", "llm", "smollm2")
 # Generic fill-ins used when the lexicon scores fewer than 5 adjectives.
 BACKOFF_ADJECTIVES: tuple[str, ...] = (
     "textured", "solid", "firm", "smooth", "uneven", "hard", "rigid", "flat",
@@ -240,7 +245,8 @@ class RecaptionConfig:
     """How ImageNet-T captions are produced.
 
     Attributes:
-        backend: "offline" (lexicon, no network) or "llm" (OpenAI-compatible endpoint).
+        backend: "offline" (lexicon, no network), "llm" (OpenAI-compatible endpoint) or
+            "smollm2" (SmolLM2-135M-Instruct on this machine, `corpus/smollm.py`).
         endpoint: Base URL such as ``http://127.0.0.1:8000/v1``; requests go to
             ``{endpoint}/chat/completions``. Required for the llm backend.
         model: Model name sent with each request.
@@ -502,10 +508,17 @@ class LLMRecaptioner:
 
 
 def create_recaptioner(
-    config: RecaptionConfig, lexicon: Mapping[str, Mapping[str, float]] | None = None
-) -> OfflineRecaptioner | LLMRecaptioner:
-    """Build the recaptioner `config.backend` names; the LLM one falls back to an offline one."""
+    config: RecaptionConfig, lexicon: Mapping[str, Mapping[str, float]] | None = None,
+    progress: bool = False,
+) -> OfflineRecaptioner | LLMRecaptioner | SmolLM2Recaptioner:
+    """Build the recaptioner `config.backend` names; the LLM one falls back to an offline one.
+    The SmolLM2 one loads its model here (from the cache after the first time)."""
     offline = OfflineRecaptioner(lexicon)
     if config.backend == "llm":
         return LLMRecaptioner(config, offline)
+    if config.backend == "smollm2":
+        # imported here: it imports this module, and torch and transformers with it
+        from ratouch.corpus.smollm import SmolLM2Recaptioner
+
+        return SmolLM2Recaptioner(progress=progress)
     return offline

@@ -600,6 +600,10 @@ def build_corpus_ray(out: str | os.PathLike, size: int | str = "10k", seed: int 
     """
     n, opts = parse_size(size), options or RayOptions()
     recaption = recaption or RecaptionConfig()
+    if recaption.backend not in ("offline", "llm"):
+        # the pipeline runs the offline recaptioner as light tasks and the LLM one as actors;
+        # a local model is not wired in, and must not silently become the offline one
+        raise ConfigError(f"--captioner {recaption.backend} runs with --engine local only")
     IndexConfig(kind=index)  # fail on a bad kind before any work
     out = Path(out)
     check_writable(out)
