@@ -27,8 +27,10 @@ from ratouch.eval.frames import (
 from ratouch.eval.judge import format_stats, format_summary, read_records
 from ratouch.eval.photos import (
     evaluate_photos,
+    evaluate_real_pairs,
     evaluate_reference_tactile,
     format_photos,
+    format_real_pairs,
     format_reference_tactile,
     reference_dir,
 )
@@ -131,6 +133,10 @@ def _eval_frames(args: argparse.Namespace) -> int:
 
 def _eval_photos(args: argparse.Namespace) -> int:
     pipeline = RATouchPipeline.load(args.encoder)
+    if args.pairs:
+        rows = evaluate_real_pairs(pipeline, k=args.k)
+        print(json.dumps(rows, indent=1) if args.json else format_real_pairs(rows))
+        return 0
     photos = evaluate_photos(pipeline, k=args.k)
     tactile = evaluate_reference_tactile(pipeline, k=args.k)
     if args.json:

@@ -326,6 +326,10 @@ def _add_eval(sub) -> None:
                                         "each, for looking (no thresholds are set on them)")
     ph.add_argument("--encoder", default=DEFAULT_ENCODER)
     ph.add_argument("--k", type=_pos_int, default=5, help="neighbours per photo")
+    ph.add_argument("--pairs", action="store_true",
+                    help="instead: each photo with a real press (Taxim's, the DIGIT's) against "
+                         "its background: RA-Touch with the paper's and the gated retrieval, "
+                         "the baseline, and a copy of each mode's top-1 caption")
     ph.add_argument("--json", action="store_true")
     fa = esub.add_parser("families", help="per tactile sensor family, on validation renders: "
                                           "material probe, joint P@5 and contact miss / false "

@@ -27,6 +27,7 @@ from ratouch.errors import ConfigError, DataNotFoundError
 from ratouch.images import QUERY_MAX_SIDE, crop_box, tvl_contact_box
 from ratouch.paths import REPO
 from ratouch.search.index import top_k
+from ratouch.serve.request import QueryRequest, answer_one
 
 #: Each bundled scikit-image photo's terms, as `skimage.data`'s docstrings state them. Only
 #: public-domain and CC0 photos are in the set.
@@ -280,3 +281,69 @@ def format_reference_tactile(rows: list[dict]) -> str:
     out.append("")
     out.append(f"Visual image: {rows[0]['visual']}. Note: {BACKGROUND_NOTE}.")
     return "\n".join(out)
+
+
+# ------------------------------------------------------------------ real photo + real touch
+
+#: The visible real pairs: a scikit-image photo with a real press (Taxim's GelSight and
+#: GelSight Mini ball presses, against their backgrounds; the reference DIGIT frame where
+#: present). None of them has a tactile label: the table is for reading, side by side.
+REAL_PAIRS = (("brick", "gelsight", 0), ("gravel", "gelsight_mini", 0), ("grass", "gelsight", 6),
+              ("coffee", "gelsight_mini", 6), ("chelsea", "gelsight", 12), ("grass", "digit", 0))
+
+
+def evaluate_real_pairs(pipeline, k: int = 5) -> list[dict]:
+    """Per visible real pair (`REAL_PAIRS`): RA-Touch with the paper's retrieval and with
+    the gated one, the baseline, a copy of each query mode's top-1 caption, and how far the
+    gate let touch steer (the photo's centred box; the press against its background).
+
+    Returns:
+        [{"photo", "touch", "paper", "gated", "baseline", "copy": {mode: caption},
+        "touch_weight", "why", "tactile_novel", "unfamiliar_sensor"}]; pairs whose frames
+        are missing are left out.
+    """
+    from ratouch.eval.frames import digit_frames, taxim_frames
+    from ratouch.search.modes import QUERY_MODES
+
+    rows = []
+    for photo, sensor, index in REAL_PAIRS:
+        frames = (digit_frames(reference_dir()) if sensor == "digit"
+                  else taxim_frames(sensor))
+        frames = [f for f in frames if f.background is not None and f.background is not f.frame
+                  and "against itself" not in f.name]
+        if len(frames) <= index:
+            continue
+        f = frames[index]
+        image = load_photo(photo)
+        out = {}
+        for system in ("paper", "gated"):
+            out[system] = answer_one(pipeline, QueryRequest.decode(
+                image, f.frame, k=k, background=f.background, retrieval=system)).to_dict()
+        res = out["gated"]
+        tac = (res.get("trust") or {}).get("tactile") or {}
+        rows.append({
+            "photo": photo, "touch": f.name,
+            "paper": out["paper"]["description"]["ra_touch"],
+            "gated": res["description"]["ra_touch"],
+            "baseline": res["description"]["baseline"],
+            "copy": {m: (res["neighbours"].get(m) or [{}])[0].get("caption")
+                     for m in QUERY_MODES if m in res["neighbours"]},
+            "touch_weight": (res.get("retrieval") or {}).get("touch_weight"),
+            "why": (res.get("retrieval") or {}).get("why", []),
+            "tactile_novel": tac.get("novel"), "unfamiliar_sensor": tac.get("unfamiliar_sensor")})
+    return rows
+
+
+def format_real_pairs(rows: list[dict]) -> str:
+    """The real pairs as a Markdown table."""
+    modes = list(rows[0]["copy"]) if rows else []
+    head = ["photo", "touch", "touch weight", "RA-Touch (paper)", "RA-Touch (gated)",
+            "baseline", *(f"copy {m} top-1" for m in modes)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        w = r["touch_weight"]
+        cells = [r["photo"], r["touch"], "–" if w is None else f"{w:.2f}", r["paper"] or "–",
+                 r["gated"] or "–", r["baseline"] or "–",
+                 *(r["copy"].get(m) or "–" for m in modes)]
+        lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
+    return "\n".join(lines)
