@@ -370,7 +370,7 @@ def _add_eval(sub) -> None:
     pe.add_argument("--json", action="store_true")
     rp = esub.add_parser("recaption", help="recaptioners against the world's own adjectives "
                                            "on corpus entries: adjective F1 and offline judge, "
-                                           "with bootstrap 95 % CIs, and ms per caption")
+                                           "with bootstrap 95 %% CIs, and ms per caption")
     rp.add_argument("--n", type=_pos_int, default=100, help="corpus entries (stratified)")
     rp.add_argument("--recaptioners", default="smollm2,offline",
                     help="comma-separated: smollm2, smollm2-greedy, offline")
