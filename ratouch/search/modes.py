@@ -196,7 +196,7 @@ _BUILTIN = (
               keys=("image", "text")),
     QueryMode("joint", "Joint query (Tactile-Guided Retriever)", "J", "#2ca02c",
               frozenset({"image", "tactile", "retriever"}), _joint),
-    QueryMode("gated", "Trust-gated query (touch weighed by trust)", "G", "#d62728",
+    QueryMode("gated", "Trust-gated query", "G", "#d62728",
               frozenset({"image", "tactile", "retriever"}), _gated),
 )
 _BUILTIN_NAMES = frozenset(m.name for m in _BUILTIN)
