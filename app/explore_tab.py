@@ -18,7 +18,7 @@ import gradio as gr
 
 from app import handlers, record, view
 from app.page import Outputs, Page
-from ratouch.search.modes import RETRIEVAL_SYSTEMS
+from ratouch.search.modes import QUERY_MODES, RETRIEVAL_SYSTEMS
 from ratouch.serve.pipeline import DEFAULT_RETRIEVAL
 
 # A few structured close-ups (indices < 46), then wild scenes, spread over the test split.
@@ -82,7 +82,14 @@ def _inputs(ui: SimpleNamespace, page: Page, n_corpus: int) -> None:
         ui.fields = {n: gr.Textbox(value="", label=n, placeholder="—", max_lines=1,
                                    elem_id=f"box-{n}", min_width=60)
                      for n in ("x0", "y0", "x1", "y1")}
-        ui.reset = gr.Button("Default box", size="sm", min_width=60)
+        with gr.Column(min_width=100, scale=1):
+            ui.reset = gr.Button("Default box", size="sm", min_width=60)
+            # the neighbours RA-Touch reads: the paper's joint query or the trust-gated one
+            ui.retrieval = gr.Dropdown(
+                [(f"{name} ({QUERY_MODES[mode].letter})", name)
+                 for name, mode in RETRIEVAL_SYSTEMS.items()],
+                value=DEFAULT_RETRIEVAL, show_label=False, container=False,
+                elem_id="retrieval", min_width=100)
     ui.box_note = gr.Markdown(elem_id="box-note")
     with gr.Row():
         ui.tactile = gr.Image(label="3 · Tactile frame (DIGIT / GelSight)",
@@ -106,9 +113,6 @@ def _inputs(ui: SimpleNamespace, page: Page, n_corpus: int) -> None:
                                value=(models or [""])[0], label="model",
                                elem_id="model", interactive=len(models) > 1,
                                visible=bool(models), scale=4)
-        # the neighbours RA-Touch reads: the paper's joint query or the trust-gated one
-        ui.retrieval = gr.Radio(list(RETRIEVAL_SYSTEMS), value=DEFAULT_RETRIEVAL,
-                                label="retrieval", elem_id="retrieval", scale=2, min_width=140)
         if not models:  # Run beside K; with a model menu, on its own row below
             ui.run = _run_button()
     if models:

@@ -9,10 +9,12 @@ from __future__ import annotations
 import pytest
 import torch
 
+from ratouch.checkpoint import WEIGHTS, files_fingerprint
 from ratouch.corpus.recaption import CaptionRejected, build_prompt, validate_caption
 from ratouch.corpus.smollm import SmolLM2Recaptioner
 from ratouch.errors import ConfigError
-from ratouch.model.pretrained_lm import load_pretrained_lm
+from ratouch.model.pretrained_lm import _source, load_pretrained_lm
+from ratouch.paths import converted_lm_dir
 from ratouch.vocabulary import TVL_ADJECTIVES
 
 pytestmark = pytest.mark.slow
@@ -24,7 +26,14 @@ OBJECTS = [("teddy bear", "a brown fur toy on a bed"),
 
 @pytest.fixture(scope="module")
 def lm():
-    return load_pretrained_lm()
+    """The model, and whether the session's cache held its converted copy before (another
+    test module may have loaded it first)."""
+    gguf = _source("smollm2-135m").path()
+    folder = converted_lm_dir("smollm2-135m", files_fingerprint([gguf]))
+    cached_before = (folder / WEIGHTS).is_file()
+    model = load_pretrained_lm()
+    model.cached_before = cached_before
+    return model
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +42,7 @@ def captions(lm):
 
 
 def test_first_load_converts_then_the_cache_answers_the_same(lm):
-    assert lm.converted  # the session's cache was empty
+    assert lm.converted == (not lm.cached_before)  # converted only where nothing was cached
     again = load_pretrained_lm()
     assert not again.converted
     ids = torch.tensor([lm.chat_ids(build_prompt(*OBJECTS[0]))])

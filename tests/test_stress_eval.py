@@ -122,7 +122,7 @@ def test_pairing_and_fallback(result):
     p = miss["points"][1]
     assert p["retrieval"]["tactile"] == {**p["retrieval"]["image"],
                                          "topk_overlap": p["retrieval"]["tactile"]["topk_overlap"]}
-    assert set(p["retrieval_no_fallback"]) == {"tactile", "joint"}
+    assert set(p["retrieval_no_fallback"]) == set(QUERY_MODES.needing_touch())
 
 
 def test_scale_bins_and_collapse(result):
@@ -147,7 +147,7 @@ def test_report_files(result, tmp_path):
         assert (tmp_path / "rep").joinpath(paths[kind].split("/")[-1]).is_file()
     assert json.loads((tmp_path / "rep" / "stress.json").read_text())["n"] == 8
     fig = pio.from_json((tmp_path / "rep" / "stress_fig.json").read_text())
-    assert len(fig.data) == 4 * 5  # 4 knobs x (3 modes + 2 generators)
+    assert len(fig.data) == 4 * (len(QUERY_MODES) + 2)  # 4 knobs x (modes + 2 generators)
     page = (tmp_path / "rep" / "stress.html").read_text()
     assert page.count('src="plotly.min.js"') == 1 and page.count("Plotly.newPlot") == 2
     assert "plotly.js v" in (tmp_path / "rep" / "plotly.min.js").read_text()[:400]  # js once
