@@ -239,7 +239,7 @@ def test_k_is_capped_at_the_apps_twenty_everywhere(tmp_path, capsys):
             QueryRequest.decode(str(img), None, k=k)
     assert main(["query", "--vision", str(img), "--k", "10000"]) == 2
     err = capsys.readouterr().err
-    assert "k must be a whole number from 1 to 20" in err and err.count("\n") == 1
+    assert "K must be a whole number from 1 to 20" in err and err.count("\n") == 1
 
 
 @pytest.mark.slow
