@@ -23,7 +23,7 @@ import torch
 from scipy import stats
 
 from ratouch.errors import ConfigError
-from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split
+from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split, retrieve
 from ratouch.eval.controls import derangement, run_controls, vote
 from ratouch.eval.experiments import source_sha256
 from ratouch.eval.judge import OfflineJudge
@@ -85,24 +85,28 @@ def token_arm(encoder: str, run: int, progress: bool = False):
     return load_for_serving(root / "tokens")
 
 
+def _own_and_shuffled(p: RATouchPipeline, split: TestSplit, ids: np.ndarray, name: str,
+                      judge, seed: int, generator=None) -> dict[str, np.ndarray]:
+    """Judge scores of a RA-Touch arm reading `ids` ({name}) and another query's ({name}
+    _shuffled: a derangement)."""
+    return {n: answer_split(p, split, RA_TOUCH, ids=nb, generator=generator, name=n,
+                            judge=judge).scores
+            for n, nb in ((name, ids), (f"{name}_shuffled", ids[derangement(len(ids), seed)]))}
+
+
 def _arm_scores(p: RATouchPipeline, gen, split: TestSplit, k: int, judge, seed: int
                 ) -> dict[str, np.ndarray]:
     """Judge scores of the neighbour-token arm with its own and with shuffled neighbours."""
-    ids = p.joint_neighbours(split.V, split.T, k)
-    return {name: answer_split(p, split, RA_TOUCH, ids=nb, generator=gen, name=name,
-                               judge=judge).scores
-            for name, nb in (("tokens", ids), ("tokens_shuffled",
-                                               ids[derangement(len(ids), seed)]))}
+    return _own_and_shuffled(p, split, p.joint_neighbours(split.V, split.T, k), "tokens",
+                             judge, seed, generator=gen)
 
 
 def _gated_scores(p: RATouchPipeline, split: TestSplit, k: int, judge, seed: int
                   ) -> dict[str, np.ndarray]:
     """Judge scores of the `gated` system (RA-Touch reading the trust-gated query's
     neighbours) with its own and with shuffled neighbours."""
-    ids = p.corpus.search("text", p.joint_query(split.V, split.T, gated=True), k)[1]
-    return {name: answer_split(p, split, RA_TOUCH, ids=nb, name=name, judge=judge).scores
-            for name, nb in (("gated", ids), ("gated_shuffled",
-                                              ids[derangement(len(ids), seed)]))}
+    return _own_and_shuffled(p, split, retrieve(p, split.V, split.T, k, "gated"), "gated",
+                             judge, seed)
 
 
 def mode_precision(p: RATouchPipeline, split: TestSplit, k: int) -> dict[str, float]:
@@ -193,26 +197,8 @@ def _aggregate(results: list[dict], seed: int) -> dict:
     p = _p_value(drops)
     names = ("baseline", "ra_touch", "neighbours_shuffled", "integrator_zeroed",
              "copy_captions", "copy_perfect_retrieval", "material_oracle")
-    arm = None
-    if "tokens" in results[0]["scores"]:
-        arm_gains = [r["scores"]["tokens"] - r["scores"]["baseline"] for r in results]
-        arm_drops = [r["scores"]["tokens"] - r["scores"]["tokens_shuffled"] for r in results]
-        arm = {"score": round(float(np.mean([r["scores"]["tokens"].mean() for r in results])), 4),
-               "gain": round(float(np.mean([a.mean() for a in arm_gains])), 4),
-               "ci95": [round(x, 4) for x in pooled_ci(arm_gains, seed)],
-               "shuffle_drop": round(float(np.mean([a.mean() for a in arm_drops])), 4),
-               "shuffle_p": _p_value(arm_drops)}
-    gated = None
-    if "gated" in results[0]["scores"]:
-        g_gains = [r["scores"]["gated"] - r["scores"]["baseline"] for r in results]
-        g_drops = [r["scores"]["gated"] - r["scores"]["gated_shuffled"] for r in results]
-        gated = {"score": round(float(np.mean([r["scores"]["gated"].mean() for r in results])), 4),
-                 "gain": round(float(np.mean([a.mean() for a in g_gains])), 4),
-                 "ci95": [round(x, 4) for x in pooled_ci(g_gains, seed)],
-                 "shuffle_drop": round(float(np.mean([a.mean() for a in g_drops])), 4),
-                 "shuffle_drop_ci95": [round(x, 4) for x in pooled_ci(g_drops, seed)],
-                 "shuffle_p": _p_value(g_drops),
-                 "runs": [round(float(a.mean()), 4) for a in g_gains]}
+    arm, gated = (_arm_summary(results, name, seed) if name in results[0]["scores"] else None
+                  for name in ("tokens", "gated"))
     return {
         "gated": gated,
         "n": results[0]["n"], "baseline": mean_of("baseline"), "ra_touch": mean_of("ra_touch"),
@@ -238,6 +224,20 @@ def _aggregate(results: list[dict], seed: int) -> dict:
                   "copy_ceiling": round(r["systems"]["copy_perfect_retrieval"]["mean"], 4)}
                  for r in results],
     }
+
+
+def _arm_summary(results: list[dict], name: str, seed: int) -> dict:
+    """An arm's figures over runs (its scores `name` and `name`_shuffled): mean score, gain
+    over the baseline with its pooled CI, shuffle drop with its pooled CI and p, per-run gains."""
+    gains = [r["scores"][name] - r["scores"]["baseline"] for r in results]
+    drops = [r["scores"][name] - r["scores"][f"{name}_shuffled"] for r in results]
+    return {"score": round(float(np.mean([r["scores"][name].mean() for r in results])), 4),
+            "gain": round(float(np.mean([a.mean() for a in gains])), 4),
+            "ci95": [round(x, 4) for x in pooled_ci(gains, seed)],
+            "shuffle_drop": round(float(np.mean([a.mean() for a in drops])), 4),
+            "shuffle_drop_ci95": [round(x, 4) for x in pooled_ci(drops, seed)],
+            "shuffle_p": _p_value(drops),
+            "runs": [round(float(a.mean()), 4) for a in gains]}
 
 
 def _p_value(diffs: list[np.ndarray]) -> float:
