@@ -101,10 +101,16 @@ class TouchGate:
     def weights(self, V: np.ndarray, T: np.ndarray, J: np.ndarray) -> np.ndarray:
         """(N,) how far touch steers each query: 1 the paper's joint query, 0 the image
         query's direction."""
+        return self._weights(self._features(V, T, J))
+
+    def _features(self, V: np.ndarray, T: np.ndarray, J: np.ndarray) -> np.ndarray:
         if self.tactile is None or self.visual is None:
             raise ConfigError("the touch gate reads novelty with the trust calibration's "
                               "models: load it with them (`with_novelty`)")
-        f = gate_features(V, T, J, self.tactile, self.visual)
+        return gate_features(V, T, J, self.tactile, self.visual)
+
+    def _weights(self, f: np.ndarray) -> np.ndarray:
+        """(N,) weights of (N, len(FEATURES)) features."""
         if self.kind == "rule":
             return (f[:, 0] <= 1.0).astype(np.float64)
         z = ((f - self.mean) / self.scale) @ self.coef + self.intercept
@@ -117,8 +123,8 @@ class TouchGate:
 
     def explain(self, V: np.ndarray, T: np.ndarray, J: np.ndarray) -> dict:
         """Why one query's touch was trusted as it was: its weight and features."""
-        f = gate_features(V, T, J, self.tactile, self.visual)[0]
-        w = float(self.weights(V, T, J)[0])
+        features = self._features(V, T, J)
+        f, w = features[0], float(self._weights(features)[0])
         out = {"kind": self.kind, "touch_weight": round(w, 3),
                "features": {n: round(float(x), 3) for n, x in zip(FEATURES, f)}}
         reasons = []
