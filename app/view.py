@@ -254,6 +254,9 @@ def touch_md(trace: RetrievalTrace) -> str:
     """Which neighbours the answer read and how far touch was trusted to steer them."""
     title = QUERY_MODES[trace.reads].title if trace.reads in QUERY_MODES else trace.reads
     text = f"Retrieval **{escape(trace.system)}**: read the *{escape(title)}*'s neighbours"
+    if trace.generator:
+        text += (" with the reader (trained to read them)" if trace.generator == "reader" else
+                 " with the paper's generator")
     if trace.touch_weight is None:
         return text + "."
     text += f"; touch steered it **{trace.touch_weight:.0%}**"

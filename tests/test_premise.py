@@ -119,7 +119,16 @@ def test_premise_runs_end_to_end_on_the_shipped_weights(real_pipeline):
         for key in ("baseline", "ra_touch", "gain", "ci95", "shuffle_drop", "copy_ceiling"):
             assert key in s
         assert s["gain"] == pytest.approx(s["ra_touch"] - s["baseline"], abs=1e-3)
-    assert len(lines) == 3 and "run 0 scarce" in lines[-1]
+    assert len(lines) == 4 and "run 0 scarce" in lines[-2] and "touch withheld" in lines[-1]
+    tw = r["touch_withheld"]
+    assert tw["n"] == 12 and set(tw["score"]) == {"baseline", "paper", "copy_image_top1",
+                                                    "gated", "gated_shuffled"}
+    for key in ("paper_gain", "gated_gain", "gated_shuffle_drop"):
+        assert tw[key]["diff"] == pytest.approx(
+            tw["score"][key.split("_")[0]] - tw["score"][
+                {"paper_gain": "baseline", "gated_gain": "baseline",
+                 "gated_shuffle_drop": "gated_shuffled"}[key]], abs=2e-3)
+    assert "touch withheld" in format_premise(r)
     json.dumps(r)
 
 

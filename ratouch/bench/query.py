@@ -19,7 +19,7 @@ from ratouch.corpus.imagenet_t import (
 )
 from ratouch.model.decoder import generate_together
 from ratouch.model.fastpath import GreedyStack, StackCache
-from ratouch.search.modes import RA_TOUCH_MODE
+from ratouch.search.modes import RA_TOUCH_MODE, RETRIEVAL_SYSTEMS
 from ratouch.search.retrieval_side import default_corpus
 from ratouch.serve.cascade import CASCADE, Cascade
 from ratouch.serve.models import Model, load_model
@@ -101,12 +101,19 @@ def bench_query(encoder: str = "default-s", corpus: str | None = None, n: int = 
             stages.setdefault(name, []).append(ms)
     with_bg = [_ask(model, s, k, world.background_image(s.sensor)).timings_ms["total"]
                for s in samples]
+    systems: dict[str, list[float]] = {name: [] for name in RETRIEVAL_SYSTEMS}
+    for s in samples:  # interleaved, so both systems meet the same machine load
+        for name in systems:
+            systems[name].append(_ask(model, s, k, retrieval=name).timings_ms["total"])
     return {"encoder": encoder, "corpus_size": len(model.corpus), "n_queries": n, "k": k,
             "cold_start_s": round(cold, 2),
             "p50_ms": round(float(np.percentile(totals, 50)), 1),
             "p95_ms": round(float(np.percentile(totals, 95)), 1),
             "with_background": {"p50_ms": round(float(np.percentile(with_bg, 50)), 1),
                                 "p95_ms": round(float(np.percentile(with_bg, 95)), 1)},
+            "by_retrieval": {name: {"p50_ms": round(float(np.percentile(t, 50)), 1),
+                                    "p95_ms": round(float(np.percentile(t, 95)), 1)}
+                             for name, t in systems.items()},
             "stages_p50_ms": {k_: round(float(np.median(v)), 2) for k_, v in stages.items()},
             **({"escalated": round(float(np.mean(escalated)), 4)} if escalated else {}),
             "generation": bench_generation(
@@ -117,11 +124,12 @@ def bench_query(encoder: str = "default-s", corpus: str | None = None, n: int = 
                        "cold_start_s": 10}}
 
 
-def _ask(model: Model, s, k: int, background: np.ndarray | None = None):
-    """A world sample's query (with its sensor's background when given), answered by `model`
-    (a `QueryResult`)."""
+def _ask(model: Model, s, k: int, background: np.ndarray | None = None,
+         retrieval: str | None = None):
+    """A world sample's query (with its sensor's background when given; with the retrieval
+    system `retrieval`, default the model's), answered by `model` (a `QueryResult`)."""
     return answer_one(model, QueryRequest.decode(s.visual, s.tactile, box=s.box, k=k,
-                                                 background=background))
+                                                 background=background, retrieval=retrieval))
 
 
 def bench_regenerate(model: Model, samples: list, k: int = 5) -> dict:

@@ -216,6 +216,15 @@ def _add_train(sub) -> None:
     gt.add_argument("--n", type=_pos_int, default=1200, help="probe pairs (half fit, half measure)")
     gt.add_argument("--out", default=None,
                     help="gate JSON (default: assets/gate/ENCODER.json)")
+    rd = tsub.add_parser("reader", help="train the gated system's generator (the reader): "
+                                        "RA-Touch's stage 2 on the gated query's neighbours, "
+                                        "half the samples with touch degraded")
+    rd.add_argument("--encoder", default=DEFAULT_ENCODER)
+    rd.add_argument("--seed", type=_nonneg_int, default=0)
+    rd.add_argument("--steps", type=_pos_int, default=None,
+                    help="stage-2 steps (default: RA-Touch's, 600)")
+    rd.add_argument("--out", default=None,
+                    help="checkpoint folder (default: assets/generator/ENCODER/reader)")
     ge = tsub.add_parser("geometry", help="fit each sensor family's colour-to-gradient lookup "
                                           "(Taxim's real ball presses; the DIGIT shader's "
                                           "renders) and its contact floors on blank renders")

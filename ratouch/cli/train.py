@@ -10,7 +10,12 @@ from pathlib import Path
 
 from ratouch.cli.common import usage
 from ratouch.encoders.factory import DEFAULT_SETS, create_model, shipped_weights
-from ratouch.paths import cascade_calibration, geometry_calibration, trust_calibration
+from ratouch.paths import (
+    cascade_calibration,
+    generator_weights,
+    geometry_calibration,
+    trust_calibration,
+)
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.ship import retrain
 from ratouch.ship.cascade import CascadeConfig, calibrate_cascade
@@ -48,6 +53,14 @@ def run(args: argparse.Namespace) -> int:
             rep = gate_recipe(args.encoder, args.seed, args.n, args.out)
         print(format_gate_report(rep))
         print(json.dumps({k: v for k, v in rep.items() if k != "by_variant"}))
+        return 0
+    if args.train_cmd == "reader":
+        with intra_op_threads(2):
+            _, rep = recipes.reader_recipe(
+                args.encoder, generator_weights(args.encoder, "ra"), seed=args.seed,
+                out=args.out or generator_weights(args.encoder, "reader"),
+                **({"stage2_steps": args.steps} if args.steps else {}))
+        print(json.dumps({k: v for k, v in rep.items() if k != "history"}))
         return 0
     if args.train_cmd == "all":
         args.model, args.out, args.steps, args.threads = None, None, None, 2

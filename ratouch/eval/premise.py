@@ -13,6 +13,7 @@ The verdict applies the criteria pre-registered in docs/premise.md.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import logging
 import time
 from pathlib import Path
@@ -23,7 +24,7 @@ import torch
 from scipy import stats
 
 from ratouch.errors import ConfigError
-from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split, retrieve
+from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split, judge_answers, retrieve
 from ratouch.eval.controls import derangement, run_controls, vote
 from ratouch.eval.experiments import source_sha256
 from ratouch.eval.judge import OfflineJudge
@@ -34,9 +35,15 @@ from ratouch.search.modes import QUERY_MODES
 from ratouch.search.retrieval import mode_query
 from ratouch.serve.pipeline import RATouchPipeline, integrator_factory, load_for_serving
 from ratouch.timing import Progress, bars, say_to
-from ratouch.train.recipes import generator_recipe, token_arm_recipe, training_pairs
+from ratouch.train.recipes import (
+    generator_recipe,
+    reader_recipe,
+    token_arm_recipe,
+    training_pairs,
+)
 from ratouch.vocabulary import adjective_f1, parse_adjectives
 from ratouch.world.config import WorldConfig
+from ratouch.world.sampler import TEST_SIZE
 from ratouch.world.scarcity import ScarceRegime, premise_indices
 from ratouch.world.splits import TestSplit, encode_test_split
 
@@ -85,6 +92,22 @@ def token_arm(encoder: str, run: int, progress: bool = False):
     return load_for_serving(root / "tokens")
 
 
+def reader(encoder: str, run: int, progress: bool = False):
+    """The run's reader, the `gated` system's generator (`ratouch.train.recipes.reader_recipe`):
+    run 0's is the shipped one where it exists; otherwise it is trained into the cache on first
+    use from the run's stage-1 model with RA-Touch's stage-2 budget. LoRA merged."""
+    shipped = generator_weights(encoder, "reader")
+    if run == 0 and (shipped / "manifest.json").is_file():
+        return load_for_serving(shipped)
+    root = run_folder(encoder, run)
+    ra = generator_weights(encoder, "ra") if run == 0 else root / "ra"
+    if not (root / "reader" / "manifest.json").is_file():
+        log.info("premise run %d: training the reader into %s", run, root)
+        reader_recipe(encoder, ra, seed=run, draw=run, world_seed=0, out=root / "reader",
+                      progress=progress)
+    return load_for_serving(root / "reader")
+
+
 def _own_and_shuffled(p: RATouchPipeline, split: TestSplit, ids: np.ndarray, name: str,
                       judge, seed: int, generator=None) -> dict[str, np.ndarray]:
     """Judge scores of a RA-Touch arm reading `ids` ({name}) and another query's ({name}
@@ -101,12 +124,44 @@ def _arm_scores(p: RATouchPipeline, gen, split: TestSplit, k: int, judge, seed: 
                              judge, seed, generator=gen)
 
 
-def _gated_scores(p: RATouchPipeline, split: TestSplit, k: int, judge, seed: int
-                  ) -> dict[str, np.ndarray]:
-    """Judge scores of the `gated` system (RA-Touch reading the trust-gated query's
-    neighbours) with its own and with shuffled neighbours."""
+def _gated_scores(p: RATouchPipeline, split: TestSplit, k: int, judge, seed: int,
+                  generator=None) -> dict[str, np.ndarray]:
+    """Judge scores of the `gated` system (`generator`, default the pipeline's RA-Touch,
+    reading the trust-gated query's neighbours) with its own and with shuffled neighbours."""
     return _own_and_shuffled(p, split, retrieve(p, split.V, split.T, k, "gated"), "gated",
-                             judge, seed)
+                             judge, seed, generator=generator)
+
+
+def touch_withheld_scores(p: RATouchPipeline, split: TestSplit, k: int, judge, seed: int,
+                          generator=None) -> dict[str, np.ndarray]:
+    """The degraded-touch probe (docs/premise.md, "Reading episodes"): judge scores on `split`
+    with each pair's touch replaced by another pair's (a derangement), for the baseline, the
+    `paper` system (RA-Touch on the joint query), the `gated` system (`generator` on the gated
+    query) with its own and with shuffled neighbours, and a copy of the image query's top-1
+    caption."""
+    bad = dataclasses.replace(split, T=split.T[derangement(len(split.T), seed + 101)])
+    image_top = retrieve(p, bad.V, bad.T, 1, "image")[:, 0]
+    copy_top = [p.corpus.entries[int(i)].caption for i in image_top]
+    return {"baseline": answer_split(p, bad, BASELINE, judge=judge).scores,
+            "paper": answer_split(p, bad, RA_TOUCH, k=k, judge=judge, name="paper").scores,
+            "copy_image_top1": judge_answers(judge, bad, copy_top, "copy_image_top1")[0],
+            **_own_and_shuffled(p, bad, retrieve(p, bad.V, bad.T, k, "gated"), "gated",
+                                judge, seed, generator=generator)}
+
+
+def summarise_withheld(results: list[dict[str, np.ndarray]], seed: int = 0) -> dict:
+    """The degraded-touch probe over runs: each system's mean score, and the `paper` and
+    `gated` systems' gains over the baseline and the gated shuffle drop, with pooled CIs."""
+    out: dict = {"n": len(results[0]["baseline"]),
+                 "score": {name: round(float(np.mean([r[name].mean() for r in results])), 4)
+                           for name in results[0]}}
+    for name, a, b in (("paper_gain", "paper", "baseline"), ("gated_gain", "gated", "baseline"),
+                       ("gated_shuffle_drop", "gated", "gated_shuffled")):
+        diffs = [r[a] - r[b] for r in results]
+        out[name] = {"diff": round(float(np.mean([d.mean() for d in diffs])), 4),
+                     "ci95": [round(x, 4) for x in pooled_ci(diffs, seed)],
+                     "p": _p_value(diffs)}
+    return out
 
 
 def mode_precision(p: RATouchPipeline, split: TestSplit, k: int) -> dict[str, float]:
@@ -149,9 +204,14 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
     say(f"rendered and encoded {n} seen and {n} scarce pairs")
     judge = OfflineJudge()
     per_run: dict[str, list[dict]] = {g: [] for g in GROUPS}
+    # the degraded-touch probe: the world test split (its first n pairs where n is smaller)
+    test = (encode_test_split(pipe.encoders, indices=range(min(n, TEST_SIZE)))
+            if gated else None)
+    withheld: list[dict[str, np.ndarray]] = []
     for run in range(runs):
         ra, base = run_generators(encoder, run, progress)
         tokens = token_arm(encoder, run, progress) if arm else None
+        gated_gen = reader(encoder, run, progress) if gated else None
         p = RATouchPipeline(pipe.retriever, pipe.tgr, ra, base, pca=pipe.pca, trust=pipe.trust,
                             gate=pipe.gate)
         for g in GROUPS:
@@ -160,17 +220,25 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
             if tokens is not None:
                 r["scores"].update(_arm_scores(p, tokens, splits[g], k, judge, seed=run))
             if gated:
-                r["scores"].update(_gated_scores(p, splits[g], k, judge, seed=run))
+                r["scores"].update(_gated_scores(p, splits[g], k, judge, seed=run,
+                                                 generator=gated_gen))
             per_run[g].append(r)
             say(f"run {run} {g}: baseline {r['systems']['baseline']['mean']:.3f}, RA-Touch "
                 f"{r['systems']['ra_touch']['mean']:.3f}, shuffle drop "
                 f"{r['shuffle']['diff']:+.3f}")
+        if test is not None:
+            withheld.append(touch_withheld_scores(p, test, k, judge, seed=run,
+                                                  generator=gated_gen))
+            say(f"run {run} touch withheld: baseline {withheld[-1]['baseline'].mean():.3f}, "
+                f"paper {withheld[-1]['paper'].mean():.3f}, gated "
+                f"{withheld[-1]['gated'].mean():.3f}")
     groups = {g: _aggregate(per_run[g], seed=0) for g in GROUPS}
     verdict, reason = decide(groups)
     extra: dict = {}
     if gated:
         extra["precision"] = {g: mode_precision(pipe, splits[g], k) for g in GROUPS}
         extra["gated_verdict"], extra["gated_verdict_reason"] = decide_gated(groups)
+        extra["touch_withheld"] = summarise_withheld(withheld)
     return {**extra,"config": {"encoder": encoder, "runs": runs, "n": n, "k": k, "judge": judge.name,
                        "regime": regime.tag, "draws": list(range(runs)),
                        "seeds": list(range(runs))},
@@ -331,7 +399,7 @@ def format_premise(r: dict) -> str:
                          f"shuffle drop {a['shuffle_drop']:+.3f} (p={a['shuffle_p']:.1g})")
         gt = s.get("gated")
         if gt:
-            lines.append(f"  gated (RA-Touch reading the trust-gated query): {gt['score']:.3f}, "
+            lines.append(f"  gated (the reader on the trust-gated query): {gt['score']:.3f}, "
                          f"gain {gt['gain']:+.3f} [{gt['ci95'][0]:+.3f}, {gt['ci95'][1]:+.3f}], "
                          f"shuffle drop {gt['shuffle_drop']:+.3f} (p={gt['shuffle_p']:.1g})")
         if r.get("precision"):
@@ -342,6 +410,15 @@ def format_premise(r: dict) -> str:
             lines.append(f"  run {i}: baseline {run['baseline']:.3f}, RA-Touch "
                          f"{run['ra_touch']:.3f}, gain {gd['diff']:+.3f} [{gd['ci_low']:+.3f}, "
                          f"{gd['ci_high']:+.3f}], shuffle drop {run['shuffle_drop']['diff']:+.3f}")
+    tw = r.get("touch_withheld")
+    if tw:
+        sc = tw["score"]
+        lines.append(f"touch withheld (world test split, each pair read with another's touch; "
+                     f"n={tw['n']}): " + ", ".join(f"{m} {v:.3f}" for m, v in sc.items()))
+        for key in ("paper_gain", "gated_gain", "gated_shuffle_drop"):
+            d = tw[key]
+            lines.append(f"  {key.replace('_', ' ')}: {d['diff']:+.3f} [{d['ci95'][0]:+.3f}, "
+                         f"{d['ci95'][1]:+.3f}] (p={d['p']:.1g})")
     lines.append(f"verdict: {r['verdict']}: {r['verdict_reason']} ({r['seconds']:.0f} s)")
     if r.get("gated_verdict"):
         lines.append(f"gated verdict: {r['gated_verdict']}: {r['gated_verdict_reason']}")

@@ -179,11 +179,13 @@ class RetrievalSide:
             return J, np.ones(len(J))
         return self.gate.query(V, T, J)
 
-    def joint_neighbours(self, V: np.ndarray, T: np.ndarray, k: int, batch: int = 1024
-                         ) -> np.ndarray:
-        """(N, k) corpus ids of the joint query's top-k against the text index, in batches."""
+    def joint_neighbours(self, V: np.ndarray, T: np.ndarray, k: int, batch: int = 1024,
+                         gated: bool = False) -> np.ndarray:
+        """(N, k) corpus ids of the joint query's top-k against the text index, in batches
+        (`gated`: the trust-gated query's)."""
         return np.concatenate([
-            self.corpus.search("text", self.joint_query(V[s:s + batch], T[s:s + batch]), k)[1]
+            self.corpus.search("text", self.joint_query(V[s:s + batch], T[s:s + batch],
+                                                        gated=gated), k)[1]
             for s in range(0, len(V), batch)])
 
     def corpus_embeddings(self, kind: str) -> np.ndarray:

@@ -75,6 +75,17 @@ def load_for_serving(folder: str | os.PathLike, integrator: bool = True):
     return gen
 
 
+def load_reader(encoder: str):
+    """The shipped reader of an encoder set (the `gated` system's generator), or None (logged)
+    when it has none."""
+    folder = generator_weights(encoder, "reader")
+    if not (folder / "manifest.json").is_file():
+        log.warning("no reader for %s (%s): the gated system reads with the paper's RA-Touch "
+                    "generator (`ratouch train reader --encoder %s`)", encoder, folder, encoder)
+        return None
+    return load_for_serving(folder)
+
+
 def load_trust(encoder: str) -> TrustCalibration | None:
     """The shipped trust calibration of an encoder, or None (logged) when it has none."""
     path = trust_calibration(encoder)
@@ -135,7 +146,8 @@ class RATouchPipeline(RetrievalSide):
 
     def __init__(self, retriever: CorpusSearch, tgr, generator_ra, generator_base,
                  pca: PCA2D | None = None, trust: TrustCalibration | None = None,
-                 gate: TouchGate | None = None, retrieval: str = DEFAULT_RETRIEVAL):
+                 gate: TouchGate | None = None, retrieval: str = DEFAULT_RETRIEVAL,
+                 generator_reader=None):
         super().__init__(retriever, tgr)
         self.trust = trust  # None: queries say that nothing flags unfamiliar inputs
         self.gate = gate
@@ -146,13 +158,17 @@ class RATouchPipeline(RetrievalSide):
         self.retrieval = retrieval
         self.generator_ra = generator_ra
         self.generator_base = generator_base
+        #: the `gated` system's generator, trained in reading episodes on the gated query's
+        #: neighbours (None: the gated system reads them with the paper's RA-Touch generator)
+        self.generator_reader = generator_reader
         image_emb = self.corpus_embeddings("image")
         text_emb = self.corpus_embeddings("tactile_caption")
         prior = getattr(self.encoders, "visual_prior", None)
         #: answers crops that look like real photos (None: the encoders have no prior)
         self.photos = None if prior is None else PhotoRoute(
             prior, [e.class_name for e in self.corpus.entries], image_emb)
-        self._stack = StackCache()  # the two decoders' weights, stacked to decode together
+        # the decoders' weights stacked to decode together, per set of decoders
+        self._stacks: dict[tuple[int, ...], StackCache] = {}
         # the fixed reference frame: the first 2000 entries' image and text embeddings
         self.pca = pca or PCA2D.fit(np.concatenate([np.asarray(image_emb[:2000]),
                                                     np.asarray(text_emb[:2000])]))
@@ -167,13 +183,15 @@ class RATouchPipeline(RetrievalSide):
         ("paper" or "gated")."""
         corpus = corpus or default_corpus(encoder, progress=progress)
         retriever = open_retriever(corpus, encoder, index)
-        gen_ra = gen_base = None
+        gen_ra = gen_base = gen_reader = None
         if generators:
             gen_ra = load_for_serving(generator_weights(encoder, "ra"))
             gen_base = load_for_serving(generator_weights(encoder, "baseline"), integrator=False)
+            gen_reader = load_reader(encoder)
         trust = load_trust(encoder)
         return cls(retriever, load_tgr(encoder), gen_ra, gen_base, trust=trust,
-                   gate=load_gate(encoder, trust), retrieval=retrieval)
+                   gate=load_gate(encoder, trust), retrieval=retrieval,
+                   generator_reader=gen_reader)
 
     @property
     def name(self) -> str:
@@ -285,13 +303,33 @@ class RATouchPipeline(RetrievalSide):
         system's (`RETRIEVAL_SYSTEMS`), or this pipeline's default."""
         return RETRIEVAL_SYSTEMS[request.retrieval or self.retrieval]
 
+    def generator_for(self, request: QueryRequest):
+        """The RA-Touch generator that answers `request`: its retrieval system's (the reader
+        for `gated`, where one is loaded), else the paper's."""
+        system = request.retrieval or self.retrieval
+        if system == "gated" and self.generator_reader is not None:
+            return self.generator_reader
+        return self.generator_ra
+
+    def _describe(self, generators: Sequence, prefixes: Sequence[torch.Tensor]
+                  ) -> list[list[str]]:
+        """`describe_together`, with the stacked weights of each set of decoders kept."""
+        key = tuple(id(g) for g in generators)
+        cache = self._stacks.get(key)
+        if cache is None:
+            cache = self._stacks[key] = StackCache()
+        return describe_together(generators, prefixes, cache=cache)
+
     def _retrieval_block(self, request: QueryRequest, encoded: Encoded) -> dict | None:
         """The result's "retrieval": which neighbours RA-Touch read and how far touch was
         trusted to steer them (None without a frame)."""
         if encoded.T is None:
             return None
         system = request.retrieval or self.retrieval
-        out: dict = {"system": system, "reads": RETRIEVAL_SYSTEMS[system]}
+        out: dict = {"system": system, "reads": RETRIEVAL_SYSTEMS[system],
+                     "generator": ("reader" if self.generator_reader is not None
+                                   and self.generator_for(request) is self.generator_reader
+                                   else "paper")}
         if self.gate is None:
             out.update(kind=None, touch_weight=1.0, features={},
                        why=["no touch gate for this model: the gated query is the paper's"])
@@ -348,20 +386,27 @@ class RATouchPipeline(RetrievalSide):
         attention: dict[int, dict] = {}
         if not touch:
             return ra, base, attention
-        p_ra, p_base = [], []
+        groups: dict[int, tuple[Any, list[int], list[torch.Tensor]]] = {}
+        p_base = []
         for j in touch:  # each prompt on its own (a batched one rounds differently)
             e = encoded[j]
-            prefix, weights = self.ra_prefix(e.V, e.T, found[j][self.reads(requests[j])][1])
-            p_ra.append(prefix[0])
+            gen = self.generator_for(requests[j])
+            prefix, weights = self.ra_prefix(e.V, e.T, found[j][self.reads(requests[j])][1],
+                                             generator=gen)
+            groups.setdefault(id(gen), (gen, [], []))
+            groups[id(gen)][1].append(j)
+            groups[id(gen)][2].append(prefix[0])
             attention[j] = {name: [round(float(x), 4) for x in w[0]]
                             for name, w in weights.items()}
             with torch.inference_mode():
                 p_base.append(self.generator_base.prefix(torch.from_numpy(e.V),
                                                          torch.from_numpy(e.T))[0])
-        texts_ra, texts_base = describe_together(
-            [self.generator_ra, self.generator_base], [torch.stack(p_ra), torch.stack(p_base)],
-            cache=self._stack)
-        ra.update(zip(touch, texts_ra))
+        gens = list(groups.values())
+        *texts_ra, texts_base = self._describe(
+            [g for g, _, _ in gens] + [self.generator_base],
+            [torch.stack(ps) for _, _, ps in gens] + [torch.stack(p_base)])
+        for (_, js, _), texts in zip(gens, texts_ra):
+            ra.update(zip(js, texts))
         base.update(zip(touch, texts_base))
         clock.lap("generate")
         return ra, base, attention
@@ -401,12 +446,13 @@ class RATouchPipeline(RetrievalSide):
             V[j] = photo.query
         return V, P, photos
 
-    def ra_prefix(self, V: np.ndarray, T: np.ndarray, ids: np.ndarray
+    def ra_prefix(self, V: np.ndarray, T: np.ndarray, ids: np.ndarray, generator=None
                   ) -> tuple[torch.Tensor, dict[str, np.ndarray]]:
         """RA-Touch's prompt p' for (B, D) V and T with neighbours `ids` (B, K), and the
         integrator's attention over them ({"image"|"text": (B, K)}, empty without an
-        integrator that reports it). With K = 0 there is nothing to integrate: p' = p."""
-        gen = self.generator_ra
+        integrator that reports it). With K = 0 there is nothing to integrate: p' = p.
+        `generator`: another RA-Touch generator's prompt (default the paper's)."""
+        gen = generator or self.generator_ra
         v, t = torch.from_numpy(V), torch.from_numpy(T)
         with torch.inference_mode():
             if ids.shape[1] == 0:
@@ -443,8 +489,9 @@ class RATouchPipeline(RetrievalSide):
         q = self.joint_query(V, T, gated=self.reads(request) != RA_TOUCH_MODE)[0]
         text = self.corpus_embeddings("tactile_caption")[ids]        # (K, D)
         scores = text @ q / np.maximum(np.linalg.norm(text, axis=1) * np.linalg.norm(q), 1e-12)
-        p_ra, weights = self.ra_prefix(V, T, ids[None])
-        ra = describe_together([self.generator_ra], [p_ra])[0][0]
+        gen = self.generator_for(request)
+        p_ra, weights = self.ra_prefix(V, T, ids[None], generator=gen)
+        ra = self._describe([gen], [p_ra])[0][0]
         clock.lap("generate")
         return {"description": {"ra_touch": ra},
                 "neighbours": [self.neighbour_entry(i, s) for i, s in zip(ids, scores)],

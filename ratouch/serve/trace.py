@@ -67,6 +67,9 @@ class RetrievalTrace:
         touch_weight: how far touch steered that query (1: fully, the paper's joint query;
             None: not said).
         touch_why: why touch was trusted as it was.
+        generator: which RA-Touch generator read them: "paper" (the paper's, trained on the
+            joint query's neighbours) or "reader" (the gated system's, trained in reading
+            episodes); "" when not said.
     """
 
     ra_words: tuple[str, ...]
@@ -82,6 +85,7 @@ class RetrievalTrace:
     reads: str = RA_TOUCH_MODE
     touch_weight: float | None = None
     touch_why: tuple[str, ...] = ()
+    generator: str = ""
 
     @property
     def nearly_even(self) -> bool:
@@ -133,7 +137,7 @@ def trace_retrieval(result: QueryResult | Mapping[str, Any], top: int = 3
         tuple(w for w in base if w not in ra_set), attended, 1.0 / len(joint), carried,
         tuple(w for w in ra if w in anywhere), block.get("system", "paper"), reads,
         (1.0 if block.get("system") == "paper" else block.get("touch_weight"))
-        if block else None, tuple(block.get("why") or ()))
+        if block else None, tuple(block.get("why") or ()), str(block.get("generator") or ""))
 
 
 def _weights(attention: Mapping[str, Sequence[float]], k: int) -> list[tuple[float, float]]:

@@ -1,6 +1,6 @@
 """What `ratouch train all` runs: every shipped weight retrained in dependency order (the
 geometry lookups, the encoders, the corpus embeddings, and per encoder set of the chain the
-retriever, the trust calibration, the language prior and both generators), then the cascade
+retriever, the trust calibration, the language prior, both generators and the gated system's reader), then the cascade
 calibrated over the chain's pipelines.
 
 It sits above serving and training: the cascade is calibrated by answering validation renders
@@ -26,7 +26,7 @@ from ratouch.timing import Laps
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
 from ratouch.train.gate import gate_recipe
 from ratouch.train.geometry import calibrate as calibrate_geometry
-from ratouch.train.recipes import generator_recipe, retriever_recipe
+from ratouch.train.recipes import generator_recipe, reader_recipe, retriever_recipe
 from ratouch.train.trust import TrustConfig, calibrate
 
 
@@ -74,6 +74,11 @@ def train_all(seed: int = 0, progress: bool = True, report=print, encoders: bool
             shutil.rmtree(prior)  # trained on the old encoders' text embeddings
         report({"generators": name, **generator_recipe(name, seed=seed, progress=progress)})
         lap(f"generators_{name}")
+        # the gated system's reader: stage 2 again from the new RA-Touch's stage 1
+        _, rep = reader_recipe(name, generator_weights(name, "ra"), seed=seed,
+                               out=generator_weights(name, "reader"), progress=progress)
+        report({"reader": name, **{k: v for k, v in rep.items() if k != "history"}})
+        lap(f"reader_{name}")
     cascade = calibrate_cascade([RATouchPipeline.load(n, progress=progress)
                                  for n in CHAIN_SETS], CascadeConfig(seed=seed))
     cascade.save(cascade_calibration("+".join(CHAIN_SETS)))

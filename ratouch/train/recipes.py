@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -14,13 +15,22 @@ import torch
 
 from ratouch.checkpoint import MANIFEST, checkpoint_fingerprint
 from ratouch.encoders.factory import create_model
+from ratouch.errors import ConfigError
 from ratouch.model.generator import load_generator, save_generator
+from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.model.loss import RetrieverLossConfig
 from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
 from ratouch.model.retriever import RetrieverConfig
-from ratouch.paths import cache_dir, encoder_weights, generator_weights, retriever_weights
-from ratouch.search.retrieval_side import RetrievalSide, load_tgr
-from ratouch.train.encoders import TrainConfig, training_data
+from ratouch.model.trust import TrustCalibration
+from ratouch.paths import (
+    cache_dir,
+    encoder_weights,
+    generator_weights,
+    retriever_weights,
+    trust_calibration,
+)
+from ratouch.search.retrieval_side import RetrievalSide, load_gate, load_tgr
+from ratouch.train.encoders import TrainConfig, tactile_batch, training_data
 from ratouch.train.generator import (
     GeneratorTrainConfig,
     evaluate_generators,
@@ -158,6 +168,113 @@ def token_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
         torch.from_numpy(rv), torch.from_numpy(rl), tc, "neighbour-tokens-lora")
     report = {"arm": "neighbour_tokens", "seed": seed, "draw": draw, "stage1_from": str(stage1_from),
               "seconds": round(time.perf_counter() - t0, 1), "history": history}
+    if out is not None:
+        save_generator(out, gen, {"encoder": encoder, **report}, half=True)
+    return gen, report
+
+
+#: The reader's episodes (docs/premise.md, "Reading episodes"; fixed before its first run):
+#: the share of training samples whose touch is degraded, and how heavy the noise of the
+#: noisy half of those is, in the tactile input's own units (its difference channels have
+#: unit RMS per frame): noise of 3x the signal's RMS, a signal-to-noise ratio of 1/9.
+READER_DEGRADED_SHARE = 0.5
+READER_NOISE_RMS = 3.0
+
+
+def noisy_inputs(x: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
+    """Tactile inputs (N, 4, H, W) under heavy noise: the three difference channels mixed
+    with white noise of `READER_NOISE_RMS` times their RMS and rescaled to unit RMS again, as
+    `tactile_input` divides a frame by its own contrast; the contrast channel is kept."""
+    d = x[:, :3].float()
+    noise = torch.randn(d.shape, generator=gen)
+    d = (d + READER_NOISE_RMS * noise * d.pow(2).mean((1, 2, 3), keepdim=True).sqrt())
+    d = d / d.pow(2).mean((1, 2, 3), keepdim=True).sqrt().clamp_min(1e-6)
+    return torch.cat([d, x[:, 3:].float()], 1)
+
+
+def degraded_touch(encoders, data: dict, T: np.ndarray, seed: int = 0) -> np.ndarray:
+    """(N, D) tactile embeddings of the paired split with touch withheld or degraded: half
+    the pairs (a seeded draw) get another pair's touch (a derangement), the other half their
+    own input under heavy noise (`noisy_inputs`), encoded with or without the pair's
+    background as its query was (the seeded draw of `paired_embeddings`)."""
+    rng = np.random.default_rng(seed)
+    n = len(T)
+    perm = rng.permutation(n)
+    out = np.empty_like(T)
+    out[perm] = T[np.roll(perm, 1)]  # each pair gets another's touch
+    noisy = rng.random(n) < 0.5
+    draw, noise = torch.Generator().manual_seed(0), torch.Generator().manual_seed(seed)
+    batch = 512  # paired_embeddings' batches: the same with/without-background draw
+    with torch.no_grad():
+        for s in range(0, n, batch):
+            idx = torch.arange(s, min(s + batch, n))
+            frames = tactile_batch(data, idx, draw)  # the draw paired_embeddings made
+            pick = np.flatnonzero(noisy[s:s + batch])
+            if len(pick):
+                x = noisy_inputs(frames[torch.from_numpy(pick)], noise)
+                out[s + pick] = encoders.embed_tactile(x).numpy()
+    return out
+
+
+def reader_episodes(side: RetrievalSide, encoders, data: dict, V: np.ndarray, T: np.ndarray,
+                    k: int, seed: int = 0) -> dict:
+    """The reader's training samples: each pair keeps its touch or (with probability
+    `READER_DEGRADED_SHARE`, a seeded draw) gets it degraded (`degraded_touch`), and reads the
+    gated query's top-`k` neighbours of what it then carries.
+
+    Returns:
+        {"T": (N, D) the tactile embeddings read, "degraded": (N,) bool, "ids": (N, k)}
+    """
+    if side.gate is None:
+        raise ConfigError("the reader trains on the gated query, and this retrieval side has "
+                          f"no touch gate: `ratouch train gate --encoder {encoders.name}`")
+    T_bad = degraded_touch(encoders, data, T, seed)
+    bad = np.random.default_rng(seed + 11).random(len(V)) < READER_DEGRADED_SHARE
+    T_ep = np.where(bad[:, None], T_bad, T).astype(np.float32)
+    return {"T": T_ep, "degraded": bad, "ids": side.joint_neighbours(V, T_ep, k, gated=True)}
+
+
+def train_reader(side: RetrievalSide, encoders, stage1, data: dict, V: np.ndarray,
+                 T: np.ndarray, labels: list[str], tc: GeneratorTrainConfig):
+    """Stage 2 of the reader from `stage1` (a generator without LoRA; not changed): a fresh
+    Texture-Aware Integrator and LoRA, RA-Touch's budget, on `reader_episodes`.
+    Returns (generator, {"integrator", "episodes"})."""
+    ep = reader_episodes(side, encoders, data, V, T, tc.k, tc.seed)
+    rv, rl = side.neighbour_embeddings(ep["ids"])
+    icfg = IntegratorConfig(dim=encoders.dim, out_dim=stage1.decoder.hidden)
+    gen, history = train_stage2(
+        stage1, TextureAwareIntegrator(icfg), torch.from_numpy(np.asarray(V, np.float32)),
+        torch.from_numpy(ep["T"]), list(labels), torch.from_numpy(rv), torch.from_numpy(rl),
+        tc, "reader-lora")
+    return gen, {"integrator": asdict(icfg), "history": history,
+                 "episodes": {"degraded_share": READER_DEGRADED_SHARE,
+                              "noise_rms": READER_NOISE_RMS,
+                              "degraded": int(ep["degraded"].sum()), "n_pairs": len(V)}}
+
+
+def reader_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
+                  world_seed: int = 0, out=None, progress: bool = False, **train_overrides):
+    """The `gated` system's generator, the reader (`train_reader`), from the stage-1 model
+    inside `stage1_from` (a RA-Touch checkpoint folder) on a draw's paired split, with the
+    shipped retrieval side and touch gate; saved to `out`. Returns (generator, report)."""
+    t0 = time.perf_counter()
+    tc = GeneratorTrainConfig(seed=seed, **train_overrides)
+    torch.set_num_threads(tc.threads)
+    side = RetrievalSide.load(encoder, progress=progress)
+    trust = trust_calibration(encoder)
+    if trust.is_file():
+        side.gate = load_gate(encoder, TrustCalibration.load(trust))
+    if side.gate is None:
+        raise ConfigError(f"the reader trains on the gated query: `ratouch train trust "
+                          f"--encoder {encoder}` and `ratouch train gate --encoder {encoder}` "
+                          "first")
+    model, data, emb = _pairs(encoder, world_seed, progress, draw)
+    stage1 = load_generator(stage1_from, stage1=True)
+    gen, info = train_reader(side, model, stage1, data, emb["V"], emb["T"],
+                             list(data["labels"]), tc)
+    report = {"system": "gated", "generator": "reader", "seed": seed, "draw": draw,
+              "stage1_from": str(stage1_from), "train": asdict(tc), **info,
+              "seconds": round(time.perf_counter() - t0, 1)}
     if out is not None:
         save_generator(out, gen, {"encoder": encoder, **report}, half=True)
     return gen, report
