@@ -14,6 +14,8 @@ import torch
 from conftest import HAVE_ASSETS
 from ratouch.cli import main
 from ratouch.errors import ConfigError
+from ratouch.model.gate import READ_BELOW
+from ratouch.serve.pipeline import TrustRouted
 from ratouch.train import recipes
 from ratouch.train.recipes import (
     READER_NOISE_RMS,
@@ -76,6 +78,22 @@ def test_episodes_need_the_gate():
         reader_episodes(side, _Encoders(60), _data(), np.zeros((40, 6)), np.zeros((40, 6)), 5)
 
 
+def test_trust_routed_answers_each_row_with_the_reader_only_where_touch_is_untrusted():
+    w = np.array([0.1, 0.9, 0.49, 0.5])
+    side = SimpleNamespace(gate=SimpleNamespace(weights=lambda V, T, J: w),
+                           joint_query=lambda V, T: V)
+
+    def gen(tag):
+        return SimpleNamespace(describe=lambda V, T, *nb: [f"{tag}{int(v[0])}:{len(nb)}"
+                                                           for v in V])
+
+    V = torch.arange(4, dtype=torch.float32)[:, None].repeat(1, 3)
+    nb = torch.zeros(4, 5, 3)
+    routed = TrustRouted(side, gen("paper"), gen("reader"))
+    assert routed.describe(V, V, nb, nb) == ["reader0:2", "paper1:2", "reader2:2", "paper3:2"]
+    assert routed.describe(V, V) == ["reader0:0", "paper1:0", "reader2:0", "paper3:0"]
+
+
 def test_train_reader_cli_wires_the_recipe(monkeypatch, capsys, tmp_path):
     seen = {}
 
@@ -131,10 +149,15 @@ def test_reader_trains_on_a_few_pairs_and_answers_the_gated_system(real_pipeline
     res = {system: pipe.answer([QueryRequest.decode(s.visual, s.tactile, s.box, 5,
                                                     retrieval=system)])[0].to_dict()
            for system in ("paper", "gated")}
-    assert res["gated"]["retrieval"]["generator"] == "reader"
+    g = res["gated"]["retrieval"]
+    assert g["generator"] == ("reader" if g["touch_weight"] < READ_BELOW else "paper")
     assert res["paper"]["retrieval"]["generator"] == "paper"
-    assert pipe.generator_for(QueryRequest.decode(s.visual, s.tactile, s.box, 5,
-                                                  retrieval="gated")) is reader
+    # touch that is pure noise: the gate trusts it little, and the reader answers
+    noise = np.random.default_rng(0).integers(0, 256, s.tactile.shape, dtype=np.uint8)
+    noisy = pipe.answer([QueryRequest.decode(s.visual, noise, s.box, 5,
+                                             retrieval="gated")])[0].to_dict()["retrieval"]
+    assert noisy["touch_weight"] < READ_BELOW and noisy["generator"] == "reader"
+    assert any("reader" in w for w in noisy["why"])
     for r in res.values():
         assert r["description"]["ra_touch"] and r["description"]["baseline"]
     # both systems in one batch: each answered as it would be alone

@@ -97,6 +97,11 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = BENCH_KINDS,
     floor, _ = _judge_stats(lab, None)  # the baseline (no retrieval) as the floor
     ref = next((sc for q, sc in zip(points, scores) if q.get("judge_vs_reference")
                 and q["index"] == "flat" and q["corpus"] == len(p.corpus) and q["k"] == 5), None)
+    gated = _gated_point(lab, pairs, points, scores)
+    if gated is not None:
+        points.append(gated)
+        say(f"gated   {gated['corpus']:>7}{5:>4}  p50 {gated['p50_ms']:7.2f} ms  "
+            f"judge {gated['judge']:.3f}  P@5 {gated['precision_at_5']:.3f}")
     alone = {lab.cfg.encoder: _Alone(p, test, p.corpus.search("text", joint, 5), ref)}
     points += _encoder_points(other_encoders, lab, alone, pairs, say)
     cascade = _cascade_point(lab, alone, pairs, say)
@@ -109,14 +114,14 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = BENCH_KINDS,
                                  "other points change retrieval at inference only"}}
 
 
-def _judge_stats(lab, ids: np.ndarray | None, pipeline=None, split=None
+def _judge_stats(lab, ids: np.ndarray | None, pipeline=None, split=None, generator=None
                  ) -> tuple[dict, dict[str, np.ndarray]]:
-    """The judge on the test split (or `split`), RA-Touch reading the neighbours `ids` or the
-    baseline when None, with the lab's pipeline (or `pipeline`): ({"judge", "judge_ci", "f1",
-    "mean_length"}, per-sample {"judge", "f1"})."""
+    """The judge on the test split (or `split`), RA-Touch (or `generator`) reading the
+    neighbours `ids` or the baseline when None, with the lab's pipeline (or `pipeline`):
+    ({"judge", "judge_ci", "f1", "mean_length"}, per-sample {"judge", "f1"})."""
     split = lab.test if split is None else split
     ans = answer_split(pipeline or lab.pipeline, split, BASELINE if ids is None else RA_TOUCH,
-                       ids=ids, judge=lab.judge)
+                       ids=ids, judge=lab.judge, generator=generator)
     responses, per_sample = ans.responses, ans.scores
     st = score_stats(split.labels, responses, per_sample)
     f1 = np.array([adjective_f1(label, r) for label, r in zip(split.labels, responses)])
@@ -162,25 +167,54 @@ def _vs_reference(per_sample: dict[str, np.ndarray], ref: dict[str, np.ndarray])
     return out
 
 
-def _latency(p, pairs: tuple[list, list], search) -> dict[str, float]:
+def _latency(p, pairs: tuple[list, list], search, gated: bool = False,
+             generator=None) -> dict[str, float]:
     """p50 / p95 of the RA-Touch answer path (encoders, retriever, `search`, generation) and of
-    the search alone, in ms, over warm single-pair queries (the first one warms caches)."""
+    the search alone, in ms, over warm single-pair queries (the first one warms caches).
+    `gated`: the trust-gated query instead of the joint one; `generator`: another RA-Touch
+    generator than the pipeline's."""
+    gen = generator or p.generator_ra
     times, search_times = [], []
     for j, (crop, frame) in enumerate(zip(*pairs)):
         t0 = time.perf_counter()
         V = p.encoders.encode_image([crop])
         T = p.encoders.encode_tactile([frame])
-        q = p.joint_query(V, T)
+        q = p.joint_query(V, T, gated=gated)
         s0 = time.perf_counter()
         ids = search(q)
         s1 = time.perf_counter()
         rv, rl = p.neighbour_embeddings(ids)
-        p.generator_ra.describe(*(torch.from_numpy(x) for x in (V, T, rv, rl)))
+        gen.describe(*(torch.from_numpy(x) for x in (V, T, rv, rl)))
         if j:
             search_times.append(s1 - s0)
             times.append(time.perf_counter() - t0)
     return {"p50_ms": _p(times, 50), "p95_ms": _p(times, 95),
             "search_p50_ms": _p(search_times, 50)}
+
+
+def _gated_point(lab, pairs: tuple[list, list], points: list[dict], scores: list) -> dict | None:
+    """The `gated` system on the flat index over the whole corpus, K=5: the trust-gated query's
+    neighbours read by the reader (the pipeline's `generator_reader`; the paper's RA-Touch
+    generator where none is loaded), judged and timed like the other points. None without a
+    touch gate."""
+    p = lab.pipeline
+    if p.gate is None:
+        return None
+    test = lab.test
+    ids = p.corpus.search("text", p.joint_query(test.V, test.T, gated=True), 5)[1]
+    gen = p.generator_reader or p.generator_ra
+    judged, per_sample = _judge_stats(lab, ids, generator=gen)
+    prec = material_precision(ids, test.materials, entry_materials(p.corpus))
+    per_sample["precision_at_5"] = prec
+    ref = next((sc for q, sc in zip(points, scores) if q["index"] == "flat"
+                and q["corpus"] == len(p.corpus) and q["k"] == 5), None)
+    return {"encoder": lab.cfg.encoder, "index": "flat", "corpus": len(p.corpus), "k": 5,
+            **_latency(p, pairs, lambda q: p.corpus.search("text", q, 5)[1], gated=True,
+                       generator=gen),
+            **judged, **_ci("precision_at_5", prec),
+            **(_vs_reference(per_sample, ref) if isinstance(ref, dict) else {}),
+            "system": "RA-Touch, gated" + (" (reader)" if p.generator_reader is not None
+                                            else "")}
 
 
 def _upstream_point(lab, pairs: tuple[list, list], points: list[dict]) -> dict:
@@ -349,7 +383,7 @@ def pareto(points: Sequence[dict], key: str) -> list[dict]:
 def tradeoff_figure(result: dict):
     """One chart: latency (log x) against the judge score, adjective F1 and material P@5 of
     the neighbours, each with 95 % CIs; the served encoder's sweep, the other encoder sets
-    and the cascade."""
+    and the cascade, and the gated system."""
     from plotly.subplots import make_subplots
 
     panels = (("judge", "offline judge (RA-Touch, test split)"),
@@ -418,6 +452,8 @@ def _short(q: dict) -> str:
     """A point's label on the chart: the encoder set, or the cascade with its escalations."""
     if q["system"].endswith("cascade"):
         return f"cascade, {q['escalated']:.0%} escalated"
+    if q["system"].startswith("RA-Touch, gated"):
+        return q["encoder"] + " gated"
     return q["encoder"] + ("" if q["system"] == "RA-Touch" else " (retrieval only)")
 
 

@@ -124,29 +124,34 @@ def _arm_scores(p: RATouchPipeline, gen, split: TestSplit, k: int, judge, seed: 
                              judge, seed, generator=gen)
 
 
-def _gated_scores(p: RATouchPipeline, split: TestSplit, k: int, judge, seed: int,
-                  generator=None) -> dict[str, np.ndarray]:
-    """Judge scores of the `gated` system (`generator`, default the pipeline's RA-Touch,
-    reading the trust-gated query's neighbours) with its own and with shuffled neighbours."""
-    return _own_and_shuffled(p, split, retrieve(p, split.V, split.T, k, "gated"), "gated",
-                             judge, seed, generator=generator)
+def _gated_scores(p: RATouchPipeline, split: TestSplit, k: int, judge, seed: int
+                  ) -> dict[str, np.ndarray]:
+    """Judge scores of the `gated` system (its answer as the pipeline routes it,
+    `system_generator`, reading the trust-gated query's neighbours) and of the reader alone
+    on them ("reader"), each with its own and with shuffled neighbours."""
+    ids = retrieve(p, split.V, split.T, k, "gated")
+    out = _own_and_shuffled(p, split, ids, "gated", judge, seed,
+                            generator=p.system_generator("gated"))
+    if p.generator_reader is not None:
+        out.update(_own_and_shuffled(p, split, ids, "reader", judge, seed,
+                                     generator=p.generator_reader))
+    return out
 
 
-def touch_withheld_scores(p: RATouchPipeline, split: TestSplit, k: int, judge, seed: int,
-                          generator=None) -> dict[str, np.ndarray]:
+def touch_withheld_scores(p: RATouchPipeline, split: TestSplit, k: int, judge, seed: int
+                          ) -> dict[str, np.ndarray]:
     """The degraded-touch probe (docs/premise.md, "Reading episodes"): judge scores on `split`
     with each pair's touch replaced by another pair's (a derangement), for the baseline, the
-    `paper` system (RA-Touch on the joint query), the `gated` system (`generator` on the gated
-    query) with its own and with shuffled neighbours, and a copy of the image query's top-1
-    caption."""
+    `paper` system (RA-Touch on the joint query), the `gated` system and the reader alone
+    (`_gated_scores`) with their own and with shuffled neighbours, and a copy of the image
+    query's top-1 caption."""
     bad = dataclasses.replace(split, T=split.T[derangement(len(split.T), seed + 101)])
     image_top = retrieve(p, bad.V, bad.T, 1, "image")[:, 0]
     copy_top = [p.corpus.entries[int(i)].caption for i in image_top]
     return {"baseline": answer_split(p, bad, BASELINE, judge=judge).scores,
             "paper": answer_split(p, bad, RA_TOUCH, k=k, judge=judge, name="paper").scores,
             "copy_image_top1": judge_answers(judge, bad, copy_top, "copy_image_top1")[0],
-            **_own_and_shuffled(p, bad, retrieve(p, bad.V, bad.T, k, "gated"), "gated",
-                                judge, seed, generator=generator)}
+            **_gated_scores(p, bad, k, judge, seed)}
 
 
 def summarise_withheld(results: list[dict[str, np.ndarray]], seed: int = 0) -> dict:
@@ -155,8 +160,12 @@ def summarise_withheld(results: list[dict[str, np.ndarray]], seed: int = 0) -> d
     out: dict = {"n": len(results[0]["baseline"]),
                  "score": {name: round(float(np.mean([r[name].mean() for r in results])), 4)
                            for name in results[0]}}
-    for name, a, b in (("paper_gain", "paper", "baseline"), ("gated_gain", "gated", "baseline"),
-                       ("gated_shuffle_drop", "gated", "gated_shuffled")):
+    pairs = [("paper_gain", "paper", "baseline"), ("gated_gain", "gated", "baseline"),
+             ("gated_shuffle_drop", "gated", "gated_shuffled")]
+    if "reader" in results[0]:
+        pairs += [("reader_gain", "reader", "baseline"),
+                  ("reader_shuffle_drop", "reader", "reader_shuffled")]
+    for name, a, b in pairs:
         diffs = [r[a] - r[b] for r in results]
         out[name] = {"diff": round(float(np.mean([d.mean() for d in diffs])), 4),
                      "ci95": [round(x, 4) for x in pooled_ci(diffs, seed)],
@@ -211,24 +220,22 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
     for run in range(runs):
         ra, base = run_generators(encoder, run, progress)
         tokens = token_arm(encoder, run, progress) if arm else None
-        gated_gen = reader(encoder, run, progress) if gated else None
         p = RATouchPipeline(pipe.retriever, pipe.tgr, ra, base, pca=pipe.pca, trust=pipe.trust,
-                            gate=pipe.gate)
+                            gate=pipe.gate,
+                            generator_reader=reader(encoder, run, progress) if gated else None)
         for g in GROUPS:
             r = run_controls(p, k=k, shuffles=1, judge=judge, seed=run, split=splits[g],
                              keep_scores=True)
             if tokens is not None:
                 r["scores"].update(_arm_scores(p, tokens, splits[g], k, judge, seed=run))
             if gated:
-                r["scores"].update(_gated_scores(p, splits[g], k, judge, seed=run,
-                                                 generator=gated_gen))
+                r["scores"].update(_gated_scores(p, splits[g], k, judge, seed=run))
             per_run[g].append(r)
             say(f"run {run} {g}: baseline {r['systems']['baseline']['mean']:.3f}, RA-Touch "
                 f"{r['systems']['ra_touch']['mean']:.3f}, shuffle drop "
                 f"{r['shuffle']['diff']:+.3f}")
         if test is not None:
-            withheld.append(touch_withheld_scores(p, test, k, judge, seed=run,
-                                                  generator=gated_gen))
+            withheld.append(touch_withheld_scores(p, test, k, judge, seed=run))
             say(f"run {run} touch withheld: baseline {withheld[-1]['baseline'].mean():.3f}, "
                 f"paper {withheld[-1]['paper'].mean():.3f}, gated "
                 f"{withheld[-1]['gated'].mean():.3f}")
@@ -265,10 +272,10 @@ def _aggregate(results: list[dict], seed: int) -> dict:
     p = _p_value(drops)
     names = ("baseline", "ra_touch", "neighbours_shuffled", "integrator_zeroed",
              "copy_captions", "copy_perfect_retrieval", "material_oracle")
-    arm, gated = (_arm_summary(results, name, seed) if name in results[0]["scores"] else None
-                  for name in ("tokens", "gated"))
+    arm, gated, read = (_arm_summary(results, name, seed) if name in results[0]["scores"]
+                        else None for name in ("tokens", "gated", "reader"))
     return {
-        "gated": gated,
+        "gated": gated, "reader": read,
         "n": results[0]["n"], "baseline": mean_of("baseline"), "ra_touch": mean_of("ra_touch"),
         "gain": round(float(run_gain.mean()), 4), "ci95": [round(lo, 4), round(hi, 4)],
         "ci95_runs": runs_ci,
@@ -397,11 +404,13 @@ def format_premise(r: dict) -> str:
             lines.append(f"  second arm (neighbour tokens, not the paper's method): {a['score']:.3f}, "
                          f"gain {a['gain']:+.3f} [{a['ci95'][0]:+.3f}, {a['ci95'][1]:+.3f}], "
                          f"shuffle drop {a['shuffle_drop']:+.3f} (p={a['shuffle_p']:.1g})")
-        gt = s.get("gated")
-        if gt:
-            lines.append(f"  gated (the reader on the trust-gated query): {gt['score']:.3f}, "
-                         f"gain {gt['gain']:+.3f} [{gt['ci95'][0]:+.3f}, {gt['ci95'][1]:+.3f}], "
-                         f"shuffle drop {gt['shuffle_drop']:+.3f} (p={gt['shuffle_p']:.1g})")
+        for key, title in (("gated", "gated (trust-routed, on the gated query)"),
+                           ("reader", "the reader alone (on the gated query)")):
+            gt = s.get(key)
+            if gt:
+                lines.append(f"  {title}: {gt['score']:.3f}, gain {gt['gain']:+.3f} "
+                             f"[{gt['ci95'][0]:+.3f}, {gt['ci95'][1]:+.3f}], shuffle drop "
+                             f"{gt['shuffle_drop']:+.3f} (p={gt['shuffle_p']:.1g})")
         if r.get("precision"):
             lines.append("  material P@k: " + ", ".join(
                 f"{m} {v:.3f}" for m, v in r["precision"][g].items()))
@@ -415,7 +424,10 @@ def format_premise(r: dict) -> str:
         sc = tw["score"]
         lines.append(f"touch withheld (world test split, each pair read with another's touch; "
                      f"n={tw['n']}): " + ", ".join(f"{m} {v:.3f}" for m, v in sc.items()))
-        for key in ("paper_gain", "gated_gain", "gated_shuffle_drop"):
+        for key in ("paper_gain", "gated_gain", "gated_shuffle_drop", "reader_gain",
+                    "reader_shuffle_drop"):
+            if key not in tw:
+                continue
             d = tw[key]
             lines.append(f"  {key.replace('_', ' ')}: {d['diff']:+.3f} [{d['ci95'][0]:+.3f}, "
                          f"{d['ci95'][1]:+.3f}] (p={d['p']:.1g})")

@@ -43,13 +43,17 @@ def run_tvl(pipeline, system: str, k: int = 5, judge=None, world: WorldConfig | 
             ) -> tuple[list[dict], dict]:
     """Generate, judge and summarise one system on the world's test split (the summary also
     holds the judge's mean per sensor family, "families"); `retrieval`: the retrieval system
-    RA-Touch reads with (`RETRIEVAL_SYSTEMS`: "paper" or "gated")."""
+    RA-Touch reads with (`RETRIEVAL_SYSTEMS`: "paper" or "gated", each with its own generator,
+    `RATouchPipeline.system_generator`)."""
     if retrieval not in RETRIEVAL_SYSTEMS:
         raise ConfigError(f"unknown retrieval system {retrieval!r}; one of "
                           f"{', '.join(RETRIEVAL_SYSTEMS)}")
     split = split or encode_test_split(pipeline.encoders, world)
+    gen = getattr(pipeline, "system_generator", None)
     ans = answer_split(pipeline, split, system, k=k, judge=judge or OfflineJudge(),
-                       mode=RETRIEVAL_SYSTEMS[retrieval])
+                       mode=RETRIEVAL_SYSTEMS[retrieval],
+                       generator=gen(retrieval) if gen is not None and system != "baseline"
+                       else None)
     ans.summary.update({"system": system, "k": k, "world_seed": split.world.seed,
                         "retrieval": retrieval, "families": family_stats(ans.records)})
     return ans.records, ans.summary

@@ -58,6 +58,11 @@ def gate_features(V: np.ndarray, T: np.ndarray, J: np.ndarray, tactile_novelty, 
     return np.stack([tn, vn, (j * v).sum(1), (j * t).sum(1), (v * t).sum(1)], 1)
 
 
+#: Below this touch weight the gated system's reader answers (the gate's own decision boundary:
+#: it was fitted to predict whether the joint query beats the image query; docs/premise.md).
+READ_BELOW = 0.5
+
+
 def mix(V: np.ndarray, J: np.ndarray, w: np.ndarray) -> np.ndarray:
     """(N, D) float32 unit vectors along ``w * J + (1 - w) * V`` (each side unit first)."""
     w = np.asarray(w, np.float64)[:, None]

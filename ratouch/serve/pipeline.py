@@ -25,7 +25,7 @@ import torch
 
 from ratouch.errors import ConfigError
 from ratouch.model.fastpath import StackCache
-from ratouch.model.gate import TouchGate
+from ratouch.model.gate import READ_BELOW, TouchGate
 from ratouch.model.generator import describe_together, load_generator
 from ratouch.model.geometry import GeometryCalibration
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
@@ -303,12 +303,23 @@ class RATouchPipeline(RetrievalSide):
         system's (`RETRIEVAL_SYSTEMS`), or this pipeline's default."""
         return RETRIEVAL_SYSTEMS[request.retrieval or self.retrieval]
 
-    def generator_for(self, request: QueryRequest):
-        """The RA-Touch generator that answers `request`: its retrieval system's (the reader
-        for `gated`, where one is loaded), else the paper's."""
+    def generator_for(self, request: QueryRequest, encoded: Encoded):
+        """The RA-Touch generator that answers `request`: for `gated`, the reader where the
+        gate gives touch less than `READ_BELOW` of the say (and a reader is loaded), else the
+        paper's."""
         system = request.retrieval or self.retrieval
-        if system == "gated" and self.generator_reader is not None:
-            return self.generator_reader
+        if (system != "gated" or self.generator_reader is None or self.gate is None
+                or encoded.T is None):
+            return self.generator_ra
+        w = self.gate.weights(encoded.V, encoded.T, encoded.queries[RA_TOUCH_MODE])[0]
+        return self.generator_reader if w < READ_BELOW else self.generator_ra
+
+    def system_generator(self, system: str):
+        """A generator-like object (``describe(V, T, Rv, Rl)``) answering as a retrieval
+        system (`RETRIEVAL_SYSTEMS`) does, row by row: the paper's RA-Touch generator, or for
+        `gated` the trust-routed pair (`TrustRouted`) where a reader and a gate are loaded."""
+        if system == "gated" and self.generator_reader is not None and self.gate is not None:
+            return TrustRouted(self, self.generator_ra, self.generator_reader)
         return self.generator_ra
 
     def _describe(self, generators: Sequence, prefixes: Sequence[torch.Tensor]
@@ -328,8 +339,8 @@ class RATouchPipeline(RetrievalSide):
         system = request.retrieval or self.retrieval
         out: dict = {"system": system, "reads": RETRIEVAL_SYSTEMS[system],
                      "generator": ("reader" if self.generator_reader is not None
-                                   and self.generator_for(request) is self.generator_reader
-                                   else "paper")}
+                                   and self.generator_for(request, encoded)
+                                   is self.generator_reader else "paper")}
         if self.gate is None:
             out.update(kind=None, touch_weight=1.0, features={},
                        why=["no touch gate for this model: the gated query is the paper's"])
@@ -338,6 +349,13 @@ class RATouchPipeline(RetrievalSide):
         if system == "paper":
             out["why"] = ["the paper's joint query: touch steers the search fully"] + \
                 [f"(the gate would have weighed touch {out['touch_weight']:.2f})"]
+        elif out["generator"] == "reader":
+            out["why"] = list(out["why"]) + [
+                f"touch has less than {READ_BELOW:.0%} of the say: the reader, trained to "
+                "answer from its neighbours where touch is unreliable, answers"]
+        elif self.generator_reader is not None and self.gate is not None:
+            out["why"] = list(out["why"]) + [
+                f"touch has at least {READ_BELOW:.0%} of the say: the paper's generator answers"]
         return out
 
     def _assess(self, request: QueryRequest, encoded: Encoded) -> dict | None:
@@ -390,7 +408,7 @@ class RATouchPipeline(RetrievalSide):
         p_base = []
         for j in touch:  # each prompt on its own (a batched one rounds differently)
             e = encoded[j]
-            gen = self.generator_for(requests[j])
+            gen = self.generator_for(requests[j], e)
             prefix, weights = self.ra_prefix(e.V, e.T, found[j][self.reads(requests[j])][1],
                                              generator=gen)
             groups.setdefault(id(gen), (gen, [], []))
@@ -489,7 +507,8 @@ class RATouchPipeline(RetrievalSide):
         q = self.joint_query(V, T, gated=self.reads(request) != RA_TOUCH_MODE)[0]
         text = self.corpus_embeddings("tactile_caption")[ids]        # (K, D)
         scores = text @ q / np.maximum(np.linalg.norm(text, axis=1) * np.linalg.norm(q), 1e-12)
-        gen = self.generator_for(request)
+        gen = self.generator_for(request, Encoded(V, T, {RA_TOUCH_MODE: self.joint_query(V, T)},
+                                                  None, None))
         p_ra, weights = self.ra_prefix(V, T, ids[None], generator=gen)
         ra = self._describe([gen], [p_ra])[0][0]
         clock.lap("generate")
@@ -530,3 +549,29 @@ class RATouchPipeline(RetrievalSide):
             x, y = self.pca.project(self.encoders.encode_text([label]))[0]
             pts.append({"role": "ground_truth", "x": float(x), "y": float(y)})
         return pts
+
+
+class TrustRouted:
+    """The `gated` system's answer, row by row, for evaluation (``describe`` like a generator):
+    the reader where the gate gives touch less than `READ_BELOW` of the say, the paper's
+    RA-Touch generator elsewhere; both read the neighbours they are given."""
+
+    def __init__(self, side: RetrievalSide, paper, reader):
+        self.side, self.paper, self.reader = side, paper, reader
+
+    def describe(self, V: torch.Tensor, T: torch.Tensor, Rv: torch.Tensor | None = None,
+                 Rl: torch.Tensor | None = None) -> list[str]:
+        v, t = V.numpy(), T.numpy()
+        gate = self.side.gate
+        assert gate is not None  # system_generator makes one only with a gate
+        low = gate.weights(v, t, self.side.joint_query(v, t)) < READ_BELOW
+        out: list[str] = [""] * len(v)
+        for mask, gen in ((low, self.reader), (~low, self.paper)):
+            idx = np.flatnonzero(mask)
+            if len(idx) == 0:
+                continue
+            i = torch.from_numpy(idx)
+            args = [V[i], T[i]] + ([Rv[i], Rl[i]] if Rv is not None and Rl is not None else [])
+            for j, text in zip(idx, gen.describe(*args)):
+                out[j] = text
+        return out
