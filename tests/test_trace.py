@@ -72,3 +72,21 @@ def test_marked_segments_spell_the_text_and_mark_whole_words():
     assert [p for p, r in pieces if r] == ["Soft", "fuzzy"]
     assert dict(pieces)["fuzzy"] == (1, 3)
     assert marked_segments("hard", {}) == [("hard", ())]
+
+
+def test_the_gated_system_says_who_read_and_how_far_touch_was_trusted():
+    from app.view import touch_md
+
+    result = _result("soft, fuzzy", "hard", ["soft, fuzzy"], [1.0], [1.0])
+    result["neighbours"]["gated"] = result["neighbours"].pop("joint")
+    result["retrieval"] = {"system": "gated", "reads": "gated", "generator": "reader",
+                           "touch_weight": 0.12, "why": ["touch looks unlike the renders",
+                                                         "the reader answers"]}
+    trace = trace_retrieval(result)
+    assert trace is not None and trace.generator == "reader" and trace.touch_weight == 0.12
+    text = touch_md(trace)
+    assert "with the reader" in text and "12%" in text and "the reader answers" in text
+    result["retrieval"]["generator"] = "paper"
+    assert "with the paper's generator" in touch_md(trace_retrieval(result))
+    del result["retrieval"]["generator"]       # an answer from before the reader says nothing
+    assert trace_retrieval(result).generator == ""
