@@ -122,12 +122,16 @@ def test_premise_runs_end_to_end_on_the_shipped_weights(real_pipeline):
     assert len(lines) == 4 and "run 0 scarce" in lines[-2] and "touch withheld" in lines[-1]
     tw = r["touch_withheld"]
     assert tw["n"] == 12 and set(tw["score"]) == {"baseline", "paper", "copy_image_top1",
-                                                    "gated", "gated_shuffled"}
+                                                    "gated", "gated_shuffled", "reader",
+                                                    "reader_shuffled"}
     for key in ("paper_gain", "gated_gain", "gated_shuffle_drop"):
         assert tw[key]["diff"] == pytest.approx(
             tw["score"][key.split("_")[0]] - tw["score"][
                 {"paper_gain": "baseline", "gated_gain": "baseline",
                  "gated_shuffle_drop": "gated_shuffled"}[key]], abs=2e-3)
+    for g in ("seen", "scarce"):   # the routed system and the reader alone, each with a shuffle
+        for arm in ("gated", "reader"):
+            assert {"score", "gain", "shuffle_drop", "shuffle_p"} <= set(r["groups"][g][arm])
     assert "touch withheld" in format_premise(r)
     json.dumps(r)
 
