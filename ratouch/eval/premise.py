@@ -80,32 +80,31 @@ def run_generators(encoder: str, run: int, progress: bool = False):
     return load_for_serving(folders["ra"]), load_for_serving(folders["baseline"], integrator=False)
 
 
-def token_arm(encoder: str, run: int, progress: bool = False):
-    """The run's neighbour-token arm (second arm), trained into the cache on first use from the
-    run's stage-1 model with RA-Touch's stage-2 budget; LoRA merged."""
+def _run_arm(encoder: str, run: int, name: str, recipe, progress: bool):
+    """A second-stage arm of a run (folder `name` of the run's cache folder), trained there on
+    first use by `recipe` from the run's stage-1 model with RA-Touch's stage-2 budget; LoRA
+    merged."""
     root = run_folder(encoder, run)
     ra = generator_weights(encoder, "ra") if run == 0 else root / "ra"
-    if not (root / "tokens" / "manifest.json").is_file():
-        log.info("premise run %d: training the neighbour-token arm into %s", run, root)
-        token_arm_recipe(encoder, ra, seed=run, draw=run, world_seed=0, out=root / "tokens",
-                         progress=progress)
-    return load_for_serving(root / "tokens")
+    if not (root / name / "manifest.json").is_file():
+        log.info("premise run %d: training the %s arm into %s", run, name, root)
+        recipe(encoder, ra, seed=run, draw=run, world_seed=0, out=root / name,
+               progress=progress)
+    return load_for_serving(root / name)
+
+
+def token_arm(encoder: str, run: int, progress: bool = False):
+    """The run's neighbour-token arm (second arm; `token_arm_recipe`)."""
+    return _run_arm(encoder, run, "tokens", token_arm_recipe, progress)
 
 
 def reader(encoder: str, run: int, progress: bool = False):
-    """The run's reader, the `gated` system's generator (`ratouch.train.recipes.reader_recipe`):
-    run 0's is the shipped one where it exists; otherwise it is trained into the cache on first
-    use from the run's stage-1 model with RA-Touch's stage-2 budget. LoRA merged."""
+    """The run's reader, the `gated` system's generator (`reader_recipe`): run 0's is the
+    shipped one where it exists, else it is trained into the run's cache folder."""
     shipped = generator_weights(encoder, "reader")
     if run == 0 and (shipped / "manifest.json").is_file():
         return load_for_serving(shipped)
-    root = run_folder(encoder, run)
-    ra = generator_weights(encoder, "ra") if run == 0 else root / "ra"
-    if not (root / "reader" / "manifest.json").is_file():
-        log.info("premise run %d: training the reader into %s", run, root)
-        reader_recipe(encoder, ra, seed=run, draw=run, world_seed=0, out=root / "reader",
-                      progress=progress)
-    return load_for_serving(root / "reader")
+    return _run_arm(encoder, run, "reader", reader_recipe, progress)
 
 
 def _own_and_shuffled(p: RATouchPipeline, split: TestSplit, ids: np.ndarray, name: str,

@@ -16,6 +16,7 @@ import numpy as np
 
 from ratouch.errors import ConfigError, DataError
 from ratouch.eval.answer import (  # noqa: F401 - describe, records_for, retrieve: re-exported
+    BASELINE,
     SYSTEMS,
     answer_split,
     describe,
@@ -52,7 +53,7 @@ def run_tvl(pipeline, system: str, k: int = 5, judge=None, world: WorldConfig | 
     gen = getattr(pipeline, "system_generator", None)
     ans = answer_split(pipeline, split, system, k=k, judge=judge or OfflineJudge(),
                        mode=RETRIEVAL_SYSTEMS[retrieval],
-                       generator=gen(retrieval) if gen is not None and system != "baseline"
+                       generator=gen(retrieval) if gen is not None and system != BASELINE
                        else None)
     ans.summary.update({"system": system, "k": k, "world_seed": split.world.seed,
                         "retrieval": retrieval, "families": family_stats(ans.records)})

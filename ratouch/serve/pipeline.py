@@ -277,7 +277,9 @@ class RATouchPipeline(RetrievalSide):
         # a frame without contact has no material to describe: no generation for it
         touch = [j for j, (e, t) in enumerate(zip(encoded, trust)) if e.T is not None
                  and not (t and (t["tactile"] or {}).get("no_contact"))]
-        ra, base, attention = self._generate(requests, encoded, found, touch, clock)
+        # who answers each request (the gated system routes by the gate's weight): decided once
+        gens = [self.generator_for(r, e) for r, e in zip(requests, encoded)]
+        ra, base, attention = self._generate(requests, encoded, found, touch, gens, clock)
         points = self._project(requests, encoded, found)
         clock.lap("pca")
         timings = stage_ms(clock, len(requests))
@@ -294,7 +296,7 @@ class RATouchPipeline(RetrievalSide):
             encoder=self.encoders.name,
             visual_route=encoded[j].route,
             trust=None if t is None else {m: t[m] for m in ("visual", "tactile")},
-            retrieval=self._retrieval_block(req, encoded[j]),
+            retrieval=self._retrieval_block(req, encoded[j], gens[j]),
             height_map=None if t is None else t.get("height_map"))
             for j, (req, t) in enumerate(zip(requests, trust))]
 
@@ -331,16 +333,17 @@ class RATouchPipeline(RetrievalSide):
             cache = self._stacks[key] = StackCache()
         return describe_together(generators, prefixes, cache=cache)
 
-    def _retrieval_block(self, request: QueryRequest, encoded: Encoded) -> dict | None:
-        """The result's "retrieval": which neighbours RA-Touch read and how far touch was
-        trusted to steer them (None without a frame)."""
+    def _retrieval_block(self, request: QueryRequest, encoded: Encoded, generator
+                         ) -> dict | None:
+        """The result's "retrieval": which neighbours RA-Touch read, which `generator` read
+        them (`generator_for`) and how far touch was trusted to steer them (None without a
+        frame)."""
         if encoded.T is None:
             return None
         system = request.retrieval or self.retrieval
         out: dict = {"system": system, "reads": RETRIEVAL_SYSTEMS[system],
                      "generator": ("reader" if self.generator_reader is not None
-                                   and self.generator_for(request, encoded)
-                                   is self.generator_reader else "paper")}
+                                   and generator is self.generator_reader else "paper")}
         if self.gate is None:
             out.update(kind=None, touch_weight=1.0, features={},
                        why=["no touch gate for this model: the gated query is the paper's"])
@@ -395,7 +398,8 @@ class RATouchPipeline(RetrievalSide):
                 found[j][m] = (scores[r:r + 1], ids[r:r + 1])
         return found
 
-    def _generate(self, requests, encoded, found, touch, clock) -> tuple[dict, dict, dict]:
+    def _generate(self, requests, encoded, found, touch, gens, clock
+                  ) -> tuple[dict, dict, dict]:
         """Step 4: RA-Touch and baseline descriptions of the `touch` requests (each request's
         prompts made on its own, then decoded together), and RA-Touch's attention over each
         request's neighbours."""
@@ -408,7 +412,7 @@ class RATouchPipeline(RetrievalSide):
         p_base = []
         for j in touch:  # each prompt on its own (a batched one rounds differently)
             e = encoded[j]
-            gen = self.generator_for(requests[j], e)
+            gen = gens[j]
             prefix, weights = self.ra_prefix(e.V, e.T, found[j][self.reads(requests[j])][1],
                                              generator=gen)
             groups.setdefault(id(gen), (gen, [], []))
@@ -504,11 +508,11 @@ class RATouchPipeline(RetrievalSide):
         bg = request.background
         T = self.encoders.encode_tactile([request.frame], None if bg is None else [bg])
         clock.lap("encode")
-        q = self.joint_query(V, T, gated=self.reads(request) != RA_TOUCH_MODE)[0]
+        J = self.joint_query(V, T)
+        q = (J if self.reads(request) == RA_TOUCH_MODE else self._gated(V, T, J)[0])[0]
         text = self.corpus_embeddings("tactile_caption")[ids]        # (K, D)
         scores = text @ q / np.maximum(np.linalg.norm(text, axis=1) * np.linalg.norm(q), 1e-12)
-        gen = self.generator_for(request, Encoded(V, T, {RA_TOUCH_MODE: self.joint_query(V, T)},
-                                                  None, None))
+        gen = self.generator_for(request, Encoded(V, T, {RA_TOUCH_MODE: J}))
         p_ra, weights = self.ra_prefix(V, T, ids[None], generator=gen)
         ra = self._describe([gen], [p_ra])[0][0]
         clock.lap("generate")
