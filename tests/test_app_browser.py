@@ -76,6 +76,29 @@ def _field(page, name: str) -> str:
     return page.locator(f"#box-{name} input").input_value()
 
 
+def _click_corner(page, x: float, y: float, expect: str, tries: int = 3) -> None:
+    """Click image pixel (x, y) of the visual preview once it has settled, until `expect`
+    shows. Each upload or click redraws the preview (a new <img>); on a busy machine a click
+    can land on the element being replaced and be lost, so it is retried, but only while
+    the box note is still the one the click should have changed."""
+    note = page.locator("#box-note")
+    before = note.inner_text()
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
+    for attempt in range(tries):
+        page.wait_for_timeout(800)  # let the preview settle after its last redraw
+        img = page.locator("#visual img").first
+        b = img.bounding_box()
+        sx, sy = b["width"] / 128, b["height"] / 128
+        page.mouse.click(b["x"] + x * sx, b["y"] + y * sy)
+        try:
+            page.get_by_text(expect).wait_for(timeout=20_000)
+            return
+        except PlaywrightTimeout:
+            if attempt == tries - 1 or note.inner_text() != before:
+                raise
+
+
 def test_upload_mark_box_query_in_chromium(app_url, page, tmp_path, world):
     s = world.sample("test", 60)
     Image.fromarray(s.visual).save(tmp_path / "visual.png")
@@ -88,18 +111,8 @@ def test_upload_mark_box_query_in_chromium(app_url, page, tmp_path, world):
 
     # two clicks on the preview (512 px for the 128 px image): corners at image pixels
     # (16, 24) and (95, 111), in either order
-    img = page.locator("#visual img").first
-    b = img.bounding_box()
-    sx, sy = b["width"] / 128, b["height"] / 128
-    page.mouse.click(b["x"] + 95.5 * sx, b["y"] + 111.5 * sy)
-    page.get_by_text("click the opposite corner").wait_for()
-    # the first click redraws the preview with its marker: click again once it has settled
-    page.wait_for_timeout(800)
-    img = page.locator("#visual img").first
-    b = img.bounding_box()
-    sx, sy = b["width"] / 128, b["height"] / 128
-    page.mouse.click(b["x"] + 16.5 * sx, b["y"] + 24.5 * sy)
-    page.get_by_text("Contact box [16, 24, 96, 112]").wait_for()
+    _click_corner(page, 95.5, 111.5, "click the opposite corner")
+    _click_corner(page, 16.5, 24.5, "Contact box [16, 24, 96, 112]")
     assert [_field(page, n) for n in ("x0", "y0", "x1", "y1")] == ["16", "24", "96", "112"]
 
     page.locator("#run").click()
