@@ -270,3 +270,46 @@ def test_neighbour_token_arm_appends_one_token_per_neighbour_and_round_trips(tmp
     assert back.describe(V, T, Rv, Rl) == gen.describe(V, T, Rv, Rl)
     with pytest.raises(ConfigError):
         NeighbourTokensConfig(dropout=1.0)
+
+
+def test_text_arm_writes_the_neighbours_captions_and_round_trips(tmp_path):
+    """The text arm: each Rl row is read back as its corpus entry (a zero row as none), and
+    that entry's words (and a full stop) are the decoder's own word embeddings, after any
+    empty slots; it trains like RA-Touch's stage 2 and survives save/load."""
+    from ratouch.model.neighbour_text import WORDS, NeighbourText, NeighbourTextConfig
+    from ratouch.serve.pipeline import integrator_factory
+    from ratouch.train.generator import GeneratorTrainConfig, train_stage2
+
+    gen = make_gen(integrator=False, n_prefix=1)
+    captions = ["smooth, hard", "soft, fuzzy, warm", "rough", "smooth, hard"]
+    keys = nn.functional.normalize(torch.randn(4, D, generator=torch.Generator().manual_seed(1)),
+                                   dim=-1)
+    arm = NeighbourText.build(captions, keys.numpy(), gen.decoder)
+    tok = gen.decoder.tokenizer
+    assert arm.ids[2, :2].tolist() == tok.encode("rough.") and (arm.ids[2, 2:] == -1).all()
+    Rl = keys[torch.tensor([[2, 0, 1], [3, 3, 1], [0, 0, 0]])].clone()
+    Rl[2, 1:] = 0  # the zeroed-retrieval control: no words
+    assert arm.entries(Rl).tolist() == [[2, 0, 1], [3, 3, 1], [0, -1, -1]]
+    x = arm(None, None, Rl)
+    assert x.shape == (3, K * WORDS, DP)
+    words = tok.encode("rough.") + tok.encode("smooth, hard.") + tok.encode("soft, fuzzy, warm.")
+    filled = x[0].abs().sum(-1) > 0
+    assert not filled[:K * WORDS - len(words)].any() and filled[-len(words):].all()
+    assert torch.equal(x[0, -len(words):], gen.decoder.embedding.weight[words])
+    assert int((x[2].abs().sum(-1) > 0).sum()) == len(tok.encode("smooth, hard."))
+    with pytest.raises(ConfigError):
+        NeighbourText.build(captions, keys[:3].numpy(), gen.decoder)
+    with pytest.raises(ConfigError):
+        NeighbourTextConfig(kind="other")
+
+    V, T, Rv, _ = batch()
+    trained, history = train_stage2(
+        gen, arm, V, T, ["smooth, hard", "soft, fuzzy", "rough"], Rv, Rl,
+        GeneratorTrainConfig(stage2_steps=3, batch=3, k=K), "text-test")
+    assert len(history) and gen.integrator is None  # stage 1 is not changed
+    assert not any(p.requires_grad for p in trained.integrator.parameters())
+    save_generator(tmp_path / "g", trained, half=True)
+    back = load_generator(tmp_path / "g", integrator_factory)
+    assert isinstance(back.integrator, NeighbourText)
+    assert torch.equal(back.integrator.entries(Rl), arm.entries(Rl))
+    assert back.describe(V, T, Rv, Rl) == trained.describe(V, T, Rv, Rl)

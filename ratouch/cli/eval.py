@@ -99,7 +99,7 @@ def _eval_premise(args: argparse.Namespace) -> int:
         return 0
     say = (lambda m: print(m, file=sys.stderr)) if args.json else print
     r = run_premise(args.encoder, runs=args.runs, n=args.n, k=args.k, progress=say,
-                    arm=not args.no_arm)
+                    arm=not args.no_arm, arms=args.arms)
     print(json.dumps(r, indent=1) if args.json else format_premise(r))
     return 0
 

@@ -10,7 +10,7 @@ import math
 
 from ratouch.corpus.recaption import BACKENDS
 from ratouch.encoders.factory import CHAIN_SETS, DEFAULT_ENCODER, DEFAULT_SETS, OTHER_SETS
-from ratouch.eval.catalog import EXPERIMENT_HELP, SYSTEMS
+from ratouch.eval.catalog import ARM_NAMES, EXPERIMENT_HELP, SYSTEMS
 from ratouch.search.kinds import APPROXIMATE_KINDS, BENCH_KINDS, KINDS
 from ratouch.search.modes import RETRIEVAL_SYSTEMS
 
@@ -51,6 +51,16 @@ def _pos_int(text: str) -> int:
     if v <= 0:
         raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
     return v
+
+
+def _arm_list(text: str) -> tuple[str, ...]:
+    """A comma-separated list of `ARM_NAMES` (empty: none)."""
+    names = tuple(dict.fromkeys(n.strip() for n in text.split(",") if n.strip()))
+    bad = [n for n in names if n not in ARM_NAMES]
+    if bad:
+        raise argparse.ArgumentTypeError(f"unknown arm(s) {bad}: choose from "
+                                         f"{', '.join(ARM_NAMES)}")
+    return names
 
 
 def _number(text: str) -> float:
@@ -324,7 +334,10 @@ def _add_eval(sub) -> None:
     pr.add_argument("--n", type=_pos_int, default=500, help="held-out pairs per group")
     pr.add_argument("--k", type=_pos_int, default=5, help="neighbours RA-Touch reads")
     pr.add_argument("--no-arm", action="store_true",
-                    help="leave out the neighbour-token arm (it trains on first use)")
+                    help="leave out the second-stage arms (they train on first use)")
+    pr.add_argument("--arms", type=_arm_list, default=",".join(ARM_NAMES),
+                    help="comma-separated arms judged beside RA-Touch: tokens (neighbour "
+                         "tokens), text (the neighbours' captions written into the prompt)")
     pr.add_argument("--why", action="store_true",
                     help="instead: evidence for why the shipped generator does (not) read its "
                          "neighbours, on its training pairs (F1 of copying them, the "

@@ -27,3 +27,9 @@ EXPERIMENT_HELP: dict[str, str] = {
 #: "ra_touch": a public output name, a role apart from the system's name.
 SYSTEMS = ("baseline", "ra-touch")
 BASELINE, RA_TOUCH = SYSTEMS
+
+#: The second-stage arms `ratouch eval premise` can judge beside the paper's RA-Touch, by
+#: name: "tokens" (each retrieved caption embedding a prefix token,
+#: `ratouch.model.neighbour_tokens`) and "text" (the retrieved captions written into the
+#: prompt, `ratouch.model.neighbour_text`). `premise.ARMS` implements exactly these.
+ARM_NAMES = ("tokens", "text")

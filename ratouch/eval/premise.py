@@ -25,6 +25,7 @@ from scipy import stats
 
 from ratouch.errors import ConfigError
 from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split, judge_answers, retrieve
+from ratouch.eval.catalog import ARM_NAMES
 from ratouch.eval.controls import derangement, run_controls, vote
 from ratouch.eval.experiments import source_sha256
 from ratouch.eval.judge import OfflineJudge
@@ -38,6 +39,7 @@ from ratouch.timing import Progress, bars, say_to
 from ratouch.train.recipes import (
     generator_recipe,
     reader_recipe,
+    text_arm_recipe,
     token_arm_recipe,
     training_pairs,
 )
@@ -98,6 +100,19 @@ def token_arm(encoder: str, run: int, progress: bool = False):
     return _run_arm(encoder, run, "tokens", token_arm_recipe, progress)
 
 
+def text_arm(encoder: str, run: int, progress: bool = False):
+    """The run's text arm: the neighbours' captions written into the prompt
+    (`text_arm_recipe`)."""
+    return _run_arm(encoder, run, "text", text_arm_recipe, progress)
+
+
+#: The second-stage arms `run_premise` can judge beside RA-Touch (`catalog.ARM_NAMES`): name
+#: -> the function giving a run's trained arm.
+ARMS = {"tokens": token_arm, "text": text_arm}
+if tuple(ARMS) != ARM_NAMES:
+    raise ConfigError(f"premise.ARMS {tuple(ARMS)} must implement catalog.ARM_NAMES {ARM_NAMES}")
+
+
 def reader(encoder: str, run: int, progress: bool = False):
     """The run's reader, the `gated` system's generator (`reader_recipe`): run 0's is the
     shipped one where it exists, else it is trained into the run's cache folder."""
@@ -116,11 +131,44 @@ def _own_and_shuffled(p: RATouchPipeline, split: TestSplit, ids: np.ndarray, nam
             for n, nb in ((name, ids), (f"{name}_shuffled", ids[derangement(len(ids), seed)]))}
 
 
-def _arm_scores(p: RATouchPipeline, gen, split: TestSplit, k: int, judge, seed: int
+def _arm_scores(p: RATouchPipeline, arms: dict, split: TestSplit, k: int, judge, seed: int
                 ) -> dict[str, np.ndarray]:
-    """Judge scores of the neighbour-token arm with its own and with shuffled neighbours."""
-    return _own_and_shuffled(p, split, p.joint_neighbours(split.V, split.T, k), "tokens",
-                             judge, seed, generator=gen)
+    """Judge scores of each arm ({name: generator}) with its own and with shuffled
+    neighbours of the joint query (the neighbours the paper's RA-Touch reads)."""
+    ids = p.joint_neighbours(split.V, split.T, k)
+    out: dict[str, np.ndarray] = {}
+    for name, gen in arms.items():
+        out.update(_own_and_shuffled(p, split, ids, name, judge, seed, generator=gen))
+    return out
+
+
+def arms_on_test(p: RATouchPipeline, arms: dict, split: TestSplit, k: int, judge
+                 ) -> dict[str, np.ndarray]:
+    """Judge scores on the world test split of the baseline, the `paper` system and each arm
+    on the paper's neighbours (the joint query's top k)."""
+    ids = p.joint_neighbours(split.V, split.T, k)
+    return {"baseline": answer_split(p, split, BASELINE, judge=judge).scores,
+            "paper": answer_split(p, split, RA_TOUCH, ids=ids, judge=judge,
+                                  name="paper").scores,
+            **{name: answer_split(p, split, RA_TOUCH, ids=ids, generator=gen, name=name,
+                                  judge=judge).scores for name, gen in arms.items()}}
+
+
+def summarise_test(results: list[dict[str, np.ndarray]], seed: int = 0) -> dict:
+    """The arms on the world test split over runs: each system's mean score, and each arm's
+    difference to the baseline and to `paper`, with pooled CIs and p."""
+    out: dict = {"n": len(results[0]["baseline"]),
+                 "score": {name: round(float(np.mean([r[name].mean() for r in results])), 4)
+                           for name in results[0]}}
+    for name in results[0]:
+        if name in ("baseline", "paper"):
+            continue
+        for ref in ("baseline", "paper"):
+            diffs = [r[name] - r[ref] for r in results]
+            out[f"{name}_vs_{ref}"] = {
+                "diff": round(float(np.mean([d.mean() for d in diffs])), 4),
+                "ci95": [round(x, 4) for x in pooled_ci(diffs, seed)], "p": _p_value(diffs)}
+    return out
 
 
 def _gated_scores(p: RATouchPipeline, split: TestSplit, k: int, judge, seed: int
@@ -186,12 +234,14 @@ def mode_precision(p: RATouchPipeline, split: TestSplit, k: int) -> dict[str, fl
 def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int = 5,
                 progress: Progress = False,
                 pipeline: RATouchPipeline | None = None, arm: bool = True,
-                gated: bool = True) -> dict:
+                gated: bool = True, arms: tuple[str, ...] = tuple(ARMS)) -> dict:
     """Baseline against RA-Touch on seen and scarce materials, over `runs` runs, with controls.
 
     `pipeline`: the loaded retrieval side to use (default: `RATouchPipeline.load(encoder)`, on
-    the default 10k corpus). `arm`: also train (on first use) and judge the neighbour-token
-    arm, the second arm that bounds what retrieval can deliver (`neighbour_tokens` per group).
+    the default 10k corpus). `arm`: also train (on first use) and judge the second-stage arms
+    named in `arms` (`ARMS`): the neighbour-token arm, which bounds what retrieval can deliver
+    (`neighbour_tokens` per group), and the text arm, the neighbours' captions in the prompt
+    (`neighbour_text` per group, and `arms_test`: the arms on the world test split).
     `gated`: also judge the `gated` system, the shipped RA-Touch reading the trust-gated
     query (`gated` per group, with its own verdict, `gated_verdict`), and report every
     mode's material P@k per group (`precision`).
@@ -204,6 +254,10 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
     """
     if runs < 1 or n < 10 or k < 1:
         raise ConfigError(f"runs={runs} must be >= 1, n={n} >= 10 and k={k} >= 1")
+    unknown = sorted(set(arms) - set(ARMS))
+    if unknown:
+        raise ConfigError(f"unknown arm(s) {unknown}: choose from {sorted(ARMS)}")
+    arms = arms if arm else ()
     t0 = time.perf_counter()
     regime = ScarceRegime()
     say, progress = say_to(progress, log), bars(progress)  # lines; the training's bars
@@ -214,26 +268,31 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
     per_run: dict[str, list[dict]] = {g: [] for g in GROUPS}
     # the degraded-touch probe: the world test split (its first n pairs where n is smaller)
     test = (encode_test_split(pipe.encoders, indices=range(min(n, TEST_SIZE)))
-            if gated else None)
+            if gated or arms else None)
     withheld: list[dict[str, np.ndarray]] = []
+    on_test: list[dict[str, np.ndarray]] = []
     for run in range(runs):
         ra, base = run_generators(encoder, run, progress)
-        tokens = token_arm(encoder, run, progress) if arm else None
+        trained = {name: ARMS[name](encoder, run, progress) for name in arms}
         p = RATouchPipeline(pipe.retriever, pipe.tgr, ra, base, pca=pipe.pca, trust=pipe.trust,
                             gate=pipe.gate,
                             generator_reader=reader(encoder, run, progress) if gated else None)
         for g in GROUPS:
             r = run_controls(p, k=k, shuffles=1, judge=judge, seed=run, split=splits[g],
                              keep_scores=True)
-            if tokens is not None:
-                r["scores"].update(_arm_scores(p, tokens, splits[g], k, judge, seed=run))
+            if trained:
+                r["scores"].update(_arm_scores(p, trained, splits[g], k, judge, seed=run))
             if gated:
                 r["scores"].update(_gated_scores(p, splits[g], k, judge, seed=run))
             per_run[g].append(r)
             say(f"run {run} {g}: baseline {r['systems']['baseline']['mean']:.3f}, RA-Touch "
                 f"{r['systems']['ra_touch']['mean']:.3f}, shuffle drop "
                 f"{r['shuffle']['diff']:+.3f}")
-        if test is not None:
+        if test is not None and trained:
+            on_test.append(arms_on_test(p, trained, test, k, judge))
+            say(f"run {run} world test split: " + ", ".join(
+                f"{m} {v.mean():.3f}" for m, v in on_test[-1].items()))
+        if test is not None and gated:
             withheld.append(touch_withheld_scores(p, test, k, judge, seed=run))
             say(f"run {run} touch withheld: baseline {withheld[-1]['baseline'].mean():.3f}, "
                 f"paper {withheld[-1]['paper'].mean():.3f}, gated "
@@ -245,8 +304,10 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
         extra["precision"] = {g: mode_precision(pipe, splits[g], k) for g in GROUPS}
         extra["gated_verdict"], extra["gated_verdict_reason"] = decide_gated(groups)
         extra["touch_withheld"] = summarise_withheld(withheld)
-    return {**extra,"config": {"encoder": encoder, "runs": runs, "n": n, "k": k, "judge": judge.name,
-                       "regime": regime.tag, "draws": list(range(runs)),
+    if on_test:
+        extra["arms_test"] = summarise_test(on_test)
+    return {**extra, "config": {"encoder": encoder, "runs": runs, "n": n, "k": k, "judge": judge.name,
+                       "regime": regime.tag, "draws": list(range(runs)), "arms": list(arms),
                        "seeds": list(range(runs))},
             "scarce_materials": list(regime.scarce_materials()), "groups": groups,
             "verdict": verdict, "verdict_reason": reason,
@@ -271,10 +332,10 @@ def _aggregate(results: list[dict], seed: int) -> dict:
     p = _p_value(drops)
     names = ("baseline", "ra_touch", "neighbours_shuffled", "integrator_zeroed",
              "copy_captions", "copy_perfect_retrieval", "material_oracle")
-    arm, gated, read = (_arm_summary(results, name, seed) if name in results[0]["scores"]
-                        else None for name in ("tokens", "gated", "reader"))
+    arm, text, gated, read = (_arm_summary(results, name, seed) if name in results[0]["scores"]
+                              else None for name in ("tokens", "text", "gated", "reader"))
     return {
-        "gated": gated, "reader": read,
+        "gated": gated, "reader": read, "neighbour_text": text,
         "n": results[0]["n"], "baseline": mean_of("baseline"), "ra_touch": mean_of("ra_touch"),
         "gain": round(float(run_gain.mean()), 4), "ci95": [round(lo, 4), round(hi, 4)],
         "ci95_runs": runs_ci,
@@ -302,10 +363,15 @@ def _aggregate(results: list[dict], seed: int) -> dict:
 
 def _arm_summary(results: list[dict], name: str, seed: int) -> dict:
     """An arm's figures over runs (its scores `name` and `name`_shuffled): mean score, gain
-    over the baseline with its pooled CI, shuffle drop with its pooled CI and p, per-run gains."""
+    over the baseline with its pooled CI, its difference to the paper's RA-Touch on the same
+    pairs (`vs_paper`) with its pooled CI, shuffle drop with its pooled CI and p, per-run
+    gains."""
     gains = [r["scores"][name] - r["scores"]["baseline"] for r in results]
     drops = [r["scores"][name] - r["scores"][f"{name}_shuffled"] for r in results]
-    return {"score": round(float(np.mean([r["scores"][name].mean() for r in results])), 4),
+    vs_paper = [r["scores"][name] - r["scores"]["ra_touch"] for r in results]
+    return {"vs_paper": round(float(np.mean([a.mean() for a in vs_paper])), 4),
+            "vs_paper_ci95": [round(x, 4) for x in pooled_ci(vs_paper, seed)],
+            "score": round(float(np.mean([r["scores"][name].mean() for r in results])), 4),
             "gain": round(float(np.mean([a.mean() for a in gains])), 4),
             "ci95": [round(x, 4) for x in pooled_ci(gains, seed)],
             "shuffle_drop": round(float(np.mean([a.mean() for a in drops])), 4),
@@ -403,6 +469,13 @@ def format_premise(r: dict) -> str:
             lines.append(f"  second arm (neighbour tokens, not the paper's method): {a['score']:.3f}, "
                          f"gain {a['gain']:+.3f} [{a['ci95'][0]:+.3f}, {a['ci95'][1]:+.3f}], "
                          f"shuffle drop {a['shuffle_drop']:+.3f} (p={a['shuffle_p']:.1g})")
+        t = s.get("neighbour_text")
+        if t:
+            lines.append(f"  text arm (the neighbours' captions in the prompt): {t['score']:.3f}, "
+                         f"gain {t['gain']:+.3f} [{t['ci95'][0]:+.3f}, {t['ci95'][1]:+.3f}], "
+                         f"shuffle drop {t['shuffle_drop']:+.3f} (p={t['shuffle_p']:.1g}), "
+                         f"text - paper {t['vs_paper']:+.3f} [{t['vs_paper_ci95'][0]:+.3f}, "
+                         f"{t['vs_paper_ci95'][1]:+.3f}]")
         for key, title in (("gated", "gated (trust-routed, on the gated query)"),
                            ("reader", "the reader alone (on the gated query)")):
             gt = s.get(key)
@@ -430,6 +503,14 @@ def format_premise(r: dict) -> str:
             d = tw[key]
             lines.append(f"  {key.replace('_', ' ')}: {d['diff']:+.3f} [{d['ci95'][0]:+.3f}, "
                          f"{d['ci95'][1]:+.3f}] (p={d['p']:.1g})")
+    at = r.get("arms_test")
+    if at:
+        lines.append(f"world test split (n={at['n']}, the paper's neighbours): " + ", ".join(
+            f"{m} {v:.3f}" for m, v in at["score"].items()))
+        for key, d in at.items():
+            if key.endswith(("_vs_baseline", "_vs_paper")):
+                lines.append(f"  {key.replace('_', ' ')}: {d['diff']:+.3f} [{d['ci95'][0]:+.3f}, "
+                             f"{d['ci95'][1]:+.3f}] (p={d['p']:.1g})")
     lines.append(f"verdict: {r['verdict']}: {r['verdict_reason']} ({r['seconds']:.0f} s)")
     if r.get("gated_verdict"):
         lines.append(f"gated verdict: {r['gated_verdict']}: {r['gated_verdict_reason']}")

@@ -29,6 +29,8 @@ from ratouch.model.gate import READ_BELOW, TouchGate
 from ratouch.model.generator import describe_together, load_generator
 from ratouch.model.geometry import GeometryCalibration
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
+from ratouch.model.neighbour_text import KIND as NEIGHBOUR_TEXT
+from ratouch.model.neighbour_text import NeighbourText, NeighbourTextConfig
 from ratouch.model.neighbour_tokens import KIND as NEIGHBOUR_TOKENS
 from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
 from ratouch.model.trust import TrustCalibration
@@ -61,9 +63,12 @@ DEFAULT_RETRIEVAL = "paper"
 
 
 def integrator_factory(cfg: dict):
-    """Rebuild a saved Texture-Aware Integrator (or the neighbour-token arm) from its config."""
+    """Rebuild a saved Texture-Aware Integrator (or the neighbour-token or text arm) from its
+    config."""
     if cfg.get("kind") == NEIGHBOUR_TOKENS:
         return NeighbourTokens(NeighbourTokensConfig(**cfg))
+    if cfg.get("kind") == NEIGHBOUR_TEXT:
+        return NeighbourText(NeighbourTextConfig(**cfg))
     return TextureAwareIntegrator(IntegratorConfig(**cfg))
 
 

@@ -19,6 +19,7 @@ from ratouch.errors import ConfigError
 from ratouch.model.generator import load_generator, save_generator
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.model.loss import RetrieverLossConfig
+from ratouch.model.neighbour_text import NeighbourText
 from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
 from ratouch.model.retriever import RetrieverConfig
 from ratouch.model.trust import TrustCalibration
@@ -167,6 +168,31 @@ def token_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
         torch.from_numpy(emb["V"]), torch.from_numpy(emb["T"]), list(data["labels"]),
         torch.from_numpy(rv), torch.from_numpy(rl), tc, "neighbour-tokens-lora")
     report = {"arm": "neighbour_tokens", "seed": seed, "draw": draw, "stage1_from": str(stage1_from),
+              "seconds": round(time.perf_counter() - t0, 1), "history": history}
+    if out is not None:
+        save_generator(out, gen, {"encoder": encoder, **report}, half=True)
+    return gen, report
+
+
+def text_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
+                    world_seed: int = 0, out=None, progress: bool = False, **train_overrides):
+    """The text arm (`ratouch.model.neighbour_text`: the neighbours' captions written into the
+    prompt), trained with RA-Touch's stage-2 budget from the stage-1 model inside
+    `stage1_from` (a RA-Touch checkpoint folder) on the same paired data and joint-query
+    neighbours; saved to `out`. Returns (generator, report)."""
+    t0 = time.perf_counter()
+    tc = GeneratorTrainConfig(seed=seed, **train_overrides)
+    torch.set_num_threads(tc.threads)
+    _, data, emb, retrieval, rv, rl = _pairs_with_neighbours(encoder, world_seed, draw, tc.k,
+                                                             progress)
+    stage1 = load_generator(stage1_from, stage1=True)
+    arm = NeighbourText.build([e.caption for e in retrieval.corpus.entries],
+                              retrieval.corpus_embeddings("tactile_caption"), stage1.decoder)
+    gen, history = train_stage2(
+        stage1, arm, torch.from_numpy(emb["V"]), torch.from_numpy(emb["T"]),
+        list(data["labels"]), torch.from_numpy(rv), torch.from_numpy(rl), tc, "text-arm-lora")
+    report = {"arm": "neighbour_text", "seed": seed, "draw": draw,
+              "stage1_from": str(stage1_from), "train": asdict(tc),
               "seconds": round(time.perf_counter() - t0, 1), "history": history}
     if out is not None:
         save_generator(out, gen, {"encoder": encoder, **report}, half=True)
