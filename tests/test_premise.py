@@ -148,3 +148,45 @@ def test_why_ignored_reports_training_signal(real_pipeline):
         assert set(w["training_loss"][g]) == {"own", "shuffled", "none"}
     for stage in ("start", "end"):
         assert -1 <= w["integrator_gradient"][stage]["cosine_own_vs_shuffled"] <= 1
+
+
+@pytest.mark.slow
+def test_premise_judges_the_text_arm_on_the_groups_and_the_test_split(real_pipeline,
+                                                                      monkeypatch):
+    """The arm path of `run_premise`, with an untrained text arm standing in for the trained
+    one (training it takes minutes): per group its score, gain, difference to the paper's
+    RA-Touch and shuffle drop; on the world test split every system's score and each arm's
+    differences to the baseline and to `paper`."""
+    from ratouch.eval import premise
+    from ratouch.model.generator import load_generator
+    from ratouch.model.neighbour_text import NeighbourText
+    from ratouch.paths import generator_weights
+
+    def untrained(encoder, run, progress=False):
+        gen = load_generator(generator_weights(encoder, "ra"), stage1=True)
+        gen.integrator = NeighbourText.build(
+            [e.caption for e in real_pipeline.corpus.entries],
+            real_pipeline.corpus_embeddings("tactile_caption"), gen.decoder)
+        return gen
+
+    monkeypatch.setitem(premise.ARMS, "text", untrained)
+    lines = []
+    r = run_premise(runs=1, n=12, pipeline=real_pipeline, progress=lines.append,
+                    gated=False, arms=("text",))
+    assert r["config"]["arms"] == ["text"]
+    for g in ("seen", "scarce"):
+        t = r["groups"][g]["neighbour_text"]
+        assert {"score", "gain", "ci95", "vs_paper", "vs_paper_ci95", "shuffle_drop",
+                "shuffle_p"} <= set(t)
+        assert t["vs_paper"] == pytest.approx(t["score"] - r["groups"][g]["ra_touch"],
+                                              abs=2e-3)
+    at = r["arms_test"]
+    assert at["n"] == 12 and set(at["score"]) == {"baseline", "paper", "text"}
+    assert at["text_vs_paper"]["diff"] == pytest.approx(
+        at["score"]["text"] - at["score"]["paper"], abs=2e-3)
+    assert any("world test split" in line for line in lines)
+    out = format_premise(r)
+    assert "text arm" in out and "text vs paper" in out
+    json.dumps(r)
+    with pytest.raises(ConfigError):
+        run_premise(runs=1, n=12, pipeline=real_pipeline, arms=("nope",))
