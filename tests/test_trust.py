@@ -224,7 +224,7 @@ def test_calibration_is_reproducible(tmp_path):
     from ratouch.train.trust import TrustConfig, calibrate
 
     enc = create_model("default-s")
-    cfg = TrustConfig(n_reference=120, n_validation=100)
+    cfg = TrustConfig(n_reference=120, n_validation=100, n_everyday=8)
     a, b = calibrate(enc, cfg, progress=False), calibrate(enc, cfg, progress=False)
     assert a.contact_threshold == b.contact_threshold
     assert a.visual.threshold == b.visual.threshold

@@ -85,7 +85,7 @@ class NeighbourText(nn.Module):
         """The arm for a corpus: its captions (entry order), their text embeddings `keys`
         (N, D) as the retrieval side returns them, and the decoder whose tokenizer and word
         embeddings write them."""
-        keys = np.asarray(keys, np.float32)
+        keys = np.array(keys, np.float32)  # a copy: the corpus's arrays are memory-mapped
         if keys.ndim != 2 or len(keys) != len(captions):
             raise ConfigError(f"keys must be (N={len(captions)}, D), got {keys.shape}")
         table = decoder.embedding.weight.detach().float()

@@ -27,6 +27,7 @@ from ratouch.model.trust import (
 )
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
+from ratouch.world.presses import render_blank_pair, render_press
 from ratouch.world.sampler import TEST_SIZE, World
 from ratouch.world.tactile import family_names, sensor_family
 
@@ -49,6 +50,10 @@ class TrustConfig:
         n_validation: unseen renders the thresholds are set on.
         false_alarm: share of in-distribution validation inputs each signal may flag.
         rank: principal directions kept by the novelty distances.
+        n_everyday: per sensor family, renders of the presses people make
+            (`ratouch.world.presses`: flat faces, fabrics, foams, tape, wire, edges, small
+            curved objects) and as many drifted blank pairs, added to the contact models'
+            reference renders and again, freshly drawn, to their validation renders.
     """
 
     seed: int = 0
@@ -56,6 +61,7 @@ class TrustConfig:
     n_validation: int = 1000
     false_alarm: float = 0.02
     rank: int = 16
+    n_everyday: int = 140
 
     def __post_init__(self) -> None:
         for name in ("n_reference", "n_validation"):
@@ -65,6 +71,8 @@ class TrustConfig:
             raise ConfigError(f"false_alarm={self.false_alarm} must lie in (0, 0.5)")
         if not 1 <= self.rank < self.n_reference:
             raise ConfigError(f"rank={self.rank} must lie in [1, n_reference)")
+        if self.n_everyday < 0:
+            raise ConfigError(f"n_everyday={self.n_everyday} must be >= 0")
 
 
 def render_samples(world: World, split: str, indices, progress: bool = False,
@@ -88,6 +96,34 @@ def _features(data: dict) -> tuple[np.ndarray, np.ndarray]:
     plain = np.stack([contact_features(f) for f in data["frames"]])
     with_bg = np.stack([contact_features(f, b) for f, b in zip(data["frames"], data["backgrounds"])])
     return plain, with_bg
+
+
+def everyday_features(n: int, seed: int, progress: bool = False
+                      ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Contact features (without, with the background) of `n` everyday presses per sensor
+    family (`render_press`: kind and material drawn, the background captured at another
+    moment, drifted as Taxim's real pairs drift) and of `n` drifted blank pairs per family:
+    {"press": (plain, with_bg), "blank": (plain, with_bg)}."""
+    rng = np.random.default_rng([seed, 3301])
+    out: dict[str, tuple[list, list]] = {"press": ([], []), "blank": ([], [])}
+    for fam in progress_bar(family_names(), desc="render everyday presses", progress=progress):
+        for _ in range(n):
+            p = render_press(fam, rng)
+            out["press"][0].append(contact_features(p.frame))
+            out["press"][1].append(contact_features(p.frame, p.background))
+            frame, bg = render_blank_pair(fam, rng)
+            out["blank"][0].append(contact_features(frame))
+            out["blank"][1].append(contact_features(frame, bg))
+    width = len(contact_features(np.zeros((8, 8, 3), np.uint8)))
+    return {k: (np.asarray(a, np.float64).reshape(-1, width),
+                np.asarray(b, np.float64).reshape(-1, width)) for k, (a, b) in out.items()}
+
+
+def _with_everyday(feats: dict, extra: dict, positives: str, negatives: str) -> None:
+    """Append everyday presses to the `positives` features and blank pairs to the `negatives`
+    (both columns), in place."""
+    for split, kind in ((positives, "press"), (negatives, "blank")):
+        feats[split] = tuple(np.concatenate([a, b]) for a, b in zip(feats[split], extra[kind]))
 
 
 def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
@@ -137,6 +173,13 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
     feats = {name: _features(d) for name, d in (("ref", ref), ("nc_ref", nc_ref), ("val", val),
                                                ("nc_val", nc_val), ("test", test),
                                                ("nc_test", nc_test))}
+    # the presses people make (shallow, broad, textured) and blanks against a drifted
+    # background: fitted on one draw, thresholds set with a second, fresh one
+    if cfg.n_everyday:
+        _with_everyday(feats, everyday_features(cfg.n_everyday, cfg.seed, progress),
+                       "ref", "nc_ref")
+        _with_everyday(feats, everyday_features(cfg.n_everyday, cfg.seed + 1, progress),
+                       "val", "nc_val")
     models: list[ContactModel] = []
     thresholds: list[float] = []
     for col in (0, 1):  # without, with the background
@@ -186,7 +229,10 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
     meta = {"world_seed": cfg.seed, "reference": f"train[0:{cfg.n_reference}] with and without contact",
             "validation": f"train[{VALIDATION_START}:{VALIDATION_START + cfg.n_validation}]",
             "test": f"test[0:{TEST_SIZE}] (measured only)", "target_false_alarm": fa,
-            "rank": cfg.rank, "families": list(family_names()), "measured": measured}
+            "rank": cfg.rank, "families": list(family_names()),
+            "everyday": (f"{cfg.n_everyday} presses and {cfg.n_everyday} drifted blank pairs "
+                         "per family, in the contact models' reference and, fresh, validation"),
+            "measured": measured}
     log.info("trust calibration for %s: %s", encoders.name, measured)
     return TrustCalibration(encoders.name, visual, tactile, models[0], models[1], thresholds[0],
                             thresholds[1], prior, meta, noise_floor, band)
