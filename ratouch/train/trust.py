@@ -114,9 +114,8 @@ def everyday_features(n: int, seed: int, progress: bool = False
             frame, bg = render_blank_pair(fam, rng)
             out["blank"][0].append(contact_features(frame))
             out["blank"][1].append(contact_features(frame, bg))
-    width = len(contact_features(np.zeros((8, 8, 3), np.uint8)))
-    return {k: (np.asarray(a, np.float64).reshape(-1, width),
-                np.asarray(b, np.float64).reshape(-1, width)) for k, (a, b) in out.items()}
+    return {k: (np.asarray(a, np.float64).reshape(len(a), -1),
+                np.asarray(b, np.float64).reshape(len(b), -1)) for k, (a, b) in out.items()}
 
 
 def _with_everyday(feats: dict, extra: dict, positives: str, negatives: str) -> None:
