@@ -71,6 +71,9 @@ class NeighbourText(nn.Module):
     module docstring. `as_tokens` tells the generator to append them to p."""
 
     as_tokens = True
+    keys: Tensor
+    ids: Tensor
+    table: Tensor
 
     def __init__(self, cfg: NeighbourTextConfig):
         super().__init__()
