@@ -177,6 +177,7 @@ def main(argv: list[str] | None = None) -> None:
     # heavy (torch, faiss, transformers): imported here, after the arguments are parsed, and
     # the models loaded in the background, so that the server answers at once
     from ratouch.serve.models import ModelChoice, available_models
+    from ratouch.serve.pipeline import split_model_name
 
     # serve at once; the models load meanwhile and a query waits for them. Concurrent
     # queries are answered in batches (one model pass for all of them), each by the model
@@ -190,7 +191,9 @@ def main(argv: list[str] | None = None) -> None:
         # choosing one does not make its first query wait (a query for one still being
         # prepared waits for it and says so)
         loaded["choice"] = ModelChoice(args.encoder, models, corpus=args.corpus)
-        loaded["choice"].prepare([m for m in models if m != args.encoder])
+        # a pretrained language model's generators (hundreds of MB) load when first chosen
+        loaded["choice"].prepare([m for m in models if m != args.encoder
+                                  and split_model_name(m)[1] is None])
         return QueryBatcher(loaded["choice"], max_batch=args.max_batch)
 
     def model_state(name: str):

@@ -46,9 +46,10 @@ def retriever_weights(encoder: str) -> Path:
     return assets_dir() / "retriever" / encoder
 
 
-def generator_weights(encoder: str, kind: str) -> Path:
-    """A shipped generator (`kind` "ra" or "baseline") for an encoder."""
-    return assets_dir() / "generator" / encoder / kind
+def generator_weights(encoder: str, kind: str, lm: str | None = None) -> Path:
+    """A shipped generator (`kind` "ra" or "baseline") for an encoder; on the pretrained
+    language model `lm` ("smollm2-135m") when given, else on the small decoder."""
+    return assets_dir() / "generator" / encoder / (f"{lm}/{kind}" if lm else kind)
 
 
 def trust_calibration(encoder: str) -> Path:

@@ -77,3 +77,10 @@ def progress_bar(iterable: Iterable | None = None, progress: Progress = False, *
     from tqdm import tqdm
 
     return tqdm(iterable, disable=not bars(progress), **kwargs)
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory so far, in MB (Linux reports kilobytes)."""
+    import resource
+
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import logging
 import math
-import resource
 import shutil
 import tempfile
 import time
@@ -33,7 +32,7 @@ from ratouch.search.index import (
     VectorIndex,
     exact_topk,
 )
-from ratouch.timing import Laps, say_to
+from ratouch.timing import Laps, peak_rss_mb, say_to
 
 logger = logging.getLogger(__name__)
 
@@ -130,9 +129,6 @@ def _summary(times: list[float]) -> dict:
             "p95_ms": round(float(np.percentile(times, 95)), 4), "queries": len(times)}
 
 
-def _peak_rss_mb() -> float:
-    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
-
 
 def _sweep(index, setting: str, values, queries, k: int, recall) -> dict:
     """Latency and recall@5 (``recall(ids)``) of the same index searched with each value of
@@ -220,7 +216,7 @@ def bench_retrieval(n: int = 150_000, dim: int = 768, k: int = 5, n_queries: int
         up = results["upstream"]["p50_ms"]
         out["speedup_vs_upstream"] = {m: round(up / r["p50_ms"], 1)
                                       for m, r in results.items() if m != "upstream"}
-    out["peak_rss_mb"] = _peak_rss_mb()
+    out["peak_rss_mb"] = peak_rss_mb()
     return out
 
 
@@ -278,7 +274,7 @@ def bench_scale(n: int = 1_000_000, dim: int = 768, kind: str = "ivfpq",
     out = {"n": n, "dim": dim, "kind": kind, "config": asdict(cfg),
            **{f"{k}_s": v for k, v in clock.seconds(2).items()}, **_summary(times),
            "recall_at_5": recall_at(ids, truth, 5), "index_file_mb": round(file_mb, 1),
-           "peak_rss_mb": _peak_rss_mb()}
+           "peak_rss_mb": peak_rss_mb()}
     if sweep:
         out["ef_search_sweep"] = sweep
     return out
@@ -366,7 +362,7 @@ def bench_corpus_index(corpus: str | Path, encoder: str = "default-s", key: str 
     return {"corpus": str(corpus), "encoder": manifest["encoder"], "key": key,
             "n": int(len(keys)), "dim": int(keys.shape[1]),
             "distinct_rows": distinct_rows(keys), "kinds": results,
-            "peak_rss_mb": _peak_rss_mb()}
+            "peak_rss_mb": peak_rss_mb()}
 
 
 def format_real(result: dict) -> str:

@@ -23,9 +23,10 @@ from ratouch.search.modes import RA_TOUCH_MODE, RETRIEVAL_SYSTEMS
 from ratouch.search.retrieval_side import default_corpus
 from ratouch.serve.cascade import CASCADE, Cascade
 from ratouch.serve.models import Model, load_model
-from ratouch.serve.pipeline import RATouchPipeline
+from ratouch.serve.pipeline import RATouchPipeline, split_model_name
 from ratouch.serve.request import QueryRequest, answer_one
 from ratouch.threads import intra_op_threads
+from ratouch.timing import peak_rss_mb
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import write_split
 from ratouch.world.sampler import World
@@ -82,7 +83,8 @@ def bench_query(encoder: str = "default-s", corpus: str | None = None, n: int = 
     with each pair's sensor background given ("with_background": the contact check against
     it, the structured change and the height map are then computed too)."""
     if encoder != CASCADE:  # the cascade's stages each use their default corpus
-        corpus = corpus or str(default_corpus(encoder, progress=False))  # built before timing
+        # built before timing (the corpus is the encoder set's, whichever generators answer)
+        corpus = corpus or str(default_corpus(split_model_name(encoder)[0], progress=False))
     t0 = time.perf_counter()
     model = load_model(encoder, corpus=corpus)
     cold = time.perf_counter() - t0
@@ -120,6 +122,7 @@ def bench_query(encoder: str = "default-s", corpus: str | None = None, n: int = 
                 model.stages[0] if isinstance(model, Cascade) else model, samples[:20], k),
             "regenerate_after_drop_ms": bench_regenerate(model, samples[:20], k),
             "loadavg": [round(x, 2) for x in os.getloadavg()],
+            "peak_rss_mb": peak_rss_mb(),
             "target": {"p50_ms": 40, "p95_ms": 80, "generation_each_ms": 10,
                        "cold_start_s": 10}}
 

@@ -33,7 +33,7 @@ from ratouch.eval.retrieval import entry_materials, material_precision
 from ratouch.paths import cascade_calibration
 from ratouch.search.index import BENCH_KINDS, KINDS, IndexConfig, VectorIndex
 from ratouch.serve.cascade import CascadeCalibration, joint_confidence
-from ratouch.serve.models import available_models
+from ratouch.serve.models import available_models, load_model
 from ratouch.serve.pipeline import RATouchPipeline, default_corpus, open_retriever
 from ratouch.timing import Progress, say_to
 from ratouch.vocabulary import adjective_f1
@@ -265,7 +265,8 @@ def _encoder_points(encoders: Sequence[str], lab, alone: dict, pairs: tuple[list
             say(f"{name}: p50 {out[-1]['p50_ms']:.2f} ms (encode + search), tactile->text "
                 f"P@5 {out[-1]['precision_at_5']:.3f} ({time.perf_counter() - t0:.0f} s)")
             continue
-        p = RATouchPipeline.load(name)
+        p = load_model(name)  # an encoder set, or one on a pretrained LM's generators
+        assert isinstance(p, RATouchPipeline)  # the cascade is its own point
         a = alone[name] = _Alone(p, encode_test_split(p.encoders, test.world))
         judged, a.per_sample = _judge_stats(lab, a.ids, p, a.split)
         a.per_sample["precision_at_5"] = material_precision(

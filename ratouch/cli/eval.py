@@ -42,6 +42,7 @@ from ratouch.eval.sensor_families import evaluate_families, format_families
 from ratouch.eval.sensors import compare_sensors, format_sensors
 from ratouch.eval.tvl import format_ttest, paired_ttest, run_tvl
 from ratouch.files import write_json_atomic
+from ratouch.model.pretrained_lm import PRETRAINED_LMS
 from ratouch.paths import retriever_weights
 from ratouch.search.retrieval_side import default_corpus, open_retriever
 from ratouch.serve.pipeline import RATouchPipeline, load_trust
@@ -159,15 +160,17 @@ def _eval_controls(args: argparse.Namespace) -> int:
 
 def _eval_tvl(args: argparse.Namespace) -> int:
     judge = make_judge(args)  # configuration errors before any work
-    pipeline = RATouchPipeline.load(args.encoder)
+    if args.lm is not None and args.lm not in PRETRAINED_LMS:
+        raise usage(f"--lm {args.lm!r}: one of {', '.join(PRETRAINED_LMS)}")
+    pipeline = RATouchPipeline.load(args.encoder, lm=args.lm)
     records, summary = run_tvl(pipeline, args.system, args.k, judge, world_cfg(args),
                                retrieval=args.retrieval)
     write_json_atomic(args.out, records)
     if args.json:
         print(json.dumps({**summary, "out": str(args.out)}, indent=1))
         return 0
-    print(f"{args.system} on the world's test split (seed {args.seed}, K={args.k}, retrieval "
-          f"{args.retrieval}):")
+    print(f"{args.system} of {pipeline.name} on the world's test split (seed {args.seed}, "
+          f"K={args.k}, retrieval {args.retrieval}):")
     print(format_summary(summary))
     if summary["families"]:
         print("per sensor family:")

@@ -210,6 +210,10 @@ def _add_train(sub) -> None:
                         "is missing)")
     g.add_argument("--stage1-steps", type=_pos_int, default=None)
     g.add_argument("--stage2-steps", type=_pos_int, default=None)
+    g.add_argument("--lm", default=None, metavar="NAME",
+                   help="adapt a pretrained language model installed as a wheel instead of "
+                        "the small decoder (smollm2-135m: SmolLM2-135M-Instruct): the "
+                        "visual prompt and LoRA, saved to assets/generator/ENC/NAME/")
     tr = tsub.add_parser("trust", help="calibrate the trust signals (novelty, no contact) on "
                                        "the world's validation renders")
     tr.add_argument("--encoder", default=DEFAULT_ENCODER)
@@ -275,6 +279,9 @@ def _add_eval(sub) -> None:
     t.add_argument("--k", type=_pos_int, default=5, help="neighbours RA-Touch reads")
     t.add_argument("--retrieval", choices=tuple(RETRIEVAL_SYSTEMS), default="paper",
                    help="RA-Touch's retrieval: the paper's joint query or the trust-gated one")
+    t.add_argument("--lm", default=None, metavar="NAME",
+                   help="the generators adapted from this pretrained language model "
+                        "(`ratouch train generator --lm NAME`) instead of the small decoder's")
     t.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
     _add_stress(t)
     _add_judge_options(t)
@@ -515,7 +522,8 @@ def _add_bench(sub) -> None:
     to.add_argument("--ks", default="1,5,10", help="values of K")
     to.add_argument("--indexes", default=",".join(BENCH_KINDS))
     to.add_argument("--encoders", default=",".join(OTHER_SETS),
-                    help="other encoders, retrieval-only points ('' for none)")
+                    help="other encoders, retrieval-only points ('' for none); a shipped "
+                         "model (default-b, default-s+smollm2-135m) is a whole-answer point")
     to.add_argument("--json", action="store_true")
     qb = bsub.add_parser("query", help="latency of the whole RA-Touch query, cold and warm")
     qb.add_argument("--encoder", default=DEFAULT_ENCODER)

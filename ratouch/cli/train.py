@@ -10,6 +10,7 @@ from pathlib import Path
 
 from ratouch.cli.common import usage
 from ratouch.encoders.factory import DEFAULT_SETS, create_model, shipped_weights
+from ratouch.model.pretrained_lm import PRETRAINED_LMS
 from ratouch.paths import (
     cascade_calibration,
     generator_weights,
@@ -37,6 +38,16 @@ def run(args: argparse.Namespace) -> int:
         overrides = {k: v for k, v in (("stage0_steps", args.stage0_steps),
                                        ("stage1_steps", args.stage1_steps),
                                        ("stage2_steps", args.stage2_steps)) if v}
+        if args.lm is not None:
+            if args.lm not in PRETRAINED_LMS:
+                raise usage(f"--lm {args.lm!r}: one of {', '.join(PRETRAINED_LMS)}")
+            if args.draw or "stage0_steps" in overrides:
+                raise usage("--lm adapts a pretrained model on draw 0 with no language prior "
+                            "(stage 0): --draw and --stage0-steps do not apply")
+            out = None if args.out is None else Path(args.out)
+            print(json.dumps(recipes.pretrained_generator_recipe(
+                args.encoder, args.lm, args.seed, out=out, **overrides)))
+            return 0
         print(json.dumps(recipes.generator_recipe(args.encoder, args.seed, draw=args.draw,
                                                   out=args.out, **overrides)))
         return 0

