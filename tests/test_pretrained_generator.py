@@ -13,7 +13,7 @@ import torch
 
 from ratouch.checkpoint import WEIGHTS
 from ratouch.cli import main
-from ratouch.errors import ConfigError, DataNotFoundError
+from ratouch.errors import DataNotFoundError
 from ratouch.model.decoder import DecoderConfig, load_hf_decoder
 from ratouch.model.generator import (
     BaselinePrompt,
@@ -30,6 +30,7 @@ from ratouch.serve.pipeline import (
     split_model_name,
 )
 from ratouch.train.generator import GeneratorTrainConfig, train_generators
+from ratouch.train.recipes import lm_label
 
 LM = "smollm2-135m"
 DIM = 16
@@ -116,17 +117,28 @@ def test_the_model_list_offers_shipped_language_model_generators(tmp_path, monke
     assert models.available_models() == ["default-s"]  # its baseline is missing
     (tmp_path / "generator" / "default-s" / LM / "baseline").mkdir(parents=True)
     assert models.available_models() == ["default-s", "default-s+smollm2-135m"]
+    # generators trained on a local LLaMA folder are offered under the folder's name
+    for kind in ("ra", "baseline"):
+        (tmp_path / "generator" / "default-s" / "Llama-2-7b-hf" / kind).mkdir(parents=True)
+    assert models.available_models() == ["default-s", "default-s+Llama-2-7b-hf",
+                                          "default-s+smollm2-135m"]
+    assert models.language_models("default-tiny") == []
 
 
-def test_unknown_or_untrained_language_models_are_named(tmp_path, monkeypatch):
-    with pytest.raises(ConfigError, match="unknown language model 'gpt-9'"):
-        models.load_model("default-s+gpt-9")
+def test_untrained_language_models_are_named(tmp_path, monkeypatch):
     monkeypatch.setenv("RATOUCH_ASSETS", str(tmp_path))
     monkeypatch.setattr("ratouch.serve.pipeline.open_retriever", lambda *a, **k: None)
     monkeypatch.setattr("ratouch.serve.pipeline.default_corpus", lambda *a, **k: tmp_path)
     with pytest.raises(DataNotFoundError, match="train generator --encoder default-s --lm "
                                                 "smollm2-135m"):
         RATouchPipeline.load("default-s", lm=LM)
+    with pytest.raises(DataNotFoundError, match="no ra generator for default-s[+]gpt-9"):
+        models.load_model("default-s+gpt-9")
+
+
+def test_a_local_llama_folder_is_named_by_its_folder(tmp_path):
+    assert lm_label(LM) == LM
+    assert lm_label(str(tmp_path / "Llama-2-7b-hf") + "/") == "Llama-2-7b-hf"
 
 
 @pytest.mark.parametrize("argv", [
@@ -158,3 +170,8 @@ def test_train_generator_with_lm_runs_the_pretrained_recipe(tmp_path, capsys, mo
                  str(tmp_path / "g")]) == 0
     assert calls == [("default-s", LM, 0, tmp_path / "g", {"stage1_steps": 7})]
     assert json.loads(capsys.readouterr().out) == {"lm": LM}
+    llama = tmp_path / "Llama-2-7b-hf"  # a local HF folder is accepted by its config.json
+    llama.mkdir()
+    (llama / "config.json").write_text("{}")
+    assert main(["train", "generator", "--lm", str(llama)]) == 0
+    assert calls[-1] == ("default-s", str(llama), 0, None, {})

@@ -42,9 +42,9 @@ from ratouch.eval.sensor_families import evaluate_families, format_families
 from ratouch.eval.sensors import compare_sensors, format_sensors
 from ratouch.eval.tvl import format_ttest, paired_ttest, run_tvl
 from ratouch.files import write_json_atomic
-from ratouch.model.pretrained_lm import PRETRAINED_LMS
 from ratouch.paths import retriever_weights
 from ratouch.search.retrieval_side import default_corpus, open_retriever
+from ratouch.serve.models import language_models
 from ratouch.serve.pipeline import RATouchPipeline, load_trust
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import check_writable
@@ -160,8 +160,10 @@ def _eval_controls(args: argparse.Namespace) -> int:
 
 def _eval_tvl(args: argparse.Namespace) -> int:
     judge = make_judge(args)  # configuration errors before any work
-    if args.lm is not None and args.lm not in PRETRAINED_LMS:
-        raise usage(f"--lm {args.lm!r}: one of {', '.join(PRETRAINED_LMS)}")
+    lms = language_models(args.encoder)
+    if args.lm is not None and args.lm not in lms:
+        raise usage(f"--lm {args.lm!r}: no generators of {args.encoder} on it (trained: "
+                    f"{', '.join(lms) or 'none'}; `ratouch train generator --lm`)")
     pipeline = RATouchPipeline.load(args.encoder, lm=args.lm)
     records, summary = run_tvl(pipeline, args.system, args.k, judge, world_cfg(args),
                                retrieval=args.retrieval)

