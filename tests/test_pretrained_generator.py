@@ -175,3 +175,14 @@ def test_train_generator_with_lm_runs_the_pretrained_recipe(tmp_path, capsys, mo
     (llama / "config.json").write_text("{}")
     assert main(["train", "generator", "--lm", str(llama)]) == 0
     assert calls[-1] == ("default-s", str(llama), 0, None, {})
+
+
+def test_generation_bench_times_decoders_without_the_fast_path(tiny_llama):
+    from ratouch.bench.query import _bench_transformers_generation
+
+    dec = load_hf_decoder(DecoderConfig(kind="hf", path=str(tiny_llama), max_new_tokens=5))
+    rows = [(torch.randn(1, 1, dec.hidden), torch.randn(1, 1, dec.hidden)) for _ in range(3)]
+    out = _bench_transformers_generation(dec, dec, rows)
+    assert set(out) == {f"{s}_{m}" for s in ("ra_touch", "baseline")
+                        for m in ("alone_ms", "ms_per_token", "tokens_mean")}
+    assert all(v > 0 for v in out.values()) and out["ra_touch_tokens_mean"] <= 5

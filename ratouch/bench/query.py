@@ -135,6 +135,25 @@ def _ask(model: Model, s, k: int, background: np.ndarray | None = None,
                                                  background=background, retrieval=retrieval))
 
 
+def _bench_transformers_generation(ra, base, rows: list) -> dict:
+    """Each generation alone through transformers (decoders without the fast path: a
+    pretrained language model), its median time and time per written token."""
+    out: dict[str, float] = {}
+    for name, dec, col in (("ra_touch", ra, 0), ("baseline", base, 1)):
+        dec.generate(rows[0][col])  # warm-up
+        times, tokens = [], []
+        for row in rows:
+            t0 = time.perf_counter()
+            text = dec.generate(row[col])[0]
+            times.append((time.perf_counter() - t0) * 1000)
+            # the tokens written: the text's and its end token, at most the limit
+            tokens.append(min(len(dec.tokenizer.encode(text)) + 1, dec.cfg.max_new_tokens))
+        out[f"{name}_alone_ms"] = round(float(np.median(times)), 2)
+        out[f"{name}_ms_per_token"] = round(float(np.sum(times) / np.sum(tokens)), 2)
+        out[f"{name}_tokens_mean"] = round(float(np.mean(tokens)), 2)
+    return out
+
+
 def bench_regenerate(model: Model, samples: list, k: int = 5) -> dict:
     """`regenerate` with the first joint neighbour dropped (the neighbour-shuffle control)."""
     times = []
@@ -161,6 +180,8 @@ def bench_generation(pipe: RATouchPipeline, samples: list, k: int = 5) -> dict:
         with torch.inference_mode():
             rows.append((p_ra, pipe.generator_base.prefix(torch.from_numpy(V),
                                                           torch.from_numpy(T))))
+    if not (ra.fast and base.fast):  # a pretrained LM: transformers with its key/value cache
+        return _bench_transformers_generation(ra, base, rows)
     cache = StackCache()  # as the pipeline keeps it: the stack is built once
     runs = {"together_ms": lambda a, b: generate_together([ra, base], [a, b], cache=cache),
             "ra_touch_alone_ms": lambda a, b: ra.generate(a),
