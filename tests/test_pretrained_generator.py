@@ -146,6 +146,7 @@ def test_a_local_llama_folder_is_named_by_its_folder(tmp_path):
     ["train", "generator", "--lm", LM, "--draw", "1"],
     ["train", "generator", "--lm", LM, "--stage0-steps", "5"],
     ["eval", "tvl", "--system", "ra-touch", "--out", "{tmp}/r.json", "--lm", "gpt-9"],
+    ["eval", "controls", "--lm", "gpt-9"],
 ])
 def test_bad_language_model_arguments_exit_2_and_write_nothing(argv, tmp_path, capsys,
                                                                monkeypatch):

@@ -151,8 +151,17 @@ def _eval_photos(args: argparse.Namespace) -> int:
     return 0
 
 
+def _pipeline_on_lm(args: argparse.Namespace) -> RATouchPipeline:
+    """The encoder set's pipeline, on the generators of `--lm` when given (checked first)."""
+    lms = language_models(args.encoder)
+    if args.lm is not None and args.lm not in lms:
+        raise usage(f"--lm {args.lm!r}: no generators of {args.encoder} on it (trained: "
+                    f"{', '.join(lms) or 'none'}; `ratouch train generator --lm`)")
+    return RATouchPipeline.load(args.encoder, lm=args.lm)
+
+
 def _eval_controls(args: argparse.Namespace) -> int:
-    r = run_controls(RATouchPipeline.load(args.encoder), k=args.k, shuffles=args.shuffles,
+    r = run_controls(_pipeline_on_lm(args), k=args.k, shuffles=args.shuffles,
                      seed=args.seed)
     print(json.dumps(r, indent=1) if args.json else format_controls(r))
     return 0
@@ -160,11 +169,7 @@ def _eval_controls(args: argparse.Namespace) -> int:
 
 def _eval_tvl(args: argparse.Namespace) -> int:
     judge = make_judge(args)  # configuration errors before any work
-    lms = language_models(args.encoder)
-    if args.lm is not None and args.lm not in lms:
-        raise usage(f"--lm {args.lm!r}: no generators of {args.encoder} on it (trained: "
-                    f"{', '.join(lms) or 'none'}; `ratouch train generator --lm`)")
-    pipeline = RATouchPipeline.load(args.encoder, lm=args.lm)
+    pipeline = _pipeline_on_lm(args)
     records, summary = run_tvl(pipeline, args.system, args.k, judge, world_cfg(args),
                                retrieval=args.retrieval)
     write_json_atomic(args.out, records)

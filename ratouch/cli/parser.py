@@ -113,6 +113,12 @@ def _add_world(sub) -> None:
     pr.add_argument("--json", action="store_true", help="print JSON")
 
 
+def _add_lm(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--lm", default=None, metavar="NAME",
+                   help="the generators adapted from this pretrained language model "
+                        "(`ratouch train generator --lm NAME`) instead of the small decoder's")
+
+
 def _add_stress(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("stress knobs")
     g.add_argument("--object-scale", type=_number, help="object side / frame side, 0.1..1")
@@ -280,9 +286,7 @@ def _add_eval(sub) -> None:
     t.add_argument("--k", type=_pos_int, default=5, help="neighbours RA-Touch reads")
     t.add_argument("--retrieval", choices=tuple(RETRIEVAL_SYSTEMS), default="paper",
                    help="RA-Touch's retrieval: the paper's joint query or the trust-gated one")
-    t.add_argument("--lm", default=None, metavar="NAME",
-                   help="the generators adapted from this pretrained language model "
-                        "(`ratouch train generator --lm NAME`) instead of the small decoder's")
+    _add_lm(t)
     t.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
     _add_stress(t)
     _add_judge_options(t)
@@ -330,6 +334,7 @@ def _add_eval(sub) -> None:
     c.add_argument("--encoder", default=DEFAULT_ENCODER)
     c.add_argument("--k", type=_pos_int, default=5, help="neighbours RA-Touch reads")
     c.add_argument("--shuffles", type=_pos_int, default=3, help="neighbour shuffles (seeds)")
+    _add_lm(c)
     c.add_argument("--seed", type=_nonneg_int, default=0, help="seed of the shuffles and CIs")
     c.add_argument("--json", action="store_true")
     pr = esub.add_parser("premise", help="the paper's premise: baseline against RA-Touch on "
