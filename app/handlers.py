@@ -30,6 +30,7 @@ from ratouch.eval import failures
 from ratouch.images import QUERY_MAX_SIDE, check_background_size, to_rgb_array
 from ratouch.paths import cascade_calibration
 from ratouch.serve.cascade import CASCADE, CascadeCalibration
+from ratouch.serve.pipeline import split_model_name
 from ratouch.serve.request import MAX_K, QueryRequest, answer_one, check_k
 from ratouch.serve.trace import trace_retrieval
 
@@ -453,15 +454,20 @@ def describe_model(name: str) -> tuple[str, str]:
                    if meta.get("n_validation") and last.get("precision") else "")
                 + (f", {share:.0%} of them answered by `{first}`" if share is not None else ""))
         return f"{first} when sure, else {' then '.join(rest)}", line
+    encoder, lm = split_model_name(name)
     try:
-        cfg = model_config(name)
+        cfg = model_config(encoder)
     except RATouchError:
         return "", f"{name}: not a shipped encoder set (no config describes it)"
     w, h = cfg.get("tactile_size", ("?", "?"))
     role = cfg.get("role", "encoder set")
-    return role, (f"{name}: {role} — {cfg['dim']}-d embeddings, tower width "
-                  f"{cfg.get('width', '?')}, tactile frames at {w}×{h} px, visual prior "
-                  f"{cfg.get('prior', 'none')}")
+    generators = ("" if lm is None else
+                  f"; generators adapted from the pretrained language model `{lm}` (visual "
+                  "prompt and LoRA; loaded when first chosen)")
+    return (role if lm is None else f"{role}, {lm} generators"), (
+        f"{name}: {role} — {cfg['dim']}-d embeddings, tower width "
+        f"{cfg.get('width', '?')}, tactile frames at {w}×{h} px, visual prior "
+        f"{cfg.get('prior', 'none')}{generators}")
 
 
 def model_choices(models: Sequence[str]) -> list[tuple[str, str]]:

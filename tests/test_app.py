@@ -1256,6 +1256,11 @@ def test_stale_answers_are_marked_and_every_model_is_explained():
     assert dict((v, k) for k, v in handlers.model_choices(["default-s", "cascade"])) == {
         "default-s": "default-s — the paper's ViT-Small row",
         "cascade": "cascade — default-tiny when sure, else default-s"}
+    # the generators adapted from a pretrained language model say so
+    lm = handlers.describe_model("default-s+smollm2-135m")
+    assert lm[0] == "the paper's ViT-Small row, smollm2-135m generators"
+    assert lm[1].startswith("default-s+smollm2-135m: the paper's ViT-Small row — 384-d")
+    assert "pretrained language model `smollm2-135m`" in lm[1]
 
 
 def test_the_benchmarks_story_dates_the_premise_and_the_real_frames():
