@@ -480,10 +480,13 @@ def format_tradeoff(result: dict) -> str:
     """The points as a table: latency, the judge with its 95 % CI, F1, length, P@5 with its
     CI, and the judge, F1 and P@5 differences to the reference point (`~` where the
     difference's 95 % CI holds 0, inside the noise; `*` where it does not)."""
-    lines = [f"{'encoder':<13}{'index':<9}{'corpus':>7}{'K':>4}{'p50 ms':>9}{'p95 ms':>9}"
+    points = result["points"] + [result["upstream"]]
+    w = max([13] + [len(q["encoder"]) + 1 for q in points
+                    if not q["system"].endswith("cascade")])  # the widest model name
+    lines = [f"{'encoder':<{w}}{'index':<9}{'corpus':>7}{'K':>4}{'p50 ms':>9}{'p95 ms':>9}"
              f"{'search':>9}  {'judge [95% CI]':<24}{'F1':>6}{'len':>5}  {'P@5 [95% CI]':<22}"
              f"{'vs ref: judge':>14}{'F1':>9}{'P@5':>9}  system"]
-    for q in result["points"] + [result["upstream"]]:
+    for q in points:
         judge = (f"{q['judge']:.3f} [{q['judge_ci'][0]:.3f}, {q['judge_ci'][1]:.3f}]"
                  if q.get("judge") is not None else "-")
         f1 = f"{q['f1']:.3f}" if q.get("f1") is not None else "-"
@@ -499,7 +502,7 @@ def format_tradeoff(result: dict) -> str:
                                 f"{', '.join(f'{t:.3f}' for t in q['thresholds'])}: "
                                 f"{q['encoder'][len(CASCADE_LABEL):]})"
                                 if "escalated" in q else "")
-        lines.append(f"{name:<13}{q['index']:<9}{q['corpus']:>7}{q['k']:>4}"
+        lines.append(f"{name:<{w}}{q['index']:<9}{q['corpus']:>7}{q['k']:>4}"
                      f"{q['p50_ms']:>9.2f}{q['p95_ms']:>9.2f}{srch:>9}  {judge:<24}{f1:>6}"
                      f"{length:>5}  {prec:<22}{vs[0]:>14}{vs[1]:>9}{vs[2]:>9}  {system}")
     b = result.get("baseline") or {"judge": result["baseline_judge"]}
