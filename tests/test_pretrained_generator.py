@@ -187,3 +187,14 @@ def test_generation_bench_times_decoders_without_the_fast_path(tiny_llama):
     assert set(out) == {f"{s}_{m}" for s in ("ra_touch", "baseline")
                         for m in ("alone_ms", "ms_per_token", "tokens_mean")}
     assert all(v > 0 for v in out.values()) and out["ra_touch_tokens_mean"] <= 5
+
+
+@pytest.mark.slow
+def test_an_answer_names_the_model_that_gave_it(pipeline, world, monkeypatch):
+    """The result's model is the model name, language model included (the page's "model"
+    line and the export's "answered_by" read it)."""
+    s = world.sample("test", 3)
+    assert pipeline.query(s.visual, s.tactile, box=s.box)["encoder"] == "default-s"
+    monkeypatch.setattr(pipeline, "lm", LM)  # as `RATouchPipeline.load(..., lm=LM)` sets it
+    assert pipeline.name == "default-s+smollm2-135m"
+    assert pipeline.query(s.visual, s.tactile, box=s.box)["encoder"] == "default-s+smollm2-135m"

@@ -331,7 +331,7 @@ class RATouchPipeline(RetrievalSide):
             timings_ms={**timings, "decode": req.decode_ms},
             warnings=[*req.warnings, *encoded[j].warnings, *self._trust_warnings(t)],
             box=[int(v) for v in req.box],
-            encoder=self.encoders.name,
+            encoder=self.name,  # the model that answered (an encoder set, or "ENC+LM")
             visual_route=encoded[j].route,
             trust=None if t is None else {m: t[m] for m in ("visual", "tactile")},
             retrieval=self._retrieval_block(req, encoded[j], gens[j]),

@@ -207,7 +207,8 @@ class QueryResult:
             requests.
         warnings: what the answer had to assume or found suspicious.
         box: the contact box used.
-        encoder: the encoder set that answered.
+        encoder: the model that answered: its encoder set ("default-s"), with the language model
+            its generators were adapted from where there is one ("default-s+smollm2-135m").
         visual_route: {"route": "render"}, or the photo route's account (a crop that looks
             like a real photo: "classes", "coverage", "note").
         trust: {"visual": {"novelty", "threshold", "novel", "space", "uniform"}, "tactile":
