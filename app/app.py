@@ -177,7 +177,7 @@ def main(argv: list[str] | None = None) -> None:
     # heavy (torch, faiss, transformers): imported here, after the arguments are parsed, and
     # the models loaded in the background, so that the server answers at once
     from ratouch.serve.models import ModelChoice, available_models
-    from ratouch.serve.pipeline import split_model_name
+    from ratouch.serve.request import split_model_name
 
     # serve at once; the models load meanwhile and a query waits for them. Concurrent
     # queries are answered in batches (one model pass for all of them), each by the model

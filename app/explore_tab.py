@@ -335,6 +335,8 @@ def wire(demo: gr.Blocks, page: Page, ui: SimpleNamespace) -> SimpleNamespace:
     # a new result (or none) resets the neighbour picker and the regenerated answer
     ui.raw.change(lambda r: (handlers.neighbour_picker(r), ""), ui.raw,
                   [ui.keep, ui.regen_out], **light)
+    # and the model's note: a query prepared its model
+    ui.raw.change(model_note, ui.model, ui.model_note, **light)
     ui.regen.click(regenerate, [ui.state, ui.tactile, *fields, ui.keep, ui.raw, ui.model,
                                 ui.background],
                    ui.regen_out, **queries, **raw, **private)

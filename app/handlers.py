@@ -30,8 +30,7 @@ from ratouch.eval import failures
 from ratouch.images import QUERY_MAX_SIDE, check_background_size, to_rgb_array
 from ratouch.paths import cascade_calibration
 from ratouch.serve.cascade import CASCADE, CascadeCalibration
-from ratouch.serve.pipeline import split_model_name
-from ratouch.serve.request import MAX_K, QueryRequest, answer_one, check_k
+from ratouch.serve.request import MAX_K, QueryRequest, answer_one, check_k, split_model_name
 from ratouch.serve.trace import trace_retrieval
 
 log = logging.getLogger(__name__)

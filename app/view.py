@@ -17,6 +17,7 @@ import numpy as np
 from PIL import Image
 
 from ratouch.search.modes import QUERY_MODES, RA_TOUCH_MODE
+from ratouch.serve.request import split_model_name
 from ratouch.serve.trace import RetrievalTrace, marked_segments
 
 MODES = QUERY_MODES
@@ -418,8 +419,10 @@ def model_state_md(name: str, state: str, seconds: float | None,
     if state == "preparing":
         return (f"Model `{name}` is being prepared in the background ({seconds or 0:.0f} s so "
                 f"far{took}): a query waits for it.")
-    return (f"Model `{name}` is not prepared yet: its first query prepares it (loads it and, "
-            f"the first time, embeds the corpus with it{took}) and waits.")
+    # a pretrained language model's generators search their encoder set's corpus, embedded
+    embeds = "" if split_model_name(name)[1] else " and, the first time, embeds the corpus with it"
+    return (f"Model `{name}` is not prepared yet: its first query prepares it (loads it"
+            f"{embeds}{took}) and waits.")
 
 
 def error_md(message: str) -> str:

@@ -23,12 +23,8 @@ from ratouch.model.generator import (
 )
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.serve import models
-from ratouch.serve.pipeline import (
-    RATouchPipeline,
-    load_for_serving,
-    model_name,
-    split_model_name,
-)
+from ratouch.serve.pipeline import RATouchPipeline, load_for_serving
+from ratouch.serve.request import model_name, split_model_name
 from ratouch.train.generator import GeneratorTrainConfig, train_generators
 from ratouch.train.recipes import lm_label
 

@@ -23,8 +23,8 @@ from ratouch.search.modes import RA_TOUCH_MODE, RETRIEVAL_SYSTEMS
 from ratouch.search.retrieval_side import default_corpus
 from ratouch.serve.cascade import CASCADE, Cascade
 from ratouch.serve.models import Model, load_model
-from ratouch.serve.pipeline import RATouchPipeline, split_model_name
-from ratouch.serve.request import QueryRequest, answer_one
+from ratouch.serve.pipeline import RATouchPipeline
+from ratouch.serve.request import QueryRequest, answer_one, split_model_name
 from ratouch.threads import intra_op_threads
 from ratouch.timing import peak_rss_mb
 from ratouch.world.config import WorldConfig

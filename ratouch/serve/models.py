@@ -19,8 +19,14 @@ from ratouch import paths
 from ratouch.encoders.factory import DEFAULT_SETS
 from ratouch.errors import ConfigError, RATouchError
 from ratouch.serve.cascade import CASCADE, Cascade, CascadeCalibration
-from ratouch.serve.pipeline import RATouchPipeline, model_name, split_model_name
-from ratouch.serve.request import QueryRequest, QueryResult, all_answered
+from ratouch.serve.pipeline import RATouchPipeline
+from ratouch.serve.request import (
+    QueryRequest,
+    QueryResult,
+    all_answered,
+    model_name,
+    split_model_name,
+)
 
 #: A loaded model: it answers requests (`answer`), regenerates a description (`regenerate`)
 #: and names its corpus (`corpus`) and itself (`name`).

@@ -51,6 +51,7 @@ from ratouch.serve.request import (
     QueryResult,
     all_answered,
     answer_one,
+    model_name,
     slots_for,
 )
 from ratouch.timing import Laps
@@ -60,22 +61,6 @@ log = logging.getLogger(__name__)
 #: The retrieval system a request that names none is answered with (a key of
 #: `RETRIEVAL_SYSTEMS`), chosen by the measurements in docs/premise.md.
 DEFAULT_RETRIEVAL = "paper"
-
-
-#: Joins an encoder set's name and a pretrained language model's in a model name.
-LM_SEPARATOR = "+"
-
-
-def model_name(encoder: str, lm: str | None = None) -> str:
-    """The name a model answers by: "default-s", or "default-s+smollm2-135m" for the
-    generators adapted from a pretrained language model."""
-    return encoder if lm is None else f"{encoder}{LM_SEPARATOR}{lm}"
-
-
-def split_model_name(name: str) -> tuple[str, str | None]:
-    """(encoder, lm) of a `model_name`."""
-    encoder, _, lm = name.partition(LM_SEPARATOR)
-    return encoder, (lm or None)
 
 
 def integrator_factory(cfg: dict):

@@ -5,6 +5,10 @@ A request is decoded once, where it arrives (`QueryRequest.decode`: in the app's
 `ratouch query`, in a caller's thread), and handed down as it is. The parts of serving
 (`RATouchPipeline`, `Cascade`, `ModelChoice`, `QueryBatcher`, `BackgroundPipeline`)
 are each an `Answerer`, and the wrapping ones wrap an `Answerer`: none decodes again.
+
+A request names its model (`QueryRequest.model`) as `model_name` spells it: an encoder set
+("default-s"), or one with the generators of a pretrained language model
+("default-s+smollm2-135m").
 """
 
 from __future__ import annotations
@@ -313,3 +317,19 @@ def answer_one(answerer: Answerer, request: QueryRequest) -> QueryResult:
     if isinstance(out, BaseException):
         raise out
     return out
+
+
+#: Joins an encoder set's name and a pretrained language model's in a model name.
+LM_SEPARATOR = "+"
+
+
+def model_name(encoder: str, lm: str | None = None) -> str:
+    """The name a model answers by: "default-s", or "default-s+smollm2-135m" for the
+    generators adapted from a pretrained language model."""
+    return encoder if lm is None else f"{encoder}{LM_SEPARATOR}{lm}"
+
+
+def split_model_name(name: str) -> tuple[str, str | None]:
+    """(encoder, lm) of a `model_name`."""
+    encoder, _, lm = name.partition(LM_SEPARATOR)
+    return encoder, (lm or None)
