@@ -57,8 +57,7 @@ def available_models() -> list[str]:
     names = []
     for n in DEFAULT_SETS:
         if paths.retriever_weights(n).is_dir():
-            names += [model_name(n, lm) for lm in (None, *language_models(n))
-                      if _shipped(n, lm)]
+            names += [n] * _shipped(n) + [model_name(n, lm) for lm in language_models(n)]
     return names + ([CASCADE] if paths.cascade_calibration().is_file() else [])
 
 

@@ -153,8 +153,11 @@ class RATouchPipeline(RetrievalSide):
     def __init__(self, retriever: CorpusSearch, tgr, generator_ra, generator_base,
                  pca: PCA2D | None = None, trust: TrustCalibration | None = None,
                  gate: TouchGate | None = None, retrieval: str = DEFAULT_RETRIEVAL,
-                 generator_reader=None):
+                 generator_reader=None, lm: str | None = None):
         super().__init__(retriever, tgr)
+        #: the pretrained language model the generators were adapted from (None: the small
+        #: decoder)
+        self.lm = lm
         self.trust = trust  # None: queries say that nothing flags unfamiliar inputs
         self.gate = gate
         if retrieval not in RETRIEVAL_SYSTEMS:
@@ -205,15 +208,9 @@ class RATouchPipeline(RetrievalSide):
                                         integrator=False)
             gen_reader = load_reader(encoder) if lm is None else None
         trust = load_trust(encoder)
-        pipeline = cls(retriever, load_tgr(encoder), gen_ra, gen_base, trust=trust,
-                       gate=load_gate(encoder, trust), retrieval=retrieval,
-                       generator_reader=gen_reader)
-        pipeline.lm = lm
-        return pipeline
-
-    #: the pretrained language model the generators were adapted from (None: the small
-    #: decoder)
-    lm: str | None = None
+        return cls(retriever, load_tgr(encoder), gen_ra, gen_base, trust=trust,
+                   gate=load_gate(encoder, trust), retrieval=retrieval,
+                   generator_reader=gen_reader, lm=lm)
 
     @property
     def name(self) -> str:
