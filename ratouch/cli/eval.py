@@ -99,8 +99,13 @@ def _eval_premise(args: argparse.Namespace) -> int:
         print(json.dumps(why_ignored(args.encoder), indent=1))
         return 0
     say = (lambda m: print(m, file=sys.stderr)) if args.json else print
+    if args.lm is not None:
+        _check_lm(args)
+        if args.runs != 1:
+            raise usage(f"--runs {args.runs}: on the generators of --lm {args.lm} only run 0 "
+                        "(the shipped pair) exists; use --runs 1")
     r = run_premise(args.encoder, runs=args.runs, n=args.n, k=args.k, progress=say,
-                    arm=not args.no_arm, arms=args.arms)
+                    arm=not args.no_arm, arms=args.arms, lm=args.lm)
     print(json.dumps(r, indent=1) if args.json else format_premise(r))
     return 0
 
@@ -151,12 +156,17 @@ def _eval_photos(args: argparse.Namespace) -> int:
     return 0
 
 
-def _pipeline_on_lm(args: argparse.Namespace) -> RATouchPipeline:
-    """The encoder set's pipeline, on the generators of `--lm` when given (checked first)."""
+def _check_lm(args: argparse.Namespace) -> None:
+    """`--lm`, when given, names a language model the encoder set has generators on."""
     lms = language_models(args.encoder)
     if args.lm is not None and args.lm not in lms:
         raise usage(f"--lm {args.lm!r}: no generators of {args.encoder} on it (trained: "
                     f"{', '.join(lms) or 'none'}; `ratouch train generator --lm`)")
+
+
+def _pipeline_on_lm(args: argparse.Namespace) -> RATouchPipeline:
+    """The encoder set's pipeline, on the generators of `--lm` when given (checked first)."""
+    _check_lm(args)
     return RATouchPipeline.load(args.encoder, lm=args.lm)
 
 

@@ -351,6 +351,7 @@ def _add_eval(sub) -> None:
     pr.add_argument("--arms", type=_arm_list, default=",".join(ARM_NAMES),
                     help="comma-separated arms judged beside RA-Touch: tokens (neighbour "
                          "tokens), text (the neighbours' captions written into the prompt)")
+    _add_lm(pr)
     pr.add_argument("--why", action="store_true",
                     help="instead: evidence for why the shipped generator does (not) read its "
                          "neighbours, on its training pairs (F1 of copying them, the "

@@ -63,16 +63,20 @@ def group_split(encoders, group: str, n: int, regime: ScarceRegime) -> TestSplit
                              premise_indices(group, n, regime), split="probe")
 
 
-def run_folder(encoder: str, run: int) -> Path:
-    """Where run `run`'s generators are trained (keyed by the code that trains them)."""
-    return cache_dir() / f"premise-{encoder}-run{run}-{source_sha256()[:12]}"
+def run_folder(encoder: str, run: int, lm: str | None = None) -> Path:
+    """Where run `run`'s generators (on the pretrained language model `lm` when given) are
+    trained (keyed by the code that trains them)."""
+    name = encoder + (f"+{lm}" if lm else "")
+    return cache_dir() / f"premise-{name}-run{run}-{source_sha256()[:12]}"
 
 
-def run_generators(encoder: str, run: int, progress: bool = False):
-    """(RA-Touch, baseline) of a run, LoRA merged; run 0 is the shipped pair."""
+def run_generators(encoder: str, run: int, progress: bool = False, lm: str | None = None):
+    """(RA-Touch, baseline) of a run, LoRA merged; run 0 is the shipped pair (on `lm`'s
+    generators when given: only run 0 exists there, `check_lm_runs`)."""
     if run == 0:
-        folders = {k: generator_weights(encoder, k) for k in ("ra", "baseline")}
+        folders = {k: generator_weights(encoder, k, lm) for k in ("ra", "baseline")}
     else:
+        check_lm_runs(lm, run + 1)
         root = run_folder(encoder, run)
         if not (root / "ra" / "manifest.json").is_file():
             log.info("premise run %d: training both generators into %s", run, root)
@@ -82,12 +86,22 @@ def run_generators(encoder: str, run: int, progress: bool = False):
     return load_for_serving(folders["ra"]), load_for_serving(folders["baseline"], integrator=False)
 
 
-def _run_arm(encoder: str, run: int, name: str, recipe, progress: bool):
+def check_lm_runs(lm: str | None, runs: int) -> None:
+    """Premise runs on a pretrained language model's generators: only run 0 (the shipped
+    pair, trained on draw 0 by `ratouch train generator --lm`) exists; more runs would each
+    retrain that model on another draw (about 20 min on 2 CPU cores), which is not built."""
+    if lm is not None and runs != 1:
+        raise ConfigError(f"runs={runs}: on the generators of --lm {lm} only run 0 (the "
+                          "shipped pair) exists; use --runs 1")
+
+
+def _run_arm(encoder: str, run: int, name: str, recipe, progress: bool,
+             lm: str | None = None):
     """A second-stage arm of a run (folder `name` of the run's cache folder), trained there on
-    first use by `recipe` from the run's stage-1 model with RA-Touch's stage-2 budget; LoRA
-    merged."""
-    root = run_folder(encoder, run)
-    ra = generator_weights(encoder, "ra") if run == 0 else root / "ra"
+    first use by `recipe` from the run's stage-1 model with RA-Touch's stage-2 budget (on the
+    generators of `lm` when given); LoRA merged."""
+    root = run_folder(encoder, run, lm)
+    ra = generator_weights(encoder, "ra", lm) if run == 0 else root / "ra"
     if not (root / name / "manifest.json").is_file():
         log.info("premise run %d: training the %s arm into %s", run, name, root)
         recipe(encoder, ra, seed=run, draw=run, world_seed=0, out=root / name,
@@ -95,15 +109,15 @@ def _run_arm(encoder: str, run: int, name: str, recipe, progress: bool):
     return load_for_serving(root / name)
 
 
-def token_arm(encoder: str, run: int, progress: bool = False):
+def token_arm(encoder: str, run: int, progress: bool = False, lm: str | None = None):
     """The run's neighbour-token arm (second arm; `token_arm_recipe`)."""
-    return _run_arm(encoder, run, "tokens", token_arm_recipe, progress)
+    return _run_arm(encoder, run, "tokens", token_arm_recipe, progress, lm)
 
 
-def text_arm(encoder: str, run: int, progress: bool = False):
+def text_arm(encoder: str, run: int, progress: bool = False, lm: str | None = None):
     """The run's text arm: the neighbours' captions written into the prompt
     (`text_arm_recipe`)."""
-    return _run_arm(encoder, run, "text", text_arm_recipe, progress)
+    return _run_arm(encoder, run, "text", text_arm_recipe, progress, lm)
 
 
 #: The second-stage arms `run_premise` can judge beside RA-Touch (`catalog.ARM_NAMES`): name
@@ -234,7 +248,8 @@ def mode_precision(p: RATouchPipeline, split: TestSplit, k: int) -> dict[str, fl
 def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int = 5,
                 progress: Progress = False,
                 pipeline: RATouchPipeline | None = None, arm: bool = True,
-                gated: bool = True, arms: tuple[str, ...] = tuple(ARMS)) -> dict:
+                gated: bool = True, arms: tuple[str, ...] = tuple(ARMS),
+                lm: str | None = None) -> dict:
     """Baseline against RA-Touch on seen and scarce materials, over `runs` runs, with controls.
 
     `pipeline`: the loaded retrieval side to use (default: `RATouchPipeline.load(encoder)`, on
@@ -244,7 +259,9 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
     (`neighbour_text` per group, and `arms_test`: the arms on the world test split).
     `gated`: also judge the `gated` system, the shipped RA-Touch reading the trust-gated
     query (`gated` per group, with its own verdict, `gated_verdict`), and report every
-    mode's material P@k per group (`precision`).
+    mode's material P@k per group (`precision`). `lm`: on the generators adapted from that
+    pretrained language model (`ratouch train generator --lm`): one run only
+    (`check_lm_runs`), and no `gated` system (its reader exists on the small decoder only).
 
     Returns:
         {"config", "scarce_materials", "groups": {group: {"baseline", "ra_touch", "gain",
@@ -258,10 +275,12 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
     if unknown:
         raise ConfigError(f"unknown arm(s) {unknown}: choose from {sorted(ARMS)}")
     arms = arms if arm else ()
+    check_lm_runs(lm, runs)
+    gated = gated and lm is None
     t0 = time.perf_counter()
     regime = ScarceRegime()
     say, progress = say_to(progress, log), bars(progress)  # lines; the training's bars
-    pipe = pipeline or RATouchPipeline.load(encoder, progress=progress)
+    pipe = pipeline or RATouchPipeline.load(encoder, progress=progress, generators=False)
     splits = {g: group_split(pipe.encoders, g, n, regime) for g in GROUPS}
     say(f"rendered and encoded {n} seen and {n} scarce pairs")
     judge = OfflineJudge()
@@ -272,11 +291,12 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
     withheld: list[dict[str, np.ndarray]] = []
     on_test: list[dict[str, np.ndarray]] = []
     for run in range(runs):
-        ra, base = run_generators(encoder, run, progress)
-        trained = {name: ARMS[name](encoder, run, progress) for name in arms}
+        ra, base = run_generators(encoder, run, progress, lm)
+        trained = {name: ARMS[name](encoder, run, progress, lm) for name in arms}
         p = RATouchPipeline(pipe.retriever, pipe.tgr, ra, base, pca=pipe.pca, trust=pipe.trust,
                             gate=pipe.gate,
-                            generator_reader=reader(encoder, run, progress) if gated else None)
+                            generator_reader=reader(encoder, run, progress) if gated else None,
+                            lm=lm)
         for g in GROUPS:
             r = run_controls(p, k=k, shuffles=1, judge=judge, seed=run, split=splits[g],
                              keep_scores=True)
@@ -306,7 +326,7 @@ def run_premise(encoder: str = "default-s", runs: int = 3, n: int = 500, k: int 
         extra["touch_withheld"] = summarise_withheld(withheld)
     if on_test:
         extra["arms_test"] = summarise_test(on_test)
-    return {**extra, "config": {"encoder": encoder, "runs": runs, "n": n, "k": k, "judge": judge.name,
+    return {**extra, "config": {"encoder": encoder, "lm": lm, "runs": runs, "n": n, "k": k, "judge": judge.name,
                        "regime": regime.tag, "draws": list(range(runs)), "arms": list(arms),
                        "seeds": list(range(runs))},
             "scarce_materials": list(regime.scarce_materials()), "groups": groups,

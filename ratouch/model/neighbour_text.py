@@ -44,7 +44,7 @@ class NeighbourTextConfig:
         dim: width D of the retrieved text embeddings (the keys).
         out_dim: width D' of the decoder's input (its word embeddings).
         entries: how many corpus entries the keys hold.
-        vocab: rows of the decoder's word-embedding table.
+        vocab: rows kept of the decoder's word-embedding table (those the captions use).
         words: tokens kept of one neighbour's caption.
         kind: the saved config's tag (`ratouch.serve.pipeline.integrator_factory` reads it).
     """
@@ -84,21 +84,35 @@ class NeighbourText(nn.Module):
         self.register_buffer("table", torch.zeros(cfg.vocab, cfg.out_dim))
 
     @classmethod
-    def build(cls, captions: Sequence[str], keys: np.ndarray, decoder) -> NeighbourText:
+    def build(cls, captions: Sequence[str], keys: np.ndarray, decoder,
+              words: int | None = None) -> NeighbourText:
         """The arm for a corpus: its captions (entry order), their text embeddings `keys`
         (N, D) as the retrieval side returns them, and the decoder whose tokenizer and word
-        embeddings write them."""
+        embeddings write them. `words`: tokens kept of one caption, its full stop included
+        (default: the longest caption's, so that none is cut: 10 for the small decoder's
+        word-level tokenizer, more for a sub-word one).
+
+        Only the rows of the decoder's embedding table that the captions use are kept (a
+        pretrained model's table has ~50k rows; the captions use a few hundred)."""
         keys = np.array(keys, np.float32)  # a copy: the corpus's arrays are memory-mapped
         if keys.ndim != 2 or len(keys) != len(captions):
             raise ConfigError(f"keys must be (N={len(captions)}, D), got {keys.shape}")
-        table = decoder.embedding.weight.detach().float()
         stop = decoder.tokenizer.encode(".")
+        encoded = [decoder.tokenizer.encode(c) for c in captions]
+        if words is None:
+            words = max((len(e) for e in encoded), default=0) + len(stop)
+        if words <= len(stop):
+            raise ConfigError(f"words={words} leaves no room for a caption before its "
+                              f"{len(stop)} full-stop token(s)")
+        encoded = [e[:words - len(stop)] + stop for e in encoded]
+        used = sorted({t for e in encoded for t in e})
+        row = {t: i for i, t in enumerate(used)}
+        table = decoder.embedding.weight.detach().float()[torch.tensor(used, dtype=torch.long)]
         arm = cls(NeighbourTextConfig(dim=keys.shape[1], out_dim=table.shape[1],
-                                      entries=len(captions), vocab=table.shape[0]))
+                                      entries=len(captions), vocab=len(used), words=words))
         ids = arm.ids.clone()
-        for i, caption in enumerate(captions):
-            words = decoder.tokenizer.encode(caption)[:WORDS - len(stop)] + stop
-            ids[i, :len(words)] = torch.tensor(words, dtype=torch.long)
+        for i, e in enumerate(encoded):
+            ids[i, :len(e)] = torch.tensor([row[t] for t in e], dtype=torch.long)
         arm.ids.copy_(ids)
         arm.keys.copy_(torch.from_numpy(keys))
         arm.table.copy_(table)

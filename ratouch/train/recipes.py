@@ -217,16 +217,24 @@ def pretrained_generator_recipe(encoder: str = "default-s", lm: str = "smollm2-1
     return report
 
 
+def arm_budget(stage1, **train_overrides) -> dict:
+    """A second-stage arm's training budget: the stage-2 budget its stage-1 model was trained
+    with (`PRETRAINED_BUDGET` on a pretrained language model, the defaults on the small
+    decoder), so that an arm and the RA-Touch it is compared with train alike."""
+    base = PRETRAINED_BUDGET if stage1.decoder.cfg.kind == "hf" else {}
+    return {**base, **train_overrides}
+
+
 def token_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
                      world_seed: int = 0, out=None, progress: bool = False, **train_overrides):
     """The neighbour-token arm (`ratouch.model.neighbour_tokens`), trained with RA-Touch's
-    stage-2 budget from the stage-1 model inside `stage1_from` (a RA-Touch checkpoint folder)
+    stage-2 budget (`arm_budget`) from the stage-1 model inside `stage1_from` (a RA-Touch checkpoint folder)
     on the same paired data; saved to `out`. Returns (generator, report)."""
     t0 = time.perf_counter()
-    tc = GeneratorTrainConfig(seed=seed, **train_overrides)
+    stage1 = load_generator(stage1_from, stage1=True)
+    tc = GeneratorTrainConfig(seed=seed, **arm_budget(stage1, **train_overrides))
     torch.set_num_threads(tc.threads)
     model, data, emb, _, rv, rl = _pairs_with_neighbours(encoder, world_seed, draw, tc.k, progress)
-    stage1 = load_generator(stage1_from, stage1=True)
     gen, history = train_stage2(
         stage1, NeighbourTokens(NeighbourTokensConfig(dim=model.dim, out_dim=stage1.decoder.hidden)),
         torch.from_numpy(emb["V"]), torch.from_numpy(emb["T"]), list(data["labels"]),
@@ -241,15 +249,15 @@ def token_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
 def text_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
                     world_seed: int = 0, out=None, progress: bool = False, **train_overrides):
     """The text arm (`ratouch.model.neighbour_text`: the neighbours' captions written into the
-    prompt), trained with RA-Touch's stage-2 budget from the stage-1 model inside
+    prompt), trained with RA-Touch's stage-2 budget (`arm_budget`) from the stage-1 model inside
     `stage1_from` (a RA-Touch checkpoint folder) on the same paired data and joint-query
     neighbours; saved to `out`. Returns (generator, report)."""
     t0 = time.perf_counter()
-    tc = GeneratorTrainConfig(seed=seed, **train_overrides)
+    stage1 = load_generator(stage1_from, stage1=True)
+    tc = GeneratorTrainConfig(seed=seed, **arm_budget(stage1, **train_overrides))
     torch.set_num_threads(tc.threads)
     _, data, emb, retrieval, rv, rl = _pairs_with_neighbours(encoder, world_seed, draw, tc.k,
                                                              progress)
-    stage1 = load_generator(stage1_from, stage1=True)
     arm = NeighbourText.build([e.caption for e in retrieval.corpus.entries],
                               retrieval.corpus_embeddings("tactile_caption"), stage1.decoder)
     gen, history = train_stage2(
