@@ -276,7 +276,7 @@ def test_text_arm_writes_the_neighbours_captions_and_round_trips(tmp_path):
     """The text arm: each Rl row is read back as its corpus entry (a zero row as none), and
     that entry's words (and a full stop) are the decoder's own word embeddings, after any
     empty slots; it trains like RA-Touch's stage 2 and survives save/load."""
-    from ratouch.model.neighbour_text import WORDS, NeighbourText, NeighbourTextConfig
+    from ratouch.model.neighbour_text import NeighbourText, NeighbourTextConfig
     from ratouch.serve.pipeline import integrator_factory
     from ratouch.train.generator import GeneratorTrainConfig, train_stage2
 
@@ -286,7 +286,12 @@ def test_text_arm_writes_the_neighbours_captions_and_round_trips(tmp_path):
                                    dim=-1)
     arm = NeighbourText.build(captions, keys.numpy(), gen.decoder)
     tok = gen.decoder.tokenizer
-    assert arm.ids[2, :2].tolist() == tok.encode("rough.") and (arm.ids[2, 2:] == -1).all()
+    WORDS = len(tok.encode("soft, fuzzy, warm."))  # the longest caption is not cut
+    assert arm.cfg.words == WORDS
+    # only the embedding rows the captions use are kept
+    assert arm.cfg.vocab == len(set(tok.encode("smooth, hard, soft, fuzzy, warm, rough.")))
+    assert torch.equal(arm.table[arm.ids[2, :2]], gen.decoder.embedding.weight[
+        tok.encode("rough.")]) and (arm.ids[2, 2:] == -1).all()
     Rl = keys[torch.tensor([[2, 0, 1], [3, 3, 1], [0, 0, 0]])].clone()
     Rl[2, 1:] = 0  # the zeroed-retrieval control: no words
     assert arm.entries(Rl).tolist() == [[2, 0, 1], [3, 3, 1], [0, -1, -1]]
@@ -299,6 +304,11 @@ def test_text_arm_writes_the_neighbours_captions_and_round_trips(tmp_path):
     assert int((x[2].abs().sum(-1) > 0).sum()) == len(tok.encode("smooth, hard."))
     with pytest.raises(ConfigError):
         NeighbourText.build(captions, keys[:3].numpy(), gen.decoder)
+    cut = NeighbourText.build(captions, keys.numpy(), gen.decoder, words=3)
+    assert torch.equal(cut.table[cut.ids[1]], gen.decoder.embedding.weight[
+        tok.encode("soft,") + tok.encode(".")])  # cut to its first words, the stop kept
+    with pytest.raises(ConfigError, match="no room"):
+        NeighbourText.build(captions, keys.numpy(), gen.decoder, words=1)
     with pytest.raises(ConfigError):
         NeighbourTextConfig(kind="other")
 

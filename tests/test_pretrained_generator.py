@@ -143,6 +143,7 @@ def test_a_local_llama_folder_is_named_by_its_folder(tmp_path):
     ["train", "generator", "--lm", LM, "--stage0-steps", "5"],
     ["eval", "tvl", "--system", "ra-touch", "--out", "{tmp}/r.json", "--lm", "gpt-9"],
     ["eval", "controls", "--lm", "gpt-9"],
+    ["eval", "premise", "--lm", "gpt-9", "--runs", "1"],
 ])
 def test_bad_language_model_arguments_exit_2_and_write_nothing(argv, tmp_path, capsys,
                                                                monkeypatch):
@@ -194,3 +195,51 @@ def test_an_answer_names_the_model_that_gave_it(pipeline, world, monkeypatch):
     monkeypatch.setattr(pipeline, "lm", LM)  # as `RATouchPipeline.load(..., lm=LM)` sets it
     assert pipeline.name == "default-s+smollm2-135m"
     assert pipeline.query(s.visual, s.tactile, box=s.box)["encoder"] == "default-s+smollm2-135m"
+
+
+def test_premise_runs_on_a_language_model_are_one_run():
+    from ratouch.errors import ConfigError
+    from ratouch.eval.premise import check_lm_runs, run_folder, run_premise
+
+    with pytest.raises(ConfigError, match="only run 0"):
+        run_premise(runs=2, lm=LM)  # refused before anything is loaded
+    check_lm_runs(LM, 1)
+    check_lm_runs(None, 3)
+    # a language model's arms train in a folder of their own
+    assert run_folder("default-s", 0, LM) != run_folder("default-s", 0)
+    assert "default-s+smollm2-135m" in run_folder("default-s", 0, LM).name
+
+
+@pytest.mark.slow
+def test_the_text_arm_writes_captions_in_the_models_sub_word_tokens(decoder):
+    """On a pretrained model the neighbours' captions are its own sub-word tokens, none cut,
+    from the few embedding rows they use; the arm trains on the budget SmolLM2's RA-Touch
+    had (`arm_budget`)."""
+    from ratouch.model.neighbour_text import NeighbourText
+    from ratouch.train.generator import train_stage2
+    from ratouch.train.recipes import PRETRAINED_BUDGET, arm_budget
+
+    captions = ["soft, fuzzy, warm, fluffy, plush", "rough, bumpy, grainy, coarse, scratchy"]
+    tok = decoder.tokenizer
+    ids = [tok.encode(c) + tok.encode(".") for c in captions]
+    assert max(map(len, ids)) > 10  # more tokens than words: the small decoder's 10 would cut
+    keys = np.eye(2, DIM, dtype=np.float32)
+    arm = NeighbourText.build(captions, keys, decoder)
+    assert arm.cfg.words == max(map(len, ids)) and arm.cfg.out_dim == decoder.hidden
+    assert arm.cfg.vocab == len({t for row in ids for t in row}) < 30  # not 49,152 rows
+    x = arm(None, None, torch.from_numpy(np.stack([keys[[1, 0]]])))
+    want = decoder.embedding.weight[ids[1] + ids[0]]
+    assert torch.equal(x[0, -len(want):], want.detach())
+
+    start = RATouchGenerator(BaselinePrompt(PromptConfig(dim=DIM, out_dim=decoder.hidden)),
+                             decoder)
+    assert arm_budget(start) == PRETRAINED_BUDGET
+    assert arm_budget(start, stage2_steps=2)["stage2_steps"] == 2
+    emb, labels, rv, _ = _data(n=2, k=2)
+    rl = np.stack([keys, keys[::-1]])
+    budget = arm_budget(start, stage2_steps=2, batch=2)
+    gen, history = train_stage2(start, arm, torch.from_numpy(emb["V"]),
+                                torch.from_numpy(emb["T"]), labels, torch.from_numpy(rv),
+                                torch.from_numpy(rl), GeneratorTrainConfig(k=2, **budget),
+                                "text-lm-test")
+    assert gen.decoder.has_lora and isinstance(gen.integrator, NeighbourText) and history
