@@ -88,6 +88,8 @@ def test_a_checkpoint_names_the_model_and_serves_the_same_words(decoder, tmp_pat
     folder = save_generator(tmp_path / "ra", gen, {"lm": LM}, half=False)
     config = json.loads((folder / "config.json").read_text())
     assert config["decoder"]["kind"] == "hf" and config["decoder"]["path"] == LM
+    # the small decoder's architecture is not recorded for a model whose folder decides it
+    assert not {"hidden", "layers", "heads", "intermediate"} & set(config["decoder"])
     # the model's 135 M weights (540 MB) are referenced, never copied: the file holds the
     # prompt and the integrator (2.7 M parameters at this width), the adapter lies beside it
     assert (folder / WEIGHTS).stat().st_size < 20e6

@@ -469,7 +469,8 @@ def decide_gated(groups: dict) -> tuple[str, str]:
 def format_premise(r: dict) -> str:
     """The premise's figures as a table, then the verdict."""
     c = r["config"]
-    lines = [f"the premise on the world ({c['runs']} runs: seeds and draws {c['seeds']}; "
+    on = f" on the generators of {c['lm']}" if c.get("lm") else ""
+    lines = [f"the premise on the world{on} ({c['runs']} runs: seeds and draws {c['seeds']}; "
              f"{c['n']} pairs per group; K={c['k']}; judge {c['judge']}; regime {c['regime']})",
              f"scarce materials: {', '.join(r['scarce_materials'])}",
              f"{'group':<8}{'baseline':>9}{'RA-Touch':>9}  {'gain [pooled 95% CI]':<26}"

@@ -25,7 +25,7 @@ import logging
 import os
 import re
 import warnings
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Protocol, Sequence
 
@@ -50,6 +50,10 @@ MAX_DESCRIPTION_WORDS = 5
 SMALL_MAX_POSITIONS = 512
 _IGNORE = -100
 _TOKEN_RE = re.compile(r"<[a-z]+>|[a-z0-9][a-z0-9'\-]*|[,?.]")
+
+
+#: `DecoderConfig` fields that describe the small decoder only.
+SMALL_ONLY = ("hidden", "layers", "heads", "intermediate")
 
 
 @dataclass
@@ -113,6 +117,16 @@ class DecoderConfig:
         if self.dtype not in DTYPES:
             raise ConfigError(f"DecoderConfig.dtype must be one of {tuple(DTYPES)}, "
                               f"got {self.dtype!r}")
+
+    def saved(self) -> dict:
+        """The config as a checkpoint records it: for kind "hf" without the small decoder's
+        architecture fields, which the model's own folder decides (a checkpoint of SmolLM2
+        said "hidden 256, 4 layers", which it is not); loading fills in their defaults."""
+        d = asdict(self)
+        if self.kind == "hf":
+            for name in SMALL_ONLY:
+                d.pop(name)
+        return d
 
 
 class TextCodec(Protocol):

@@ -280,7 +280,7 @@ def save_generator(folder: str | os.PathLike, gen: RATouchGenerator,
     config = {
         "format": FORMAT,
         "prompt": asdict(gen.prompt.cfg),
-        "decoder": asdict(dec.cfg),
+        "decoder": dec.cfg.saved(),
         "integrator": None if gen.integrator is None else
         (asdict(icfg) if dataclasses.is_dataclass(icfg) and not isinstance(icfg, type) else {}),
         "lora": dec.has_lora,
