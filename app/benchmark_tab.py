@@ -26,6 +26,9 @@ MAX_FIGURES = 12  # plot slots of the tab
 #: The premise's results, newest last: (file, what it was run on).
 PREMISES = (("premise-result.json", "before the visual prior"),
             ("premise-result-prior.json", "with the visual prior (the shipped weights' recipe)"))
+#: The text arm's premise runs: (file, the generator it ran on).
+TEXT_ARMS = (("premise-result-text.json", "small decoder (shipped)"),
+             ("premise-result-text-smollm2.json", "SmolLM2-135M"))
 FRAMES_GLOB = "frames-real-*.json"
 
 
@@ -104,6 +107,9 @@ def story_md(docs: Path, weights: tuple[str, str] | None) -> str:
         parts.append(f"<span class='ra-muted'>The shipped weights: {weights[0]} (commit "
                      f"{weights[1]}). Each result below says when it was made.</span>")
     parts.append(_premise_md(docs, weights))
+    arms = _text_arm_md(docs, weights)
+    if arms:
+        parts.append(arms)
     parts.append(_frames_md(docs, weights))
     return "\n\n".join(parts)
 
@@ -144,6 +150,44 @@ def _premise_md(docs: Path, weights) -> str:
     latest = found[-1][2]
     return (f"{head}: **{latest.get('verdict', '?')}** — {latest.get('verdict_reason', '')}."
             "\n\n" + "\n".join(rows))
+
+
+def _text_arm_md(docs: Path, weights) -> str:
+    """The text arm against the paper's integrator on the same neighbours, per generator it
+    ran on; empty where no run is stored."""
+    found = [(docs / name, what, _read(docs / name)) for name, what in TEXT_ARMS]
+    found = [(p, what, d) for p, what, d in found if d is not None]
+    if not found:
+        return ""
+    nan = float("nan")
+    rows = ["| generator | group | baseline | paper (integrator) | text arm | text − paper "
+            "[95% CI] | text shuffle drop, p |", "|---|---|---|---|---|---|---|"]
+    for path, what, d in found:
+        when = view.figure_provenance(figure_made(path), weights)
+        first = True
+        for group in ("seen", "scarce"):
+            g = d.get("groups", {}).get(group) or {}
+            t = g.get("neighbour_text")
+            if not t:
+                continue
+            lo, hi = t.get("vs_paper_ci95", (nan, nan))
+            rows.append(f"| {f'{what} — {when} ' if first else ''}| {group} "
+                        f"| {g['baseline']:.3f} | {g['ra_touch']:.3f} | {t['score']:.3f} "
+                        f"| {t['vs_paper']:+.3f} [{lo:+.3f}, {hi:+.3f}] "
+                        f"| {t['shuffle_drop']:+.3f}, p = {t['shuffle_p']:.1g} |")
+            first = False
+        test = d.get("arms_test") or {}
+        score, diff = test.get("score", {}), test.get("text_vs_paper")
+        if diff and "text" in score:
+            lo, hi = diff.get("ci95", (nan, nan))
+            rows.append(f"| | world test split | {score['baseline']:.3f} | {score['paper']:.3f} "
+                        f"| {score['text']:.3f} | {diff['diff']:+.3f} [{lo:+.3f}, {hi:+.3f}] "
+                        "| — |")
+    page = view.docs_url(docs, "premise.md")
+    return ("**The neighbours as text** (an arm that writes the retrieved captions into the "
+            "generator's prompt, against the paper's integrator on the same neighbours; one "
+            "run each" + (f"; [criteria and verdicts]({page})" if page else "") + ")\n\n"
+            + "\n".join(rows))
 
 
 def _frames_md(docs: Path, weights) -> str:

@@ -1272,3 +1272,15 @@ def test_the_benchmarks_story_dates_the_premise_and_the_real_frames():
     assert "before the visual prior — made 2026-11-23" in md
     assert "Taxim's GelSight / Mini | 72 / 72" in md and "reference DIGIT" in md
     assert "ratouch-docs/premise.md" in md and str(DOCS) not in md
+    # the text arm, on each generator it ran on, against the paper's integrator
+    assert "**The neighbours as text**" in md
+    assert "| small decoder (shipped) — made 2026-11-28" in md
+    assert "| | scarce | 6.622 | 6.577 | 6.162 | -0.415 [-0.585, -0.257] |" in md
+    assert "SmolLM2-135M — made 2026-11-28" in md
+    assert "| | world test split | 5.913 | 6.587 | 7.25" in md
+
+
+def test_the_benchmarks_story_shows_no_text_arm_table_without_its_runs(tmp_path):
+    from app.benchmark_tab import story_md
+
+    assert "neighbours as text" not in story_md(tmp_path, None)
