@@ -162,7 +162,7 @@ def test_premise_judges_the_text_arm_on_the_groups_and_the_test_split(real_pipel
     from ratouch.model.neighbour_text import NeighbourText
     from ratouch.paths import generator_weights
 
-    def untrained(encoder, run, progress=False):
+    def untrained(encoder, run, progress=False, lm=None):
         gen = load_generator(generator_weights(encoder, "ra"), stage1=True)
         gen.integrator = NeighbourText.build(
             [e.caption for e in real_pipeline.corpus.entries],
