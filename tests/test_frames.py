@@ -90,6 +90,9 @@ def test_eval_frames_cli_on_a_folder(tmp_path, capsys, shipped_corpus):
     assert main(["eval", "frames", str(tmp_path), "--background", str(tmp_path / "bg.png"),
                  "--json", "--k", "2", "--corpus", str(shipped_corpus)]) == 0
     out = json.loads(capsys.readouterr().out)
+    assert out["command"].startswith(f"ratouch eval frames {tmp_path} --background ")
+    assert out["encoder"] == "default-s" and out["corpus"] == str(shipped_corpus)
+    assert len(out["measured"]) == 10 and out["seconds"] >= 0
     rows = {r["frame"]: r for r in out["frames"]}
     assert set(rows) == {"press.png", "blank.png"}
     assert rows["press.png"]["state"] == "contact" and len(rows["press.png"]["neighbours"]) == 2

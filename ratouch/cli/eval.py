@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 
 from ratouch.cli.common import usage, world_cfg
@@ -127,10 +128,21 @@ def _eval_frames(args: argparse.Namespace) -> int:
         frames += digit_frames(reference_dir())
     else:
         frames = frames_in(args.folder, args.background)
+    t0 = time.perf_counter()
     pipeline = RATouchPipeline.load(args.encoder, args.corpus)
     rows = read_frames(pipeline, frames, k=args.k)
-    print(json.dumps({"frames": rows, "summary": summarise(rows)}, indent=1) if args.json
-          else format_frames(rows))
+    if args.json:  # with its provenance: the app's Benchmarks tab dates a stored check by it
+        command = " ".join(["ratouch eval frames", "--real" if args.real else str(args.folder)]
+                           + [f"--{n} {getattr(args, n)}" for n in ("background", "corpus")
+                              if getattr(args, n)]
+                           + [f"--encoder {args.encoder}", f"--k {args.k}", "--json"])
+        print(json.dumps({"measured": time.strftime("%Y-%m-%d", time.gmtime()),
+                          "command": command, "encoder": args.encoder,
+                          "corpus": str(args.corpus) if args.corpus else None,
+                          "seconds": round(time.perf_counter() - t0, 1),
+                          "frames": rows, "summary": summarise(rows)}, indent=1))
+    else:
+        print(format_frames(rows))
     if args.sheet:
         print(f"height maps: {height_sheet(pipeline.trust, frames, args.sheet)}",
               file=sys.stderr)
