@@ -93,7 +93,7 @@ class NeighbourText(nn.Module):
         word-level tokenizer, more for a sub-word one).
 
         Only the rows of the decoder's embedding table that the captions use are kept (a
-        pretrained model's table has ~50k rows; the captions use a few hundred)."""
+        pretrained model's table has ~50k rows; the corpus's captions use about a hundred)."""
         keys = np.array(keys, np.float32)  # a copy: the corpus's arrays are memory-mapped
         if keys.ndim != 2 or len(keys) != len(captions):
             raise ConfigError(f"keys must be (N={len(captions)}, D), got {keys.shape}")
