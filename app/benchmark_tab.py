@@ -25,7 +25,9 @@ from ratouch.eval.report import last_commit, weights_commit
 MAX_FIGURES = 12  # plot slots of the tab
 #: The premise's results, newest last: (file, what it was run on).
 PREMISES = (("premise-result.json", "before the visual prior"),
-            ("premise-result-prior.json", "with the visual prior (the shipped weights' recipe)"))
+            ("premise-result-prior.json", "with the visual prior (the shipped weights' recipe)"),
+            ("premise-result-3runs.json", "the shipped weights, 3 draws (the gated system "
+             "beside it in docs/premise.md)"))
 #: The text arm's premise runs: (file, the generator it ran on).
 TEXT_ARMS = (("premise-result-text.json", "small decoder (shipped)"),
              ("premise-result-text-smollm2.json", "SmolLM2-135M"))

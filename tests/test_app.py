@@ -1270,6 +1270,7 @@ def test_the_benchmarks_story_dates_the_premise_and_the_real_frames():
     md = story_md(DOCS, ("2026-11-27", "5a9ccf2"))
     assert "**refuted**" in md and "+0.051 [-0.004, +0.110]" in md  # the verdict's figures
     assert "before the visual prior — made 2026-11-23" in md
+    assert "the shipped weights, 3 draws" in md and "-0.019 [-0.090, +0.064]" in md
     assert "Taxim's GelSight / Mini | 72 / 72" in md and "reference DIGIT" in md
     assert "ratouch-docs/premise.md" in md and str(DOCS) not in md
     # the text arm, on each generator it ran on, against the paper's integrator
