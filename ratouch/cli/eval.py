@@ -100,11 +100,7 @@ def _eval_premise(args: argparse.Namespace) -> int:
         print(json.dumps(why_ignored(args.encoder), indent=1))
         return 0
     say = (lambda m: print(m, file=sys.stderr)) if args.json else print
-    if args.lm is not None:
-        _check_lm(args)
-        if args.runs != 1:
-            raise usage(f"--runs {args.runs}: on the generators of --lm {args.lm} only run 0 "
-                        "(the shipped pair) exists; use --runs 1")
+    _check_lm(args)  # run_premise refuses --runs above 1 on an LM before loading anything
     r = run_premise(args.encoder, runs=args.runs, n=args.n, k=args.k, progress=say,
                     arm=not args.no_arm, arms=args.arms, lm=args.lm)
     print(json.dumps(r, indent=1) if args.json else format_premise(r))

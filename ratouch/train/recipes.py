@@ -228,8 +228,8 @@ def arm_budget(stage1, **train_overrides) -> dict:
 def token_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
                      world_seed: int = 0, out=None, progress: bool = False, **train_overrides):
     """The neighbour-token arm (`ratouch.model.neighbour_tokens`), trained with RA-Touch's
-    stage-2 budget (`arm_budget`) from the stage-1 model inside `stage1_from` (a RA-Touch checkpoint folder)
-    on the same paired data; saved to `out`. Returns (generator, report)."""
+    stage-2 budget (`arm_budget`) from the stage-1 model inside `stage1_from` (a RA-Touch
+    checkpoint folder) on the same paired data; saved to `out`. Returns (generator, report)."""
     t0 = time.perf_counter()
     stage1 = load_generator(stage1_from, stage1=True)
     tc = GeneratorTrainConfig(seed=seed, **arm_budget(stage1, **train_overrides))
@@ -249,9 +249,9 @@ def token_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
 def text_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
                     world_seed: int = 0, out=None, progress: bool = False, **train_overrides):
     """The text arm (`ratouch.model.neighbour_text`: the neighbours' captions written into the
-    prompt), trained with RA-Touch's stage-2 budget (`arm_budget`) from the stage-1 model inside
-    `stage1_from` (a RA-Touch checkpoint folder) on the same paired data and joint-query
-    neighbours; saved to `out`. Returns (generator, report)."""
+    prompt), trained with RA-Touch's stage-2 budget (`arm_budget`) from the stage-1 model
+    inside `stage1_from` (a RA-Touch checkpoint folder) on the same paired data and
+    joint-query neighbours; saved to `out`. Returns (generator, report)."""
     t0 = time.perf_counter()
     stage1 = load_generator(stage1_from, stage1=True)
     tc = GeneratorTrainConfig(seed=seed, **arm_budget(stage1, **train_overrides))
