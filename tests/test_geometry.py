@@ -161,3 +161,60 @@ def test_eval_presses_cli(capsys):
     rep = json.loads(capsys.readouterr().out)
     assert set(rep) == {"digit", "gelsight", "mini"}
     assert set(rep["mini"]["kinds"]) >= {"fabric", "foam", "edge"}
+
+
+class _ReadsSoftWithBackground:
+    """A stand-in pipeline: "soft, plush" where a background is given, no contact without."""
+
+    def __init__(self):
+        self.queries = 0
+
+    def query(self, visual, tactile, box, k, background=None):
+        self.queries += 1
+        state = "contact" if background is not None else "no contact"
+        return {"trust": {"tactile": {"state": state, "contact": 1.0,
+                                      "sensor": {"family": "mini"}}},
+                "neighbours": {"tactile": [{"caption": "soft, plush"}]},
+                "description": {"ra_touch": "soft"}, "warnings": []}
+
+
+def test_press_readings_count_firmness_refusals_and_the_judge():
+    """`eval presses --readings`: hard presses read "soft" count as hard-read-soft, a refused
+    press has no firmness and scores as an empty answer, and every family and kind is read
+    with and without its background."""
+    from ratouch.eval.judge import OfflineJudge
+    from ratouch.eval.presses import material_label, press_readings
+    from ratouch.world.presses import PRESS_KINDS
+
+    pipe = _ReadsSoftWithBackground()
+    rep = press_readings(pipe, OfflineJudge(), n=1, seed=0)
+    assert set(rep) == {"digit", "gelsight", "mini"}
+    assert pipe.queries == 3 * 2 * len(PRESS_KINDS)
+    for fam in rep.values():
+        bg, alone = fam["with_background"], fam["without_background"]
+        assert bg["presses"] == len(PRESS_KINDS) == bg["hard"] + bg["soft"]
+        assert bg["soft"] >= 2  # fabric and foam at least
+        assert bg["refused"] == 0 and bg["hard_read_soft"] == bg["hard"]
+        assert bg["soft_read_hard"] == 0 and bg["distinct_readings"] == 1
+        assert bg["firmness_right"] == round(bg["soft"] / bg["presses"], 4)
+        assert alone["refused"] == alone["presses"] and alone["hard_read_soft"] == 0
+        assert alone["firmness_right"] == 0 and alone["distinct_readings"] == 0
+        assert bg["judge"] > alone["judge"]  # an empty answer scores lowest
+    assert material_label("terry_cloth").count(",") == 4
+
+
+def test_eval_presses_readings_cli(monkeypatch, capsys):
+    """`ratouch eval presses --readings N` reads through the pipeline it loads and prints the
+    readings table (and the JSON's "readings")."""
+    from ratouch.cli import eval as cli_eval
+
+    monkeypatch.setattr(cli_eval.RATouchPipeline, "load",
+                        classmethod(lambda cls, *a, **kw: _ReadsSoftWithBackground()))
+    assert main(["eval", "presses", "--n", "1", "--blanks", "1", "--readings", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "| family | background | refused | hard read soft |" in out
+    assert "| mini | without | 7/7 |" in out
+    assert main(["eval", "presses", "--n", "1", "--blanks", "1", "--readings", "1",
+                 "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["readings"]["gelsight"]["with_background"]["refused"] == 0

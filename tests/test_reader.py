@@ -108,16 +108,28 @@ def test_train_reader_cli_wires_the_recipe(monkeypatch, capsys, tmp_path):
     assert out == {"system": "gated", "seconds": 0.1}             # the history is left out
     assert seen["seed"] == 2 and seen["stage2_steps"] == 7 and seen["out"] == str(tmp_path / "r")
     assert seen["stage1_from"].endswith("generator/default-s/ra")
+    assert seen["arm"] == recipes.READER_ARM                      # the shipped reader's form
+    assert main(["train", "reader", "--arm", "text", "--out", str(tmp_path / "r")]) == 0
+    assert seen["arm"] == "text"
+
+
+def test_reader_arm_must_be_known():
+    with pytest.raises(ConfigError, match="known arms are integrator, text"):
+        recipes.reader_recipe("default-s", "nowhere", arm="pointer")
 
 
 @pytest.mark.slow
 @pytest.mark.skipif(not HAVE_ASSETS, reason="the trained weights are not in assets/")
+@pytest.mark.parametrize("arm", recipes.READER_ARMS)
 def test_reader_trains_on_a_few_pairs_and_answers_the_gated_system(real_pipeline, world,
-                                                                   tmp_path):
-    """The reader end to end on 24 world training pairs (3 steps): it saves, loads for
+                                                                   tmp_path, arm):
+    """The reader, in either form (a Texture-Aware Integrator, or the neighbours' captions in
+    the prompt), end to end on 24 world training pairs (3 steps): it saves, loads for
     serving, and a request naming "gated" is answered by it (the result says so), while
     "paper" keeps the paper's generator."""
     from ratouch.model.generator import load_generator, save_generator
+    from ratouch.model.integrator import TextureAwareIntegrator
+    from ratouch.model.neighbour_text import NeighbourText
     from ratouch.paths import generator_weights
     from ratouch.serve.pipeline import RATouchPipeline, load_for_serving
     from ratouch.serve.request import QueryRequest
@@ -138,11 +150,14 @@ def test_reader_trains_on_a_few_pairs_and_answers_the_gated_system(real_pipeline
                                                    torch.Generator().manual_seed(0))).numpy()
     stage1 = load_generator(generator_weights("default-s", "ra"), stage1=True)
     tc = GeneratorTrainConfig(stage2_steps=3, batch=8)
-    gen, info = recipes.train_reader(p, p.encoders, stage1, data, V, T, labels, tc)
+    gen, info = recipes.train_reader(p, p.encoders, stage1, data, V, T, labels, tc, arm)
     assert info["episodes"]["n_pairs"] == 24 and 0 < info["episodes"]["degraded"] < 24
-    assert gen.integrator is not None and len(info["history"]) == 1
+    assert info["arm"] == arm and len(info["history"]) == 1
+    form = NeighbourText if arm == "text" else TextureAwareIntegrator
+    assert isinstance(gen.integrator, form)
     save_generator(tmp_path / "reader", gen, {"encoder": "default-s", **info}, half=True)
     reader = load_for_serving(tmp_path / "reader")
+    assert isinstance(reader.integrator, form)
     pipe = RATouchPipeline(p.retriever, p.tgr, p.generator_ra, p.generator_base, pca=p.pca,
                            trust=p.trust, gate=p.gate, generator_reader=reader)
     s = world.sample("test", 12)

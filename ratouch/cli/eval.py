@@ -25,7 +25,7 @@ from ratouch.eval.frames import (
     summarise,
     taxim_frames,
 )
-from ratouch.eval.judge import format_stats, format_summary, read_records
+from ratouch.eval.judge import OfflineJudge, format_stats, format_summary, read_records
 from ratouch.eval.photos import (
     evaluate_photos,
     evaluate_real_pairs,
@@ -36,7 +36,12 @@ from ratouch.eval.photos import (
     reference_dir,
 )
 from ratouch.eval.premise import format_premise, run_premise, why_ignored
-from ratouch.eval.presses import format_press_contact, press_contact
+from ratouch.eval.presses import (
+    format_press_contact,
+    format_press_readings,
+    press_contact,
+    press_readings,
+)
 from ratouch.eval.recaption import format_recaption_agreement, recaption_agreement
 from ratouch.eval.retrieval import evaluate_retrieval, format_retrieval_eval
 from ratouch.eval.sensor_families import evaluate_families, format_families
@@ -112,7 +117,17 @@ def _eval_presses(args: argparse.Namespace) -> int:
     if trust is None:
         raise DataNotFoundError(f"no trust calibration for {args.encoder}")
     rep = press_contact(trust, n=args.n, blanks=args.blanks, seed=args.seed)
-    print(json.dumps(rep, indent=1) if args.json else format_press_contact(rep))
+    readings = None
+    if args.readings:
+        readings = press_readings(RATouchPipeline.load(args.encoder), OfflineJudge(),
+                                  n=args.readings, seed=args.seed + 1)
+    if args.json:
+        print(json.dumps({**rep, "readings": readings} if readings else rep, indent=1))
+        return 0
+    print(format_press_contact(rep))
+    if readings:
+        print()
+        print(format_press_readings(readings))
     return 0
 
 

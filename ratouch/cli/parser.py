@@ -246,6 +246,10 @@ def _add_train(sub) -> None:
                     help="stage-2 steps (default: RA-Touch's, 600)")
     rd.add_argument("--out", default=None,
                     help="checkpoint folder (default: assets/generator/ENCODER/reader)")
+    rd.add_argument("--arm", choices=("integrator", "text"), default=None,
+                    help="how the reader hands its neighbours to the decoder: a Texture-Aware "
+                         "Integrator or their captions in the prompt (default: the shipped "
+                         "reader's form)")
     ge = tsub.add_parser("geometry", help="fit each sensor family's colour-to-gradient lookup "
                                           "(Taxim's real ball presses; the DIGIT shader's "
                                           "renders) and its contact floors on blank renders")
@@ -403,6 +407,10 @@ def _add_eval(sub) -> None:
     pe.add_argument("--n", type=_pos_int, default=10, help="presses per family and kind")
     pe.add_argument("--blanks", type=_pos_int, default=40, help="blank pairs per family")
     pe.add_argument("--seed", type=_nonneg_int, default=1)
+    pe.add_argument("--readings", type=_nonneg_int, default=0, metavar="N",
+                    help="also read N presses per family and kind through the whole pipeline "
+                         "by touch alone, with and without the background: hard against "
+                         "soft, the judge against the material's words, distinct readings")
     pe.add_argument("--json", action="store_true")
     rp = esub.add_parser("recaption", help="recaptioners against the world's own adjectives "
                                            "on corpus entries: adjective F1 and offline judge, "

@@ -71,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
             _, rep = recipes.reader_recipe(
                 args.encoder, generator_weights(args.encoder, "ra"), seed=args.seed,
                 out=args.out or generator_weights(args.encoder, "reader"),
+                arm=args.arm or recipes.READER_ARM,
                 **({"stage2_steps": args.steps} if args.steps else {}))
         print(json.dumps({k: v for k, v in rep.items() if k != "history"}))
         return 0

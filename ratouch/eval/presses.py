@@ -2,8 +2,10 @@
 (`ratouch.world.presses`), per sensor family and press kind, with and without the sensor's
 background (captured at another moment, drifted as Taxim's real pairs drift), and false
 alarms on drifted blank pairs; the shipped trust calibration's decision, and the
-structured-change check alone. Renders only: the figures the thresholds were not set on
-(fresh seeds)."""
+structured-change check alone. With `--readings`, what the whole pipeline reads from those
+presses by touch alone (`press_readings`): hard against soft, the judge against the pressed
+material's own words, and how many distinct readings. Renders only: the figures the
+thresholds were not set on (fresh seeds)."""
 
 from __future__ import annotations
 
@@ -11,9 +13,14 @@ from collections import defaultdict
 
 import numpy as np
 
+from ratouch.eval.frames import Frame, read_frame
 from ratouch.model.trust import TrustCalibration
+from ratouch.world.material import material
 from ratouch.world.presses import PRESS_KINDS, render_blank_pair, render_press
 from ratouch.world.sensors import family_names
+
+#: Adjectives of a pressed material's reference label: its profile's strongest words.
+LABEL_WORDS = 5
 
 
 def press_contact(trust: TrustCalibration, n: int = 10, blanks: int = 40, seed: int = 1
@@ -91,4 +98,65 @@ def format_press_contact(rep: dict) -> str:
                      f"{f['false_alarm_without_background']:.3f} | "
                      f"{f['blank_recognised_with_background']:.3f} | "
                      f"{f['blank_recognised_without_background']:.3f} |")
+    return "\n".join(lines)
+
+
+def material_label(name: str) -> str:
+    """A material's reference label for the judge: its `LABEL_WORDS` most weighted tactile
+    adjectives (`Material.profile`), comma-joined."""
+    words = sorted(material(name).profile, key=lambda wv: -wv[1])[:LABEL_WORDS]
+    return ", ".join(w for w, _ in words)
+
+
+def press_readings(pipeline, judge, n: int = 4, seed: int = 2, k: int = 5) -> dict:
+    """What the pipeline reads by touch alone (beside a mid-grey visual, `eval.frames
+    .read_frame`) from `n` renders per family and press kind, each with its drifted
+    background and without it.
+
+    Per family and way of reading (``with_background``, ``without_background``): how many
+    presses; how many were refused ("no contact"); of the hard presses (compliance below
+    `presses.SOFT_AT`) how many read soft, of the soft ones how many read hard (a reading's
+    firmness from the judge's soft and hard words, `frames.firmness`; a refused press has
+    none); the share whose firmness is right (a refused press is not); the offline judge of the reading against the pressed material's own
+    words (`material_label`), a refused press scoring as an empty answer; and how many
+    distinct readings."""
+    rng = np.random.default_rng([seed, 912])
+    out: dict = {}
+    for fam in family_names():
+        presses = [render_press(fam, rng, kind) for kind in PRESS_KINDS for _ in range(n)]
+        out[fam] = {}
+        for way in ("with_background", "without_background"):
+            rows = [read_frame(pipeline, Frame(f"{p.kind} {p.material}", p.frame,
+                                               p.background if way == "with_background"
+                                               else None), k)
+                    for p in presses]
+            # a refused press has no reading: neither firmness, and not right
+            firm = [r["firmness"] if r["state"] != "no contact" else "refused" for r in rows]
+            hard = [f for f, p in zip(firm, presses) if not p.soft]
+            soft = [f for f, p in zip(firm, presses) if p.soft]
+            right = sum(f == ("soft" if p.soft else "hard") for f, p in zip(firm, presses))
+            scores = judge.score_many([(material_label(p.material),
+                                        r["reading"] if r["state"] != "no contact" else None)
+                                       for r, p in zip(rows, presses)])
+            out[fam][way] = {
+                "presses": len(rows), "hard": len(hard), "soft": len(soft),
+                "refused": sum(r["state"] == "no contact" for r in rows),
+                "hard_read_soft": hard.count("soft"),
+                "soft_read_hard": soft.count("hard"),
+                "firmness_right": round(right / len(rows), 4),
+                "judge": round(float(np.mean(scores)), 3),
+                "distinct_readings": len({r["reading"] for r in rows
+                                          if r["state"] != "no contact"})}
+    return out
+
+
+def format_press_readings(rep: dict) -> str:
+    lines = ["| family | background | refused | hard read soft | soft read hard | "
+             "firmness right | judge | distinct readings |", "|---|---|---|---|---|---|---|---|"]
+    for fam, ways in rep.items():
+        for way, r in ways.items():
+            lines.append(f"| {fam} | {'with' if way == 'with_background' else 'without'} | "
+                         f"{r['refused']}/{r['presses']} | {r['hard_read_soft']}/{r['hard']} | "
+                         f"{r['soft_read_hard']}/{r['soft']} | {r['firmness_right']:.2f} | "
+                         f"{r['judge']:.2f} | {r['distinct_readings']} |")
     return "\n".join(lines)

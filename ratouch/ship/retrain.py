@@ -26,7 +26,12 @@ from ratouch.timing import Laps
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
 from ratouch.train.gate import gate_recipe
 from ratouch.train.geometry import calibrate as calibrate_geometry
-from ratouch.train.recipes import generator_recipe, reader_recipe, retriever_recipe
+from ratouch.train.recipes import (
+    READER_ARM,
+    generator_recipe,
+    reader_recipe,
+    retriever_recipe,
+)
 from ratouch.train.trust import TrustConfig, calibrate
 
 
@@ -76,7 +81,8 @@ def train_all(seed: int = 0, progress: bool = True, report=print, encoders: bool
         lap(f"generators_{name}")
         # the gated system's reader: stage 2 again from the new RA-Touch's stage 1
         _, rep = reader_recipe(name, generator_weights(name, "ra"), seed=seed,
-                               out=generator_weights(name, "reader"), progress=progress)
+                               out=generator_weights(name, "reader"), progress=progress,
+                               arm=READER_ARM)
         report({"reader": name, **{k: v for k, v in rep.items() if k != "history"}})
         lap(f"reader_{name}")
     cascade = calibrate_cascade([RATouchPipeline.load(n, progress=progress)

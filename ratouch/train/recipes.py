@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch import nn
 
 from ratouch.checkpoint import MANIFEST, checkpoint_fingerprint
 from ratouch.encoders.factory import create_model
@@ -332,29 +333,51 @@ def reader_episodes(side: RetrievalSide, encoders, data: dict, V: np.ndarray, T:
     return {"T": T_ep, "degraded": bad, "ids": side.joint_neighbours(V, T_ep, k, gated=True)}
 
 
+#: How a reader hands its neighbours to the decoder: "integrator" (a fresh Texture-Aware
+#: Integrator, the paper's form) or "text" (their captions in the prompt, `NeighbourText`).
+READER_ARMS = ("integrator", "text")
+#: The shipped reader's form (docs/premise.md, "The reader in words": which reader ships).
+READER_ARM = "integrator"
+
+
 def train_reader(side: RetrievalSide, encoders, stage1, data: dict, V: np.ndarray,
-                 T: np.ndarray, labels: list[str], tc: GeneratorTrainConfig):
+                 T: np.ndarray, labels: list[str], tc: GeneratorTrainConfig,
+                 arm: str = "integrator"):
     """Stage 2 of the reader from `stage1` (a generator without LoRA; not changed): a fresh
-    Texture-Aware Integrator and LoRA, RA-Touch's budget, on `reader_episodes`.
-    Returns (generator, {"integrator", "episodes"})."""
+    Texture-Aware Integrator (`arm` "integrator") or the neighbours as text (`arm` "text",
+    docs/premise.md "The reader in words") and LoRA, RA-Touch's budget, on `reader_episodes`.
+    Returns (generator, {"arm", "integrator", "episodes"})."""
+    if arm not in READER_ARMS:
+        raise ConfigError(f"reader arm {arm!r}: known arms are {', '.join(READER_ARMS)}")
     ep = reader_episodes(side, encoders, data, V, T, tc.k, tc.seed)
     rv, rl = side.neighbour_embeddings(ep["ids"])
-    icfg = IntegratorConfig(dim=encoders.dim, out_dim=stage1.decoder.hidden)
+    module: nn.Module
+    if arm == "text":
+        module = NeighbourText.build([e.caption for e in side.corpus.entries],
+                                     side.corpus_embeddings("tactile_caption"), stage1.decoder)
+        spec: dict = asdict(module.cfg)
+    else:
+        icfg = IntegratorConfig(dim=encoders.dim, out_dim=stage1.decoder.hidden)
+        module, spec = TextureAwareIntegrator(icfg), asdict(icfg)
     gen, history = train_stage2(
-        stage1, TextureAwareIntegrator(icfg), torch.from_numpy(np.asarray(V, np.float32)),
+        stage1, module, torch.from_numpy(np.asarray(V, np.float32)),
         torch.from_numpy(ep["T"]), list(labels), torch.from_numpy(rv), torch.from_numpy(rl),
         tc, "reader-lora")
-    return gen, {"integrator": asdict(icfg), "history": history,
+    return gen, {"arm": arm, "integrator": spec, "history": history,
                  "episodes": {"degraded_share": READER_DEGRADED_SHARE,
                               "noise_rms": READER_NOISE_RMS,
                               "degraded": int(ep["degraded"].sum()), "n_pairs": len(V)}}
 
 
 def reader_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
-                  world_seed: int = 0, out=None, progress: bool = False, **train_overrides):
-    """The `gated` system's generator, the reader (`train_reader`), from the stage-1 model
-    inside `stage1_from` (a RA-Touch checkpoint folder) on a draw's paired split, with the
-    shipped retrieval side and touch gate; saved to `out`. Returns (generator, report)."""
+                  world_seed: int = 0, out=None, progress: bool = False,
+                  arm: str = READER_ARM, **train_overrides):
+    """The `gated` system's generator, the reader (`train_reader`, in the form `arm`), from
+    the stage-1 model inside `stage1_from` (a RA-Touch checkpoint folder) on a draw's paired
+    split, with the shipped retrieval side and touch gate; saved to `out`.
+    Returns (generator, report)."""
+    if arm not in READER_ARMS:
+        raise ConfigError(f"reader arm {arm!r}: known arms are {', '.join(READER_ARMS)}")
     t0 = time.perf_counter()
     tc = GeneratorTrainConfig(seed=seed, **train_overrides)
     torch.set_num_threads(tc.threads)
@@ -369,7 +392,7 @@ def reader_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
     model, data, emb = _pairs(encoder, world_seed, progress, draw)
     stage1 = load_generator(stage1_from, stage1=True)
     gen, info = train_reader(side, model, stage1, data, emb["V"], emb["T"],
-                             list(data["labels"]), tc)
+                             list(data["labels"]), tc, arm)
     report = {"system": "gated", "generator": "reader", "seed": seed, "draw": draw,
               "stage1_from": str(stage1_from), "train": asdict(tc), **info,
               "seconds": round(time.perf_counter() - t0, 1)}
