@@ -337,7 +337,7 @@ def reader_episodes(side: RetrievalSide, encoders, data: dict, V: np.ndarray, T:
 #: Integrator, the paper's form) or "text" (their captions in the prompt, `NeighbourText`).
 READER_ARMS = ("integrator", "text")
 #: The shipped reader's form (docs/premise.md, "The reader in words": which reader ships).
-READER_ARM = "integrator"
+READER_ARM = "integrator"  # the reader in words lost to it (docs/premise.md)
 
 
 def train_reader(side: RetrievalSide, encoders, stage1, data: dict, V: np.ndarray,
