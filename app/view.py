@@ -241,8 +241,10 @@ def retrieval_md(trace: RetrievalTrace) -> str:
                    if changes else "RA-Touch said the baseline's words in another order")
     spread = ("nearly even: no neighbour stands out" if trace.nearly_even else
               f"an even share is {trace.even_share:.0%}")
-    lines = [f"**What retrieval did:** {verdict}. {touch_md(trace)} Read most (the "
-             f"integrator's attention; {spread}):"]
+    read = ("Read (their captions written into the prompt, in rank order: no integrator "
+            "weighs them):" if trace.generator == "text" else
+            f"Read most (the integrator's attention; {spread}):")
+    lines = [f"**What retrieval did:** {verdict}. {touch_md(trace)} {read}"]
     for a in trace.attended:
         carries = (f" — carries *{', '.join(a.words)}*" if a.words else
                    " — carries none of RA-Touch's words")
@@ -256,8 +258,9 @@ def touch_md(trace: RetrievalTrace) -> str:
     title = QUERY_MODES[trace.reads].title if trace.reads in QUERY_MODES else trace.reads
     text = f"Retrieval **{escape(trace.system)}**: read the *{escape(title)}*'s neighbours"
     if trace.generator:
-        text += (" with the reader (trained to read them)" if trace.generator == "reader" else
-                 " with the paper's generator")
+        text += {"reader": " with the reader (trained to read them)",
+                 "text": " as text, their captions in the prompt"}.get(
+                     trace.generator, " with the paper's generator")
     if trace.touch_weight is None:
         return text + "."
     text += f"; touch steered it **{trace.touch_weight:.0%}**"

@@ -96,7 +96,8 @@ def test_gate_file_round_trip_and_bad_files(tmp_path):
 
 def test_the_gated_mode_and_the_retrieval_systems():
     assert "gated" in QUERY_MODES and QUERY_MODES["gated"].needs_touch
-    assert set(RETRIEVAL_SYSTEMS) == {"paper", "gated"}
+    assert set(RETRIEVAL_SYSTEMS) == {"paper", "gated", "text"}
+    assert RETRIEVAL_SYSTEMS["text"] == RETRIEVAL_SYSTEMS["paper"] == "joint"
     calls = []
 
     def joint(V, T, gated=False):

@@ -258,3 +258,21 @@ def test_a_real_photos_image_neighbours_are_its_top_class_first(pipeline):
     assert all(set(n) == {"id", "score", "class_name", "caption", "description", "source"}
                for n in image)
     assert list(result["neighbours"]) == ["image"]
+
+
+@pytest.mark.slow
+def test_the_visible_real_pairs_through_every_retrieval_system(real_pipeline):
+    """`ratouch eval photos --pairs`: per visible real pair, RA-Touch as every retrieval system
+    answers (`RETRIEVAL_SYSTEMS`), the baseline, a copy of each mode's top-1 caption and the
+    gate's weight; the table has a column per system."""
+    from ratouch.eval.photos import REAL_PAIRS, evaluate_real_pairs, format_real_pairs
+    from ratouch.search.modes import RETRIEVAL_SYSTEMS
+
+    rows = evaluate_real_pairs(real_pipeline, k=5)
+    assert 0 < len(rows) <= len(REAL_PAIRS)
+    for r in rows:
+        assert all(r[s] for s in RETRIEVAL_SYSTEMS) and r["baseline"]
+        assert {"image", "joint"} <= set(r["copy"]) and 0 <= r["touch_weight"] <= 1
+    table = format_real_pairs(rows)
+    assert all(f"RA-Touch ({s})" in table for s in RETRIEVAL_SYSTEMS)
+    assert table.count("\n") == len(rows) + 1

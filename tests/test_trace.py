@@ -75,7 +75,7 @@ def test_marked_segments_spell_the_text_and_mark_whole_words():
 
 
 def test_the_gated_system_says_who_read_and_how_far_touch_was_trusted():
-    from app.view import touch_md
+    from app.view import retrieval_md, touch_md
 
     result = _result("soft, fuzzy", "hard", ["soft, fuzzy"], [1.0], [1.0])
     result["neighbours"]["gated"] = result["neighbours"].pop("joint")
@@ -88,5 +88,13 @@ def test_the_gated_system_says_who_read_and_how_far_touch_was_trusted():
     assert "with the reader" in text and "12%" in text and "the reader answers" in text
     result["retrieval"]["generator"] = "paper"
     assert "with the paper's generator" in touch_md(trace_retrieval(result))
+    result["neighbours"]["joint"] = result["neighbours"].pop("gated")
+    result["retrieval"] = {"system": "text", "reads": "joint", "generator": "text",
+                           "touch_weight": 0.4, "why": ["captions in the prompt"]}
+    text_trace = trace_retrieval(result)
+    assert text_trace is not None and text_trace.touch_weight == 1.0   # the joint query
+    assert "as text, their captions in the prompt" in touch_md(text_trace)
+    assert "no integrator weighs them" in retrieval_md(text_trace)
+    assert "integrator's attention" not in retrieval_md(text_trace)
     del result["retrieval"]["generator"]       # an answer from before the reader says nothing
     assert trace_retrieval(result).generator == ""

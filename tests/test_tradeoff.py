@@ -67,32 +67,39 @@ def test_cascade_and_other_encoders_are_marked_against_the_reference():
 def test_the_gated_point_is_labelled_on_the_chart_and_in_the_table():
     points = [_point("flat", 10000, 5, 8.0, 40.0)]
     gated = {**_point("flat", 10000, 5, 8.1, 42.0), "system": "RA-Touch, gated (reader)"}
-    result = {"points": points + [gated], "upstream": {**points[0], "index": "upstream"},
+    text = {**_point("flat", 10000, 5, 8.2, 45.0),
+            "system": "RA-Touch, text (captions in the prompt)"}
+    result = {"points": points + [gated, text], "upstream": {**points[0], "index": "upstream"},
               "baseline_judge": 7.9, "settings": {"encoder": "default-s"}}
-    assert "RA-Touch, gated (reader)" in format_tradeoff(result)
+    table = format_tradeoff(result)
+    assert "RA-Touch, gated (reader)" in table and "RA-Touch, text (captions" in table
     others = [t for t in tradeoff_figure(result).data
               if t.name == "other encoder sets and the cascade"]
-    assert list(others[0].text) == ["default-s gated"]
+    assert list(others[0].text) == ["default-s gated", "default-s text"]
 
 
 @pytest.mark.slow
-def test_gated_point_on_the_real_pipeline(real_pipeline):
-    """The gated system's point on 12 test pairs: the reader (or the paper's generator) on the
-    gated query's neighbours, judged, timed and compared with the reference point."""
+@pytest.mark.parametrize("system", ["gated", "text"])
+def test_system_points_on_the_real_pipeline(real_pipeline, system):
+    """A system's point on 12 test pairs: the reader (or the paper's generator) on the gated
+    query's neighbours, or the text arm on the joint query's, judged, timed and compared with
+    the reference point."""
     from types import SimpleNamespace
 
-    from ratouch.bench.tradeoff import _gated_point, _raw_pairs
+    from ratouch.bench.tradeoff import _raw_pairs, _system_point
     from ratouch.eval.judge import OfflineJudge
     from ratouch.world.splits import encode_test_split
 
-    if real_pipeline.gate is None:
+    if system == "gated" and real_pipeline.gate is None:
         pytest.skip("no shipped touch gate")
+    if system == "text" and real_pipeline.generator_text is None:
+        pytest.skip("no shipped text arm")
     test = encode_test_split(real_pipeline.encoders, indices=range(12))
     lab = SimpleNamespace(pipeline=real_pipeline, test=test, judge=OfflineJudge(),
                           cfg=SimpleNamespace(encoder="default-s"))
     ref = {"judge": np.full(12, 7.0), "f1": np.full(12, 0.5), "precision_at_5": np.full(12, 0.5)}
     points = [_point("flat", len(real_pipeline.corpus), 5, 7.0, 40.0)]
-    q = _gated_point(lab, _raw_pairs(test, np.arange(4)), points, [ref])
-    assert q is not None and q["system"].startswith("RA-Touch, gated")
+    q = _system_point(lab, _raw_pairs(test, np.arange(4)), points, [ref], system)
+    assert q is not None and q["system"].startswith(f"RA-Touch, {system}")
     assert 1 <= q["judge"] <= 10 and 0 <= q["precision_at_5"] <= 1 and q["p50_ms"] > 0
     assert "judge_vs_reference" in q

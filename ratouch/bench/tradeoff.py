@@ -97,11 +97,12 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = BENCH_KINDS,
     floor, _ = _judge_stats(lab, None)  # the baseline (no retrieval) as the floor
     ref = next((sc for q, sc in zip(points, scores) if q.get("judge_vs_reference")
                 and q["index"] == "flat" and q["corpus"] == len(p.corpus) and q["k"] == 5), None)
-    gated = _gated_point(lab, pairs, points, scores)
-    if gated is not None:
-        points.append(gated)
-        say(f"gated   {gated['corpus']:>7}{5:>4}  p50 {gated['p50_ms']:7.2f} ms  "
-            f"judge {gated['judge']:.3f}  P@5 {gated['precision_at_5']:.3f}")
+    for system in ("gated", "text"):
+        point = _system_point(lab, pairs, points, scores, system)
+        if point is not None:
+            points.append(point)
+            say(f"{system:<7} {point['corpus']:>7}{5:>4}  p50 {point['p50_ms']:7.2f} ms  "
+                f"judge {point['judge']:.3f}  P@5 {point['precision_at_5']:.3f}")
     alone = {lab.cfg.encoder: _Alone(p, test, p.corpus.search("text", joint, 5), ref)}
     points += _encoder_points(other_encoders, lab, alone, pairs, say)
     cascade = _cascade_point(lab, alone, pairs, say)
@@ -192,29 +193,33 @@ def _latency(p, pairs: tuple[list, list], search, gated: bool = False,
             "search_p50_ms": _p(search_times, 50)}
 
 
-def _gated_point(lab, pairs: tuple[list, list], points: list[dict], scores: list) -> dict | None:
-    """The `gated` system on the flat index over the whole corpus, K=5: the trust-gated query's
-    neighbours read by the reader (the pipeline's `generator_reader`; the paper's RA-Touch
-    generator where none is loaded), judged and timed like the other points. None without a
-    touch gate."""
+def _system_point(lab, pairs: tuple[list, list], points: list[dict], scores: list,
+                  system: str) -> dict | None:
+    """A retrieval system beside the paper's on the flat index over the whole corpus, K=5,
+    judged and timed like the other points: `gated`, the trust-gated query's neighbours read
+    by the reader (the pipeline's `generator_reader`; the paper's RA-Touch generator where
+    none is loaded; None without a touch gate); `text`, the joint query's neighbours read as
+    text by the text arm (`generator_text`; None without one)."""
     p = lab.pipeline
-    if p.gate is None:
+    gated = system == "gated"
+    gen = (p.generator_reader or p.generator_ra) if gated else p.generator_text
+    if (gated and p.gate is None) or gen is None:
         return None
     test = lab.test
-    ids = p.corpus.search("text", p.joint_query(test.V, test.T, gated=True), 5)[1]
-    gen = p.generator_reader or p.generator_ra
+    ids = p.corpus.search("text", p.joint_query(test.V, test.T, gated=gated), 5)[1]
     judged, per_sample = _judge_stats(lab, ids, generator=gen)
     prec = material_precision(ids, test.materials, entry_materials(p.corpus))
     per_sample["precision_at_5"] = prec
     ref = next((sc for q, sc in zip(points, scores) if q["index"] == "flat"
                 and q["corpus"] == len(p.corpus) and q["k"] == 5), None)
+    name = ("RA-Touch, gated" + (" (reader)" if p.generator_reader is not None else "")
+            if gated else "RA-Touch, text (captions in the prompt)")
     return {"encoder": lab.cfg.encoder, "index": "flat", "corpus": len(p.corpus), "k": 5,
-            **_latency(p, pairs, lambda q: p.corpus.search("text", q, 5)[1], gated=True,
+            **_latency(p, pairs, lambda q: p.corpus.search("text", q, 5)[1], gated=gated,
                        generator=gen),
             **judged, **_ci("precision_at_5", prec),
             **(_vs_reference(per_sample, ref) if isinstance(ref, dict) else {}),
-            "system": "RA-Touch, gated" + (" (reader)" if p.generator_reader is not None
-                                            else "")}
+            "system": name}
 
 
 def _upstream_point(lab, pairs: tuple[list, list], points: list[dict]) -> dict:
@@ -455,6 +460,8 @@ def _short(q: dict) -> str:
         return f"cascade, {q['escalated']:.0%} escalated"
     if q["system"].startswith("RA-Touch, gated"):
         return q["encoder"] + " gated"
+    if q["system"].startswith("RA-Touch, text"):
+        return q["encoder"] + " text"
     return q["encoder"] + ("" if q["system"] == "RA-Touch" else " (retrieval only)")
 
 

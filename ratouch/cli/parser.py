@@ -250,6 +250,15 @@ def _add_train(sub) -> None:
                     help="how the reader hands its neighbours to the decoder: a Texture-Aware "
                          "Integrator or their captions in the prompt (default: the shipped "
                          "reader's form)")
+    tx = tsub.add_parser("text", help="train the text system's generator: RA-Touch's stage 2 "
+                                      "with the joint query's neighbours' captions written "
+                                      "into the prompt (no Texture-Aware Integrator)")
+    tx.add_argument("--encoder", default=DEFAULT_ENCODER)
+    tx.add_argument("--seed", type=_nonneg_int, default=0)
+    tx.add_argument("--steps", type=_pos_int, default=None,
+                    help="stage-2 steps (default: RA-Touch's, 600)")
+    tx.add_argument("--out", default=None,
+                    help="checkpoint folder (default: assets/generator/ENCODER/text)")
     ge = tsub.add_parser("geometry", help="fit each sensor family's colour-to-gradient lookup "
                                           "(Taxim's real ball presses; the DIGIT shader's "
                                           "renders) and its contact floors on blank renders")

@@ -75,6 +75,14 @@ def run(args: argparse.Namespace) -> int:
                 **({"stage2_steps": args.steps} if args.steps else {}))
         print(json.dumps({k: v for k, v in rep.items() if k != "history"}))
         return 0
+    if args.train_cmd == "text":
+        with intra_op_threads(2):
+            _, rep = recipes.text_arm_recipe(
+                args.encoder, generator_weights(args.encoder, "ra"), seed=args.seed,
+                out=args.out or generator_weights(args.encoder, "text"),
+                **({"stage2_steps": args.steps} if args.steps else {}))
+        print(json.dumps({k: v for k, v in rep.items() if k != "history"}))
+        return 0
     if args.train_cmd == "all":
         args.model, args.out, args.steps, args.threads = None, None, None, 2
         args.n_pairs, args.n_corpus = 12_000, 8_000

@@ -293,17 +293,18 @@ REAL_PAIRS = (("brick", "gelsight", 0), ("gravel", "gelsight_mini", 0), ("grass"
 
 
 def evaluate_real_pairs(pipeline, k: int = 5) -> list[dict]:
-    """Per visible real pair (`REAL_PAIRS`): RA-Touch with the paper's retrieval and with
-    the gated one, the baseline, a copy of each query mode's top-1 caption, and how far the
-    gate let touch steer (the photo's centred box; the press against its background).
+    """Per visible real pair (`REAL_PAIRS`): RA-Touch as each retrieval system answers
+    (`RETRIEVAL_SYSTEMS`: the paper's, the gated one, the text one), the baseline, a copy of
+    each query mode's top-1 caption, and how far the gate let touch steer (the photo's
+    centred box; the press against its background).
 
     Returns:
-        [{"photo", "touch", "paper", "gated", "baseline", "copy": {mode: caption},
+        [{"photo", "touch", "paper", "gated", "text", "baseline", "copy": {mode: caption},
         "touch_weight", "why", "tactile_novel", "unfamiliar_sensor"}]; pairs whose frames
         are missing are left out.
     """
     from ratouch.eval.frames import digit_frames, taxim_frames
-    from ratouch.search.modes import QUERY_MODES
+    from ratouch.search.modes import QUERY_MODES, RETRIEVAL_SYSTEMS
 
     rows = []
     for photo, sensor, index in REAL_PAIRS:
@@ -316,15 +317,14 @@ def evaluate_real_pairs(pipeline, k: int = 5) -> list[dict]:
         f = frames[index]
         image = load_photo(photo)
         out = {}
-        for system in ("paper", "gated"):
+        for system in RETRIEVAL_SYSTEMS:
             out[system] = answer_one(pipeline, QueryRequest.decode(
                 image, f.frame, k=k, background=f.background, retrieval=system)).to_dict()
         res = out["gated"]
         tac = (res.get("trust") or {}).get("tactile") or {}
         rows.append({
             "photo": photo, "touch": f.name,
-            "paper": out["paper"]["description"]["ra_touch"],
-            "gated": res["description"]["ra_touch"],
+            **{system: o["description"]["ra_touch"] for system, o in out.items()},
             "baseline": res["description"]["baseline"],
             "copy": {m: (res["neighbours"].get(m) or [{}])[0].get("caption")
                      for m in QUERY_MODES if m in res["neighbours"]},
@@ -336,14 +336,17 @@ def evaluate_real_pairs(pipeline, k: int = 5) -> list[dict]:
 
 def format_real_pairs(rows: list[dict]) -> str:
     """The real pairs as a Markdown table."""
+    from ratouch.search.modes import RETRIEVAL_SYSTEMS
+
     modes = list(rows[0]["copy"]) if rows else []
-    head = ["photo", "touch", "touch weight", "RA-Touch (paper)", "RA-Touch (gated)",
+    systems = [s for s in RETRIEVAL_SYSTEMS if not rows or s in rows[0]]
+    head = ["photo", "touch", "touch weight", *(f"RA-Touch ({s})" for s in systems),
             "baseline", *(f"copy {m} top-1" for m in modes)]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         w = r["touch_weight"]
-        cells = [r["photo"], r["touch"], "–" if w is None else f"{w:.2f}", r["paper"] or "–",
-                 r["gated"] or "–", r["baseline"] or "–",
+        cells = [r["photo"], r["touch"], "–" if w is None else f"{w:.2f}",
+                 *(r[s] or "–" for s in systems), r["baseline"] or "–",
                  *(r["copy"].get(m) or "–" for m in modes)]
         lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
     return "\n".join(lines)

@@ -208,8 +208,10 @@ QUERY_MODES = QueryModes(_BUILTIN)
 RA_TOUCH_MODE = "joint"
 #: The retrieval systems RA-Touch can answer with, by the mode whose neighbours it reads:
 #: "paper", the paper's joint query; "gated", the joint query moved towards the image query as
-#: far as touch cannot be trusted (`ratouch.model.gate`).
-RETRIEVAL_SYSTEMS = {"paper": RA_TOUCH_MODE, "gated": "gated"}
+#: far as touch cannot be trusted (`ratouch.model.gate`); "text", the paper's joint query with
+#: its neighbours' captions written into the prompt (plain retrieval-augmented generation,
+#: `ratouch.model.neighbour_text`) instead of the Texture-Aware Integrator.
+RETRIEVAL_SYSTEMS = {"paper": RA_TOUCH_MODE, "gated": "gated", "text": RA_TOUCH_MODE}
 #: The mode every query has, whose neighbours stand in for a missing frame's modes.
 IMAGE_MODE = "image"
 assert {RA_TOUCH_MODE, IMAGE_MODE, *RETRIEVAL_SYSTEMS.values()} <= _BUILTIN_NAMES and not QUERY_MODES[IMAGE_MODE].needs_touch

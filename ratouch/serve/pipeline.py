@@ -92,6 +92,38 @@ def load_reader(encoder: str):
     return load_for_serving(folder)
 
 
+def load_text_arm(encoder: str):
+    """The shipped generator of the `text` system (the paper's stage 1 with the neighbours'
+    captions in the prompt, `ratouch.model.neighbour_text`), or None (logged) when it has
+    none. `RATouchPipeline` rebuilds it on the corpus it serves where it was built on
+    another (`text_arm_fits`)."""
+    folder = generator_weights(encoder, "text")
+    if not (folder / "manifest.json").is_file():
+        log.warning("no text-arm generator for %s (%s): the text system reads with the paper's "
+                    "RA-Touch generator (`ratouch train text --encoder %s`)", encoder, folder,
+                    encoder)
+        return None
+    return load_for_serving(folder)
+
+
+#: Corpus rows compared when checking that a text arm was built on the corpus served.
+_FIT_ROWS = 64
+
+
+def text_arm_fits(arm: NeighbourText, text_embeddings: np.ndarray) -> bool:
+    """Whether a text arm's captions are the corpus's: the same number of entries, and its
+    keys equal to the corpus's caption embeddings (within half precision) on `_FIT_ROWS`
+    rows spread over it. A text arm reads a caption by matching its embedding against its
+    keys, so on another corpus it would write the nearest caption of its own: the pipeline
+    rebuilds it on the corpus it serves."""
+    n = len(text_embeddings)
+    if arm.cfg.entries != n or n == 0:
+        return False
+    rows = np.unique(np.linspace(0, n - 1, min(_FIT_ROWS, n)).astype(int))
+    keys = arm.keys[torch.from_numpy(rows)].float().numpy()
+    return bool(np.abs(keys - np.asarray(text_embeddings[rows], np.float32)).max() < 1e-2)
+
+
 def load_trust(encoder: str) -> TrustCalibration | None:
     """The shipped trust calibration of an encoder, or None (logged) when it has none."""
     path = trust_calibration(encoder)
@@ -153,7 +185,7 @@ class RATouchPipeline(RetrievalSide):
     def __init__(self, retriever: CorpusSearch, tgr, generator_ra, generator_base,
                  pca: PCA2D | None = None, trust: TrustCalibration | None = None,
                  gate: TouchGate | None = None, retrieval: str = DEFAULT_RETRIEVAL,
-                 generator_reader=None, lm: str | None = None):
+                 generator_reader=None, lm: str | None = None, generator_text=None):
         super().__init__(retriever, tgr)
         #: the pretrained language model the generators were adapted from (None: the small
         #: decoder)
@@ -172,6 +204,18 @@ class RATouchPipeline(RetrievalSide):
         self.generator_reader = generator_reader
         image_emb = self.corpus_embeddings("image")
         text_emb = self.corpus_embeddings("tactile_caption")
+        #: the `text` system's generator (None: the text system reads with the paper's
+        #: RA-Touch generator, and says why: `text_missing`)
+        self.generator_text = generator_text
+        self.text_missing: str | None = (None if generator_text is not None
+                                         else "no text-arm generator is loaded")
+        if generator_text is not None and not text_arm_fits(generator_text.integrator, text_emb):
+            # built on another corpus (the default one; this is a user's or a test's): the
+            # arm has nothing trained of its own, so it is rebuilt on this corpus's captions
+            # with the decoder's own (frozen) word embeddings and the words it was trained with
+            generator_text.integrator = NeighbourText.build(
+                [e.caption for e in self.corpus.entries], text_emb, generator_text.decoder,
+                words=generator_text.integrator.cfg.words)
         prior = getattr(self.encoders, "visual_prior", None)
         #: answers crops that look like real photos (None: the encoders have no prior)
         self.photos = None if prior is None else PhotoRoute(
@@ -195,7 +239,7 @@ class RATouchPipeline(RetrievalSide):
         decoder's; they have no reader of their own (the gated system reads with RA-Touch)."""
         corpus = corpus or default_corpus(encoder, progress=progress)
         retriever = open_retriever(corpus, encoder, index)
-        gen_ra = gen_base = gen_reader = None
+        gen_ra = gen_base = gen_reader = gen_text = None
         if generators:
             for kind in ("ra", "baseline") if lm else ():
                 if not (generator_weights(encoder, kind, lm) / "manifest.json").is_file():
@@ -207,10 +251,12 @@ class RATouchPipeline(RetrievalSide):
             gen_base = load_for_serving(generator_weights(encoder, "baseline", lm),
                                         integrator=False)
             gen_reader = load_reader(encoder) if lm is None else None
+            gen_text = load_text_arm(encoder) if lm is None else None
         trust = load_trust(encoder)
         return cls(retriever, load_tgr(encoder), gen_ra, gen_base, trust=trust,
                    gate=load_gate(encoder, trust), retrieval=retrieval,
-                   generator_reader=gen_reader, lm=lm)
+                   generator_reader=gen_reader, lm=lm,
+                   generator_text=gen_text)
 
     @property
     def name(self) -> str:
@@ -326,10 +372,12 @@ class RATouchPipeline(RetrievalSide):
         return RETRIEVAL_SYSTEMS[request.retrieval or self.retrieval]
 
     def generator_for(self, request: QueryRequest, encoded: Encoded):
-        """The RA-Touch generator that answers `request`: for `gated`, the reader where the
-        gate gives touch less than `READ_BELOW` of the say (and a reader is loaded), else the
-        paper's."""
+        """The RA-Touch generator that answers `request`: for `text`, the text arm (where one
+        fits the corpus); for `gated`, the reader where the gate gives touch less than
+        `READ_BELOW` of the say (and a reader is loaded); else the paper's."""
         system = request.retrieval or self.retrieval
+        if system == "text":
+            return self.generator_text or self.generator_ra
         if (system != "gated" or self.generator_reader is None or self.gate is None
                 or encoded.T is None):
             return self.generator_ra
@@ -339,7 +387,10 @@ class RATouchPipeline(RetrievalSide):
     def system_generator(self, system: str):
         """A generator-like object (``describe(V, T, Rv, Rl)``) answering as a retrieval
         system (`RETRIEVAL_SYSTEMS`) does, row by row: the paper's RA-Touch generator, or for
-        `gated` the trust-routed pair (`TrustRouted`) where a reader and a gate are loaded."""
+        `gated` the trust-routed pair (`TrustRouted`) where a reader and a gate are loaded,
+        for `text` the text arm where one fits the corpus."""
+        if system == "text":
+            return self.generator_text or self.generator_ra
         if system == "gated" and self.generator_reader is not None and self.gate is not None:
             return TrustRouted(self, self.generator_ra, self.generator_reader)
         return self.generator_ra
@@ -363,7 +414,9 @@ class RATouchPipeline(RetrievalSide):
         system = request.retrieval or self.retrieval
         out: dict = {"system": system, "reads": RETRIEVAL_SYSTEMS[system],
                      "generator": ("reader" if self.generator_reader is not None
-                                   and generator is self.generator_reader else "paper")}
+                                   and generator is self.generator_reader else
+                                   "text" if self.generator_text is not None
+                                   and generator is self.generator_text else "paper")}
         if self.gate is None:
             out.update(kind=None, touch_weight=1.0, features={},
                        why=["no touch gate for this model: the gated query is the paper's"])
@@ -372,6 +425,11 @@ class RATouchPipeline(RetrievalSide):
         if system == "paper":
             out["why"] = ["the paper's joint query: touch steers the search fully"] + \
                 [f"(the gate would have weighed touch {out['touch_weight']:.2f})"]
+        elif system == "text":
+            out["why"] = ["the paper's joint query: touch steers the search fully"] + (
+                ["its neighbours' captions are written into the prompt, word by word (no "
+                 "Texture-Aware Integrator)"] if out["generator"] == "text" else
+                [f"{self.text_missing}: the paper's generator answers"])
         elif out["generator"] == "reader":
             out["why"] = list(out["why"]) + [
                 f"touch has less than {READ_BELOW:.0%} of the say: the reader, trained to "

@@ -136,7 +136,8 @@ def trace_retrieval(result: QueryResult | Mapping[str, Any], top: int = 3
         tuple(ra), tuple(base), ra_set == set(base), tuple(w for w in ra if w not in set(base)),
         tuple(w for w in base if w not in ra_set), attended, 1.0 / len(joint), carried,
         tuple(w for w in ra if w in anywhere), block.get("system", "paper"), reads,
-        (1.0 if block.get("system") == "paper" else block.get("touch_weight"))
+        # the joint query (the paper's and the text system's) lets touch steer fully
+        (1.0 if block.get("reads", RA_TOUCH_MODE) == RA_TOUCH_MODE else block.get("touch_weight"))
         if block else None, tuple(block.get("why") or ()), str(block.get("generator") or ""))
 
 

@@ -1,7 +1,8 @@
 """What `ratouch train all` runs: every shipped weight retrained in dependency order (the
 geometry lookups, the encoders, the corpus embeddings, and per encoder set of the chain the
-retriever, the trust calibration, the language prior, both generators and the gated system's reader), then the cascade
-calibrated over the chain's pipelines.
+retriever, the trust calibration, the language prior, both generators, the gated system's
+reader and the text system's generator), then the cascade calibrated over the chain's
+pipelines.
 
 It sits above serving and training: the cascade is calibrated by answering validation renders
 with the loaded pipelines (`ratouch.ship.cascade`). Each step is a training recipe
@@ -31,6 +32,7 @@ from ratouch.train.recipes import (
     generator_recipe,
     reader_recipe,
     retriever_recipe,
+    text_arm_recipe,
 )
 from ratouch.train.trust import TrustConfig, calibrate
 
@@ -85,6 +87,11 @@ def train_all(seed: int = 0, progress: bool = True, report=print, encoders: bool
                                arm=READER_ARM)
         report({"reader": name, **{k: v for k, v in rep.items() if k != "history"}})
         lap(f"reader_{name}")
+        # the text system's generator: stage 2 again, the neighbours' captions in the prompt
+        _, rep = text_arm_recipe(name, generator_weights(name, "ra"), seed=seed,
+                                 out=generator_weights(name, "text"), progress=progress)
+        report({"text": name, **{k: v for k, v in rep.items() if k != "history"}})
+        lap(f"text_{name}")
     cascade = calibrate_cascade([RATouchPipeline.load(n, progress=progress)
                                  for n in CHAIN_SETS], CascadeConfig(seed=seed))
     cascade.save(cascade_calibration("+".join(CHAIN_SETS)))
