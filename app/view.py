@@ -248,7 +248,8 @@ def retrieval_md(trace: RetrievalTrace) -> str:
     for a in trace.attended:
         carries = (f" — carries *{', '.join(a.words)}*" if a.words else
                    " — carries none of RA-Touch's words")
-        lines.append(f"- {trace.reads} #{a.rank} **{a.weight:.0%}** · "
+        share = "" if trace.generator == "text" else f" **{a.weight:.0%}**"  # no weights
+        lines.append(f"- {trace.reads} #{a.rank}{share} · "
                      f"{escape(a.class_name)}: {escape(a.caption)}{carries}")
     return "\n".join(lines)
 

@@ -96,5 +96,6 @@ def test_the_gated_system_says_who_read_and_how_far_touch_was_trusted():
     assert "as text, their captions in the prompt" in touch_md(text_trace)
     assert "no integrator weighs them" in retrieval_md(text_trace)
     assert "integrator's attention" not in retrieval_md(text_trace)
+    assert "- joint #1 · class0" in retrieval_md(text_trace)  # no attention share to show
     del result["retrieval"]["generator"]       # an answer from before the reader says nothing
     assert trace_retrieval(result).generator == ""
