@@ -206,13 +206,18 @@ def _frames_md(docs: Path, weights) -> str:
                                   else figure_made(path), weights)
     taxim = summarise([r for r in rows if r.get("sensor") in ("gelsight", "mini")])
     digit = summarise([r for r in rows if r.get("sensor") == "digit"])
+    alone = "presses_alone" in taxim  # a check run with --alone
     table = ["| frames | presses detected | contact region on the touch | read hard / soft "
-             "| blanks read as no contact |", "|---|---|---|---|---|"]
+             "| blanks read as no contact |" + (" presses without their background: "
+                                                  "contact |" if alone else ""),
+             "|---|---|---|---|---|" + ("---|" if alone else "")]
     for name, s in (("Taxim's GelSight / Mini", taxim), ("reference DIGIT", digit)):
         table.append(f"| {name} | {s['presses_detected']} / {s['presses']} "
                      f"| {s['presses_region_on_touch']} / {s['presses']} "
                      f"| {s['presses_read_hard']} / {s['presses_read_soft']} "
-                     f"| {s['blanks_no_contact']} / {s['blanks']} |")
+                     f"| {s['blanks_no_contact']} / {s['blanks']} |"
+                     + (f" {s['presses_alone_detected']} / {s['presses_alone']} |"
+                        if "presses_alone" in s else " – |" if alone else ""))
     source = view.docs_url(docs, path.name)
     return (f"{head} — `{d.get('command', 'ratouch eval frames --real')}` with "
             f"`{d.get('encoder', '?')}`, {when}"

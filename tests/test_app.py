@@ -1272,6 +1272,8 @@ def test_the_benchmarks_story_dates_the_premise_and_the_real_frames():
     assert "before the visual prior — made 2026-11-23" in md
     assert "the shipped weights, 3 draws" in md and "-0.019 [-0.090, +0.064]" in md
     assert "Taxim's GelSight / Mini | 72 / 72" in md and "reference DIGIT" in md
+    # the stored check read Taxim's presses without their background too (--alone)
+    assert "presses without their background: contact |" in md and "| 69 / 72 |" in md
     assert "ratouch-docs/premise.md" in md and str(DOCS) not in md
     # the text arm, on each generator it ran on, against the paper's integrator
     assert "**The neighbours as text**" in md

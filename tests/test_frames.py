@@ -98,3 +98,20 @@ def test_eval_frames_cli_on_a_folder(tmp_path, capsys, shipped_corpus):
     assert rows["press.png"]["state"] == "contact" and len(rows["press.png"]["neighbours"]) == 2
     assert rows["blank.png"]["state"] == "no contact"
     assert main(["eval", "frames"]) == 2  # a folder or --real
+    assert main(["eval", "frames", str(tmp_path), "--alone"]) == 2  # --alone reads Taxim's
+
+
+def test_taxims_presses_read_without_their_background(pipeline):
+    """`eval frames --real --alone`: each press also without its background, counted apart
+    (detected, refused, read hard) from the presses read against it."""
+    frames = taxim_frames("gelsight_mini", alone=True)
+    alone = [f for f in frames if f.name.endswith(" alone") and " press " in f.name]
+    assert len(alone) == len(real_presses("gelsight_mini")["frames"])
+    assert all(f.background is None and f.centre is not None for f in alone)
+    with_bg = [f for f in frames if " press " in f.name and f not in alone][:2]
+    rows = read_frames(pipeline, with_bg + alone[:3], k=3)
+    s = summarise(rows)
+    assert s["presses"] == 2 and s["presses_alone"] == 3
+    assert s["presses_alone_detected"] + s["presses_alone_refused"] <= 3
+    assert s["presses_alone_read_hard"] <= 3 - s["presses_alone_refused"]
+    assert "presses_alone" not in summarise(rows[:2])

@@ -134,8 +134,10 @@ def _eval_presses(args: argparse.Namespace) -> int:
 def _eval_frames(args: argparse.Namespace) -> int:
     if (args.folder is None) == (not args.real):
         raise usage("ratouch eval frames: give a folder of frames, or --real (not both)")
+    if args.alone and not args.real:
+        raise usage("ratouch eval frames: --alone reads Taxim's presses: give --real")
     if args.real:
-        frames = [f for name in CALIBRATIONS for f in taxim_frames(name)]
+        frames = [f for name in CALIBRATIONS for f in taxim_frames(name, args.alone)]
         frames += digit_frames(reference_dir())
     else:
         frames = frames_in(args.folder, args.background)
@@ -144,6 +146,7 @@ def _eval_frames(args: argparse.Namespace) -> int:
     rows = read_frames(pipeline, frames, k=args.k)
     if args.json:  # with its provenance: the app's Benchmarks tab dates a stored check by it
         command = " ".join(["ratouch eval frames", "--real" if args.real else str(args.folder)]
+                           + (["--alone"] if args.alone else [])
                            + [f"--{n} {getattr(args, n)}" for n in ("background", "corpus")
                               if getattr(args, n)]
                            + [f"--encoder {args.encoder}", f"--k {args.k}", "--json"])

@@ -397,6 +397,9 @@ def _add_eval(sub) -> None:
     fr.add_argument("--real", action="store_true",
                     help="instead: the real frames the project can see (Taxim's 72 presses "
                          "and 2 backgrounds, the reference DIGIT frames)")
+    fr.add_argument("--alone", action="store_true",
+                    help="with --real: also read each of Taxim's presses without its "
+                         "background (the contact model alone)")
     fr.add_argument("--encoder", default=DEFAULT_ENCODER)
     fr.add_argument("--corpus", default=None, help="a built corpus (default: the embedded one)")
     fr.add_argument("--k", type=_pos_int, default=5, help="neighbours per frame")

@@ -101,7 +101,8 @@ def read_frame(pipeline, item: Frame, k: int = 5) -> dict:
            "neighbours": [n.get("caption") for n in tactile[:k]],
            "geometry": tac.get("geometry"), "structure": tac.get("structure"),
            "unfamiliar_sensor": bool(tac.get("unfamiliar_sensor")),
-           "warnings": list(result.get("warnings", []))}
+           "warnings": list(result.get("warnings", [])),
+           "known_touch": item.centre is not None}
     if item.background is not None and item.centre is not None and item.radius is not None:
         row["region_overlaps_touch"] = overlaps(
             contact_region(item.frame, item.background), item.centre, item.radius)
@@ -129,15 +130,20 @@ def frames_in(folder: str | Path, background: str | Path | None = None) -> list[
     return [Frame(p.name, to_rgb_array(p, "tactile image"), bg) for p in files]
 
 
-def taxim_frames(calibration: str) -> list[Frame]:
+def taxim_frames(calibration: str, alone: bool = False) -> list[Frame]:
     """Taxim's real presses of one calibration with their background, and the background
-    read alone and against itself (`world.taxim_optics.real_presses`)."""
+    read alone and against itself (`world.taxim_optics.real_presses`); `alone`: each press
+    also without its background (named "... alone")."""
     from ratouch.world.taxim_optics import real_presses
 
     d = real_presses(calibration)
     bg = d["background"]
     out = [Frame(f"{calibration} press {i}", f, bg, (float(c[0]), float(c[1])), float(r))
            for i, (f, c, r) in enumerate(zip(d["frames"], d["centres"], d["radii"]))]
+    if alone:
+        out += [Frame(f"{calibration} press {i} alone", f, None, (float(c[0]), float(c[1])),
+                      float(r))
+                for i, (f, c, r) in enumerate(zip(d["frames"], d["centres"], d["radii"]))]
     out += [Frame(f"{calibration} background alone", bg),
             Frame(f"{calibration} background against itself", bg, bg)]
     return out
@@ -166,6 +172,8 @@ def summarise(rows: list[dict]) -> dict:
     regions reaching the touch, read as soft or hard; blank frames (names with "background")
     recognised as no contact or left uncertain; the distinct readings."""
     presses = [r for r in rows if "region_overlaps_touch" in r or "pressed" in r["frame"]]
+    # presses with a known touch read without any background (`taxim_frames(alone=True)`)
+    alone = [r for r in rows if r.get("known_touch") and not r["background"]]
     blanks = [r for r in rows if "background" in r["frame"] and "pressed" not in r["frame"]]
     readings = [r["reading"] for r in rows if r["state"] == "contact"]
     return {
@@ -178,6 +186,12 @@ def summarise(rows: list[dict]) -> dict:
         "blanks_no_contact": sum(r["state"] == "no contact" for r in blanks),
         "blanks_uncertain": sum(r["state"] == "uncertain" for r in blanks),
         "distinct_readings": len(set(readings)),
+        **({"presses_alone": len(alone),
+            "presses_alone_detected": sum(r["state"] == "contact" for r in alone),
+            "presses_alone_refused": sum(r["state"] == "no contact" for r in alone),
+            "presses_alone_read_hard": sum(r["firmness"] == "hard" for r in alone
+                                           if r["state"] != "no contact")}
+           if alone else {}),
     }
 
 
@@ -204,7 +218,10 @@ def format_frames(rows: list[dict]) -> str:
         + (f", {s['presses_region_on_touch']} with the contact region on the known touch"
            if any("region_overlaps_touch" in r for r in rows) else "")
         + f"; blank frames: {s['blanks_no_contact']}/{s['blanks']} no contact, "
-        f"{s['blanks_uncertain']} uncertain; {s['distinct_readings']} distinct readings")
+        f"{s['blanks_uncertain']} uncertain; {s['distinct_readings']} distinct readings"
+        + (f"; presses without their background: {s['presses_alone_detected']}/"
+           f"{s['presses_alone']} contact, {s['presses_alone_refused']} no contact, "
+           f"{s['presses_alone_read_hard']} read hard" if "presses_alone" in s else ""))
     return "\n".join(lines)
 
 
