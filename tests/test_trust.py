@@ -180,6 +180,15 @@ def test_calibration_round_trips_and_rejects_other_files(tmp_path):
                               (1.0, 2.5))
     back = TrustCalibration.load(banded.save(tmp_path / "b.json"))
     assert back.noise_floor == 0.01 and back.uncertain == (1.0, 2.5)
+    assert back.uncertain_alone is None
+    alone = TrustCalibration("enc", nov, nov, plain, with_bg, 2.0, 3.0,
+                             uncertain_alone={"mini": -6.5, "digit": -2.0})
+    path = alone.save(tmp_path / "a.json")
+    assert TrustCalibration.load(path).uncertain_alone == {"mini": -6.5, "digit": -2.0}
+    d = json.loads(path.read_text())
+    path.write_text(json.dumps({**d, "uncertain_alone": [-6.5]}))
+    with pytest.raises(DataError, match="uncertain_alone must map sensor families"):
+        TrustCalibration.load(path)
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(DataError, match="not a trust calibration"):
         TrustCalibration.load(tmp_path / "bad.json")
@@ -218,15 +227,68 @@ def test_real_pressed_digit_frame_is_flagged_as_unfamiliar(pipeline):
 
 
 @pytest.mark.slow
+def test_without_a_background_the_familys_band_answers_a_faint_press_with_a_caveat(
+        monkeypatch):
+    """`uncertain_alone`: below the threshold but above what the frame's family's blanks
+    score alone is "uncertain" (answered with a caveat), lower is "no contact"; a frame that
+    looks like none of the families keeps the old rule; above the threshold is contact."""
+    import dataclasses
+
+    from ratouch.model import trust as trust_mod
+
+    cal = dataclasses.replace(TrustCalibration.load(trust_calibration("default-s")),
+                              uncertain=None, uncertain_alone={"mini": -6.0})
+    frame = np.zeros((48, 64, 3), np.uint8)
+    look = {"distance": 0.5}
+    monkeypatch.setattr(trust_mod, "guess_family", lambda f: ("mini", look["distance"]))
+    for score, state in ((-7.0, "no contact"), (-5.0, "uncertain"),
+                         (cal.contact_threshold - 1e-3, "uncertain"),
+                         (cal.contact_threshold, "contact")):
+        monkeypatch.setattr(TrustCalibration, "contact_score", lambda self, f, b=None, s=score: s)
+        assert cal.contact_state(frame)[0] == state, score
+    monkeypatch.setattr(TrustCalibration, "contact_score", lambda self, f, b=None: -5.0)
+    look["distance"] = 9.0                                   # looks like no family's units
+    assert cal.contact_state(frame)[0] == "no contact"
+    look["distance"] = 0.5
+    assert dataclasses.replace(cal, uncertain_alone={"digit": -6.0}).contact_state(frame)[0] \
+        == "no contact"                                       # no band for this family
+
+
+def test_alone_band_sits_above_the_familys_blanks_and_below_the_threshold(tmp_path, capsys):
+    """`alone_band` on the shipped calibration (a few blank renders per family), and `ratouch
+    train trust --alone-band --out F`, which writes the calibration with its band and nothing
+    else changed."""
+    from ratouch.cli import main
+    from ratouch.train.trust import alone_band
+    from ratouch.world.presses import render_blank_pair
+
+    cal = TrustCalibration.load(trust_calibration("default-s"))
+    band = alone_band(cal, n=12, seed=4)
+    assert band and set(band) <= {"digit", "gelsight", "mini"}
+    rng = np.random.default_rng(9)
+    for fam, low in band.items():
+        assert low < cal.contact_threshold
+        blanks = [cal.contact_score(render_blank_pair(fam, rng)[0]) for _ in range(4)]
+        assert np.median(blanks) < low + 1.0  # the band sits at the top of the blanks
+    out = tmp_path / "t.json"
+    assert main(["train", "trust", "--alone-band", "--seed", "4", "--out", str(out)]) == 0
+    written = TrustCalibration.load(out)
+    assert set(written.uncertain_alone or {}) == set(json.loads(capsys.readouterr().out)[
+        "uncertain_alone"])
+    assert written.contact_threshold == cal.contact_threshold
+    assert written.meta == cal.meta
+
+
 def test_calibration_is_reproducible(tmp_path):
     """`calibrate` with the same seed gives the same thresholds (small sizes)."""
     from ratouch.encoders.factory import create_model
     from ratouch.train.trust import TrustConfig, calibrate
 
     enc = create_model("default-s")
-    cfg = TrustConfig(n_reference=120, n_validation=100, n_everyday=8)
+    cfg = TrustConfig(n_reference=120, n_validation=100, n_everyday=8, n_alone_blanks=20)
     a, b = calibrate(enc, cfg, progress=False), calibrate(enc, cfg, progress=False)
     assert a.contact_threshold == b.contact_threshold
+    assert a.uncertain_alone == b.uncertain_alone and a.uncertain_alone  # on 20 blanks
     assert a.visual.threshold == b.visual.threshold
     assert a.meta["measured"]["contact_false_alarm_test_bg"] <= 0.1
 

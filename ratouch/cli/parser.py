@@ -229,6 +229,10 @@ def _add_train(sub) -> None:
                     help="share of in-distribution validation inputs each signal may flag")
     tr.add_argument("--out", default=None,
                     help="calibration JSON (default: assets/trust/ENCODER.json)")
+    tr.add_argument("--alone-band", action="store_true",
+                    help="only (re)set the no-background 'uncertain' band per sensor family "
+                         "on fresh blank renders, in the stored calibration (its other "
+                         "figures unchanged)")
     gt = tsub.add_parser("gate", help="fit the touch gate (how far touch steers the gated "
                                       "query) on probe renders with clean, mismatched, blank "
                                       "and noisy touch")

@@ -5,12 +5,14 @@ the cascade, or all of them in order.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
 from ratouch.cli.common import usage
 from ratouch.encoders.factory import DEFAULT_SETS, create_model, shipped_weights
 from ratouch.model.pretrained_lm import PRETRAINED_LMS
+from ratouch.model.trust import TrustCalibration
 from ratouch.paths import (
     cascade_calibration,
     generator_weights,
@@ -25,7 +27,7 @@ from ratouch.train import recipes
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
 from ratouch.train.gate import format_gate_report, gate_recipe
 from ratouch.train.geometry import calibrate as calibrate_geometry
-from ratouch.train.trust import TrustConfig, calibrate
+from ratouch.train.trust import TrustConfig, alone_band, calibrate
 
 
 def run(args: argparse.Namespace) -> int:
@@ -122,6 +124,14 @@ def _train_geometry(args: argparse.Namespace) -> int:
 
 
 def _train_trust(args: argparse.Namespace) -> int:
+    if args.alone_band:
+        path = trust_calibration(args.encoder)
+        cal = TrustCalibration.load(path)
+        band = alone_band(cal, seed=args.seed)
+        out = dataclasses.replace(cal, uncertain_alone=band).save(args.out or path)
+        print(json.dumps({"written": str(out), "uncertain_alone": band,
+                          "contact_threshold": cal.contact_threshold}, indent=1))
+        return 0
     cal = calibrate(create_model(args.encoder),
                     TrustConfig(seed=args.seed, false_alarm=args.false_alarm))
     out = cal.save(args.out or trust_calibration(args.encoder))

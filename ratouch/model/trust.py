@@ -290,6 +290,13 @@ class TrustCalibration:
         uncertain: without a background, the contact logits (low, high) between which the
             model cannot decide (set on renders: below `low` lie few presses, above `high`
             few empty frames); a frame there is "uncertain".
+        uncertain_alone: without a background, per sensor family, the lowest contact logit
+            below the threshold that is still "uncertain" rather than "no contact": above
+            what blank frames of that family score alone (set on drifted blank renders,
+            `ratouch.train.trust.alone_band`), for frames that look like that family's units
+            (`guess_family` within `LOOK_LIMIT`). A shallow, broad press that the model,
+            fitted on firm presses, scores below its threshold is then answered with a
+            caveat, not silenced; a blank frame still reads "no contact". None: no band.
     """
 
     encoder: str
@@ -303,6 +310,7 @@ class TrustCalibration:
     meta: dict = field(default_factory=dict)
     noise_floor: float = 0.0
     uncertain: tuple[float, float] | None = None
+    uncertain_alone: dict[str, float] | None = None
     #: the sensor families' geometry lookups and structured-change floors (shipped beside,
     #: not inside, this file: `ratouch.paths.geometry_calibration`); None: not loaded
     geometry: GeometryCalibration | None = None
@@ -314,6 +322,7 @@ class TrustCalibration:
                 "contact_threshold_bg": self.contact_threshold_bg,
                 "noise_floor": self.noise_floor,
                 "uncertain": None if self.uncertain is None else list(self.uncertain),
+                "uncertain_alone": self.uncertain_alone,
                 "contact": self.contact.to_dict(), "contact_bg": self.contact_bg.to_dict()}
         lines = [json.dumps(head, indent=1)[:-2] + ","]
         models = [("visual", self.visual), ("tactile", self.tactile)]
@@ -343,13 +352,18 @@ class TrustCalibration:
                 raise ValueError(f"format {d.get('format')!r}, expected {FORMAT!r}")
             prior = d.get("visual_prior")
             band = d.get("uncertain")
+            alone = d.get("uncertain_alone")
+            if alone is not None and not isinstance(alone, dict):
+                raise ValueError(f"uncertain_alone must map sensor families to logits, got "
+                                 f"{type(alone).__name__}")
             return cls(d["encoder"], Novelty.from_dict(d["visual"]),
                        Novelty.from_dict(d["tactile"]), ContactModel.from_dict(d["contact"]),
                        ContactModel.from_dict(d["contact_bg"]), float(d["contact_threshold"]),
                        float(d["contact_threshold_bg"]),
                        None if prior is None else Novelty.from_dict(prior), d.get("meta", {}),
                        float(d["noise_floor"]),
-                       None if band is None else (float(band[0]), float(band[1])))
+                       None if band is None else (float(band[0]), float(band[1])),
+                       None if alone is None else {str(k): float(v) for k, v in alone.items()})
         except (ValueError, KeyError, TypeError) as e:
             raise DataError(f"{path} is not a trust calibration: {e}") from e
 
@@ -402,9 +416,10 @@ class TrustCalibration:
         (`structured_contact`: shallow, broad presses that change a few levels); otherwise a
         frame within sensor noise of it (`noise_floor`) is "no contact" by construction,
         and else the model decides at `contact_threshold_bg`. Without:
-        the model decides outside the `uncertain` band and says "uncertain" inside it (a
-        frame that looks like none of the rendered sensors is flagged by `assess`, not
-        here). A score that is not a finite number is never "contact": it is "uncertain".
+        the model decides outside the `uncertain` band and says "uncertain" inside it, and
+        below its threshold but above what the frame's family's blank frames score alone
+        (`uncertain_alone`, for a frame that looks like that family's units) too (a frame that looks like none of the rendered sensors is
+        flagged by `assess`, not here). A score that is not a finite number is never "contact": it is "uncertain".
         `structured`: the `structured_contact` block where the caller already has it.
         """
         if background is not None:
@@ -421,7 +436,13 @@ class TrustCalibration:
             return ("no contact" if score < self.contact_threshold_bg else "contact"), score
         if self.uncertain is not None and self.uncertain[0] <= score < self.uncertain[1]:
             return "uncertain", score
-        return ("no contact" if score < self.contact_threshold else "contact"), score
+        if score >= self.contact_threshold:
+            return "contact", score
+        # the band of the family the frame looks like, where it looks like one: a band set
+        # on one family's blanks says nothing of a sensor that looks like none of them
+        name, distance = guess_family(frame)
+        low = (self.uncertain_alone or {}).get(name) if distance <= LOOK_LIMIT else None
+        return ("uncertain" if low is not None and score >= low else "no contact"), score
 
     def visual_novelty(self, V: np.ndarray, prior: np.ndarray | None = None) -> dict:
         """The visual novelty block: in the prior's feature space where both the calibration

@@ -10,6 +10,7 @@ threshold.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 from typing import Any
@@ -38,6 +39,11 @@ VALIDATION_START = 1_000_000
 #: Without a background, the share of validation presses (and of empty frames) allowed on
 #: the wrong side of the "uncertain" band's edges.
 UNCERTAIN_SHARE = 0.01
+#: Drifted blank renders per family that `alone_band` sets its quantile on. A tail quantile
+#: needs many: a GelSight's blanks score with a heavy tail (its units differ), and on 140 of
+#: them the 99 % quantile moved between -1.20 and -0.72 from one random stream to the next
+#: (on 600: -0.91 to -0.62).
+ALONE_BLANKS = 600
 
 
 @dataclass(frozen=True)
@@ -55,6 +61,8 @@ class TrustConfig:
             curved objects) and as many drifted blank pairs, added to the with-background
             contact model's reference renders and again, freshly drawn, to its validation
             renders (`EVERYDAY_COLUMNS`).
+        n_alone_blanks: per sensor family, drifted blank renders the no-background
+            "uncertain" band is set on (`alone_band`; 0: no band).
     """
 
     seed: int = 0
@@ -63,6 +71,7 @@ class TrustConfig:
     false_alarm: float = 0.02
     rank: int = 16
     n_everyday: int = 140
+    n_alone_blanks: int = ALONE_BLANKS
 
     def __post_init__(self) -> None:
         for name in ("n_reference", "n_validation"):
@@ -72,8 +81,9 @@ class TrustConfig:
             raise ConfigError(f"false_alarm={self.false_alarm} must lie in (0, 0.5)")
         if not 1 <= self.rank < self.n_reference:
             raise ConfigError(f"rank={self.rank} must lie in [1, n_reference)")
-        if self.n_everyday < 0:
-            raise ConfigError(f"n_everyday={self.n_everyday} must be >= 0")
+        for name in ("n_everyday", "n_alone_blanks"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"{name}={getattr(self, name)} must be >= 0")
 
 
 def render_samples(world: World, split: str, indices, progress: bool = False,
@@ -245,8 +255,29 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
                          "fresh, validation"),
             "measured": measured}
     log.info("trust calibration for %s: %s", encoders.name, measured)
-    return TrustCalibration(encoders.name, visual, tactile, models[0], models[1], thresholds[0],
-                            thresholds[1], prior, meta, noise_floor, band)
+    cal = TrustCalibration(encoders.name, visual, tactile, models[0], models[1], thresholds[0],
+                           thresholds[1], prior, meta, noise_floor, band)
+    if not cfg.n_alone_blanks:
+        return cal
+    return dataclasses.replace(cal, uncertain_alone=alone_band(cal, cfg.n_alone_blanks,
+                                                               cfg.seed))
+
+
+def alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 0
+               ) -> dict[str, float]:
+    """`TrustCalibration.uncertain_alone`: per sensor family, the (1 - `UNCERTAIN_SHARE`)
+    quantile of what `n` drifted blank frames of that family (`render_blank_pair`, a stream
+    of their own) score alone with the no-background contact model; a family whose blanks
+    reach the contact threshold gets no band."""
+    rng = np.random.default_rng([seed, 3307])
+    out = {}
+    for fam in family_names():
+        scores = np.array([trust.contact_score(render_blank_pair(fam, rng)[0])
+                           for _ in range(n)])
+        low = float(np.quantile(scores, 1 - UNCERTAIN_SHARE))
+        if low < trust.contact_threshold:
+            out[fam] = round(low, 4)
+    return out
 
 
 def _rate(flags: np.ndarray) -> float:
