@@ -259,17 +259,21 @@ def test_alone_band_sits_above_the_familys_blanks_and_below_the_threshold(tmp_pa
     train trust --alone-band --out F`, which writes the calibration with its band and nothing
     else changed."""
     from ratouch.cli import main
-    from ratouch.train.trust import alone_band
+    from ratouch.train.trust import alone_band, validation_blanks
     from ratouch.world.presses import render_blank_pair
 
     cal = TrustCalibration.load(trust_calibration("default-s"))
-    band = alone_band(cal, n=12, seed=4)
+    world = validation_blanks(4, n=60)      # the world's own no-contact renders
+    band = alone_band(cal, n=12, seed=4, world_blanks=world)
     assert band and set(band) <= {"digit", "gelsight", "mini"}
     rng = np.random.default_rng(9)
     for fam, low in band.items():
         assert low < cal.contact_threshold
         blanks = [cal.contact_score(render_blank_pair(fam, rng)[0]) for _ in range(4)]
         assert np.median(blanks) < low + 1.0  # the band sits at the top of the blanks
+        own = [cal.contact_score(f) for f, name in zip(world["frames"], world["families"])
+               if name == fam]
+        assert np.mean(np.array(own) < low) >= 0.9  # and above most of the world's blanks
     out = tmp_path / "t.json"
     assert main(["train", "trust", "--alone-band", "--seed", "4", "--out", str(out)]) == 0
     written = TrustCalibration.load(out)

@@ -260,24 +260,38 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
     if not cfg.n_alone_blanks:
         return cal
     return dataclasses.replace(cal, uncertain_alone=alone_band(cal, cfg.n_alone_blanks,
-                                                               cfg.seed))
+                                                               cfg.seed, nc_val))
 
 
-def alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 0
-               ) -> dict[str, float]:
+def alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 0,
+               world_blanks: dict | None = None) -> dict[str, float]:
     """`TrustCalibration.uncertain_alone`: per sensor family, the (1 - `UNCERTAIN_SHARE`)
-    quantile of what `n` drifted blank frames of that family (`render_blank_pair`, a stream
-    of their own) score alone with the no-background contact model; a family whose blanks
+    quantile of what the family's blank frames score alone with the no-background contact
+    model: `n` drifted blank renders (`render_blank_pair`, a stream of their own) and the
+    world's own no-contact renders of that family (`world_blanks`: {"frames", "families"},
+    as `render_samples` gives them; None: `validation_blanks(seed)`). A family whose blanks
     reach the contact threshold gets no band."""
     rng = np.random.default_rng([seed, 3307])
+    world_blanks = validation_blanks(seed) if world_blanks is None else world_blanks
     out = {}
     for fam in family_names():
+        own = [f for f, name in zip(world_blanks["frames"], world_blanks["families"])
+               if name == fam]
         scores = np.array([trust.contact_score(render_blank_pair(fam, rng)[0])
-                           for _ in range(n)])
+                           for _ in range(n)] + [trust.contact_score(f) for f in own])
+        if not len(scores):
+            continue
         low = float(np.quantile(scores, 1 - UNCERTAIN_SHARE))
         if low < trust.contact_threshold:
             out[fam] = round(low, 4)
     return out
+
+
+def validation_blanks(seed: int = 0, n: int = TrustConfig.n_validation) -> dict:
+    """The world's no-contact validation renders (`calibrate`'s "nc_val"): what a blank
+    sensor looks like in the world the models were trained on."""
+    nc_world = World(WorldConfig(seed=seed).with_stress(no_contact=1.0)).warm()
+    return render_samples(nc_world, "train", range(VALIDATION_START, VALIDATION_START + n))
 
 
 def _rate(flags: np.ndarray) -> float:
