@@ -183,6 +183,19 @@ def _add_corpus(sub) -> None:
                          "offline: the lexicon recaptioner")
 
 
+def _stage2_parser(tsub, name: str, help: str) -> argparse.ArgumentParser:
+    """`ratouch train NAME`: a generator trained as RA-Touch's stage 2 again from the shipped
+    stage 1 (the reader, the text system's), with the arguments they share."""
+    p = tsub.add_parser(name, help=help)
+    p.add_argument("--encoder", default=DEFAULT_ENCODER)
+    p.add_argument("--seed", type=_nonneg_int, default=0)
+    p.add_argument("--steps", type=_pos_int, default=None,
+                   help="stage-2 steps (default: RA-Touch's, 600)")
+    p.add_argument("--out", default=None,
+                   help=f"checkpoint folder (default: assets/generator/ENCODER/{name})")
+    return p
+
+
 def _add_train(sub) -> None:
     train = sub.add_parser("train", help="train the default models")
     train.set_defaults(module="train")
@@ -241,28 +254,16 @@ def _add_train(sub) -> None:
     gt.add_argument("--n", type=_pos_int, default=1200, help="probe pairs (half fit, half measure)")
     gt.add_argument("--out", default=None,
                     help="gate JSON (default: assets/gate/ENCODER.json)")
-    rd = tsub.add_parser("reader", help="train the gated system's generator (the reader): "
+    rd = _stage2_parser(tsub, "reader", "train the gated system's generator (the reader): "
                                         "RA-Touch's stage 2 on the gated query's neighbours, "
                                         "half the samples with touch degraded")
-    rd.add_argument("--encoder", default=DEFAULT_ENCODER)
-    rd.add_argument("--seed", type=_nonneg_int, default=0)
-    rd.add_argument("--steps", type=_pos_int, default=None,
-                    help="stage-2 steps (default: RA-Touch's, 600)")
-    rd.add_argument("--out", default=None,
-                    help="checkpoint folder (default: assets/generator/ENCODER/reader)")
     rd.add_argument("--arm", choices=("integrator", "text"), default=None,
                     help="how the reader hands its neighbours to the decoder: a Texture-Aware "
                          "Integrator or their captions in the prompt (default: the shipped "
                          "reader's form)")
-    tx = tsub.add_parser("text", help="train the text system's generator: RA-Touch's stage 2 "
-                                      "with the joint query's neighbours' captions written "
-                                      "into the prompt (no Texture-Aware Integrator)")
-    tx.add_argument("--encoder", default=DEFAULT_ENCODER)
-    tx.add_argument("--seed", type=_nonneg_int, default=0)
-    tx.add_argument("--steps", type=_pos_int, default=None,
-                    help="stage-2 steps (default: RA-Touch's, 600)")
-    tx.add_argument("--out", default=None,
-                    help="checkpoint folder (default: assets/generator/ENCODER/text)")
+    _stage2_parser(tsub, "text", "train the text system's generator: RA-Touch's stage 2 with "
+                                 "the joint query's neighbours' captions written into the "
+                                 "prompt (no Texture-Aware Integrator)")
     ge = tsub.add_parser("geometry", help="fit each sensor family's colour-to-gradient lookup "
                                           "(Taxim's real ball presses; the DIGIT shader's "
                                           "renders) and its contact floors on blank renders")

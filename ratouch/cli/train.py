@@ -8,6 +8,7 @@ import argparse
 import dataclasses
 import json
 from pathlib import Path
+from typing import Any
 
 from ratouch.cli.common import usage
 from ratouch.encoders.factory import DEFAULT_SETS, create_model, shipped_weights
@@ -68,20 +69,15 @@ def run(args: argparse.Namespace) -> int:
         print(format_gate_report(rep))
         print(json.dumps({k: v for k, v in rep.items() if k != "by_variant"}))
         return 0
-    if args.train_cmd == "reader":
+    if args.train_cmd in ("reader", "text"):  # stage 2 again from the shipped stage 1
+        extra: dict[str, Any] = ({"arm": args.arm or recipes.READER_ARM}
+                                 if args.train_cmd == "reader" else {})
+        recipe = (recipes.reader_recipe if args.train_cmd == "reader"
+                  else recipes.text_arm_recipe)
         with intra_op_threads(2):
-            _, rep = recipes.reader_recipe(
+            _, rep = recipe(
                 args.encoder, generator_weights(args.encoder, "ra"), seed=args.seed,
-                out=args.out or generator_weights(args.encoder, "reader"),
-                arm=args.arm or recipes.READER_ARM,
-                **({"stage2_steps": args.steps} if args.steps else {}))
-        print(json.dumps({k: v for k, v in rep.items() if k != "history"}))
-        return 0
-    if args.train_cmd == "text":
-        with intra_op_threads(2):
-            _, rep = recipes.text_arm_recipe(
-                args.encoder, generator_weights(args.encoder, "ra"), seed=args.seed,
-                out=args.out or generator_weights(args.encoder, "text"),
+                out=args.out or generator_weights(args.encoder, args.train_cmd), **extra,
                 **({"stage2_steps": args.steps} if args.steps else {}))
         print(json.dumps({k: v for k, v in rep.items() if k != "history"}))
         return 0

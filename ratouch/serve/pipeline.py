@@ -81,15 +81,22 @@ def load_for_serving(folder: str | os.PathLike, integrator: bool = True):
     return gen
 
 
+def _optional_generator(encoder: str, kind: str, system: str):
+    """The shipped generator `kind` of an encoder set that answers one retrieval `system`, or
+    None (logged: that system then reads with the paper's RA-Touch generator)."""
+    folder = generator_weights(encoder, kind)
+    if not (folder / "manifest.json").is_file():
+        log.warning("no %s generator for %s (%s): the %s system reads with the paper's "
+                    "RA-Touch generator (`ratouch train %s --encoder %s`)", kind, encoder,
+                    folder, system, kind, encoder)
+        return None
+    return load_for_serving(folder)
+
+
 def load_reader(encoder: str):
     """The shipped reader of an encoder set (the `gated` system's generator), or None (logged)
     when it has none."""
-    folder = generator_weights(encoder, "reader")
-    if not (folder / "manifest.json").is_file():
-        log.warning("no reader for %s (%s): the gated system reads with the paper's RA-Touch "
-                    "generator (`ratouch train reader --encoder %s`)", encoder, folder, encoder)
-        return None
-    return load_for_serving(folder)
+    return _optional_generator(encoder, "reader", "gated")
 
 
 def load_text_arm(encoder: str):
@@ -97,13 +104,7 @@ def load_text_arm(encoder: str):
     captions in the prompt, `ratouch.model.neighbour_text`), or None (logged) when it has
     none. `RATouchPipeline` rebuilds it on the corpus it serves where it was built on
     another (`text_arm_fits`)."""
-    folder = generator_weights(encoder, "text")
-    if not (folder / "manifest.json").is_file():
-        log.warning("no text-arm generator for %s (%s): the text system reads with the paper's "
-                    "RA-Touch generator (`ratouch train text --encoder %s`)", encoder, folder,
-                    encoder)
-        return None
-    return load_for_serving(folder)
+    return _optional_generator(encoder, "text", "text")
 
 
 #: Corpus rows compared when checking that a text arm was built on the corpus served.
