@@ -189,6 +189,16 @@ def test_calibration_round_trips_and_rejects_other_files(tmp_path):
     path.write_text(json.dumps({**d, "uncertain_alone": [-6.5]}))
     with pytest.raises(DataError, match="uncertain_alone must map sensor families"):
         TrustCalibration.load(path)
+    second = TrustCalibration("enc", nov, nov, plain, with_bg, 2.0, 3.0,
+                              press_alone={"digit": (with_bg, -0.8)})
+    back = TrustCalibration.load(second.save(tmp_path / "p.json"))
+    assert set(back.press_alone or {}) == {"digit"} and back.press_alone["digit"][1] == -0.8
+    assert np.allclose(back.press_alone["digit"][0].score(f), with_bg.score(f), rtol=1e-4,
+                       atol=1e-4)
+    d = json.loads((tmp_path / "p.json").read_text())
+    (tmp_path / "p.json").write_text(json.dumps({**d, "press_alone": [1.0]}))
+    with pytest.raises(DataError, match="press_alone must map sensor families"):
+        TrustCalibration.load(tmp_path / "p.json")
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(DataError, match="not a trust calibration"):
         TrustCalibration.load(tmp_path / "bad.json")
@@ -254,12 +264,86 @@ def test_without_a_background_the_familys_band_answers_a_faint_press_with_a_cave
         == "no contact"                                       # no band for this family
 
 
-def test_alone_band_sits_above_the_familys_blanks_and_below_the_threshold(tmp_path, capsys):
+@pytest.mark.slow
+def test_without_a_background_the_press_model_widens_the_band(monkeypatch):
+    """`press_alone`: a frame of the family below every logit edge is still "uncertain"
+    where the family's press model scores it at or above its edge; below both, "no
+    contact"; a frame that looks like no family's units, or of a family without a press
+    model, is not read by it; contact stays contact."""
+    import dataclasses
+
+    from ratouch.model import trust as trust_mod
+
+    class Fixed:
+        value = 0.0
+
+        def score(self, feats):
+            return np.array([Fixed.value])
+
+    base = TrustCalibration.load(trust_calibration("default-s"))
+    cal = dataclasses.replace(base, uncertain=None, uncertain_alone={"mini": -6.0},
+                              press_alone={"digit": (Fixed(), -0.5)})
+    frame = np.zeros((48, 64, 3), np.uint8)
+    look = {"name": "digit", "distance": 0.5}
+    monkeypatch.setattr(trust_mod, "guess_family", lambda f: (look["name"], look["distance"]))
+    monkeypatch.setattr(TrustCalibration, "contact_score", lambda self, f, b=None: -9.0)
+    for value, state in ((-0.6, "no contact"), (-0.5, "uncertain"), (3.0, "uncertain")):
+        Fixed.value = value
+        assert cal.contact_state(frame)[0] == state, value
+    look["distance"] = 9.0                                   # looks like no family's units
+    assert cal.contact_state(frame)[0] == "no contact"
+    look.update(name="mini", distance=0.5)                   # the logit band only, -9 < -6
+    assert cal.contact_state(frame)[0] == "no contact"
+    monkeypatch.setattr(TrustCalibration, "contact_score",
+                        lambda self, f, b=None: cal.contact_threshold)
+    look["name"] = "digit"
+    Fixed.value = -5.0
+    assert cal.contact_state(frame)[0] == "contact"
+
+
+def test_with_alone_band_fits_a_press_model_within_the_blanks_share():
+    """`with_alone_band` on the shipped calibration at small sizes: the DIGIT gets a press
+    model whose edges call at most the allowed share of its held-out blanks "uncertain",
+    the other families keep `alone_band`'s logit band, and the record says what was compared."""
+    from ratouch.train.trust import (
+        UNCERTAIN_SHARE,
+        _alone_blanks,
+        alone_band,
+        validation_blanks,
+        validation_presses,
+        with_alone_band,
+    )
+
+    cal = TrustCalibration.load(trust_calibration("default-s"))
+    blanks, presses = validation_blanks(5, n=90), validation_presses(5, n=90)
+    out = with_alone_band(cal, n=100, seed=5, world_blanks=blanks, n_presses=40, n_check=20,
+                          world_presses=presses)
+    rec = out.meta["alone_band"]["families"]
+    assert set(rec) == {"digit"} and out.meta["alone_band"]["second_reading_tried_on"] == ["digit"]
+    logit_band = alone_band(cal, 100, 5, blanks)
+    for fam in ("gelsight", "mini"):
+        assert (out.uncertain_alone or {}).get(fam) == logit_band.get(fam)
+    answered = rec["digit"]["answered_on_check_presses"]
+    if out.press_alone:                     # kept only where it answers more check presses
+        assert answered["logit_and_press_model"] > answered["logit"]
+        held = _alone_blanks(100, 5, blanks, slice(1, None, 2))["digit"]
+        model, edge = out.press_alone["digit"]
+        low = (out.uncertain_alone or {}).get("digit", np.inf)
+        flagged = [cal.contact_score(f) >= low or float(model.score(contact_features(f))[0])
+                   >= edge for f in held]
+        assert np.sum(flagged) <= np.floor(UNCERTAIN_SHARE * len(held))
+    assert out.contact_threshold == cal.contact_threshold
+    assert {k: v for k, v in out.meta.items() if k != "alone_band"} == \
+        {k: v for k, v in cal.meta.items() if k != "alone_band"}
+
+
+def test_alone_band_sits_above_the_familys_blanks_and_below_the_threshold(tmp_path, capsys,
+                                                                          monkeypatch):
     """`alone_band` on the shipped calibration (a few blank renders per family), and `ratouch
     train trust --alone-band --out F`, which writes the calibration with its band and nothing
     else changed."""
     from ratouch.cli import main
-    from ratouch.train.trust import alone_band, validation_blanks
+    from ratouch.train.trust import alone_band, validation_blanks, validation_presses
     from ratouch.world.presses import render_blank_pair
 
     cal = TrustCalibration.load(trust_calibration("default-s"))
@@ -275,12 +359,23 @@ def test_alone_band_sits_above_the_familys_blanks_and_below_the_threshold(tmp_pa
                if name == fam]
         assert np.mean(np.array(own) < low) >= 0.9  # and above most of the world's blanks
     out = tmp_path / "t.json"
+    import functools
+
+    from ratouch.cli import train as cli_train
+    from ratouch.train.trust import with_alone_band
+    # the command's plumbing at small sizes (the full sizes take two minutes)
+    monkeypatch.setattr(cli_train, "with_alone_band", functools.partial(
+        with_alone_band, n=12, world_blanks=world, n_presses=20, n_check=10,
+        world_presses=validation_presses(4, n=60)))
     assert main(["train", "trust", "--alone-band", "--seed", "4", "--out", str(out)]) == 0
     written = TrustCalibration.load(out)
-    assert set(written.uncertain_alone or {}) == set(json.loads(capsys.readouterr().out)[
-        "uncertain_alone"])
+    printed = json.loads(capsys.readouterr().out)
+    assert (written.uncertain_alone or {}) == (printed["uncertain_alone"] or {})
+    assert sorted(written.press_alone or {}) == printed["press_alone"]
     assert written.contact_threshold == cal.contact_threshold
-    assert written.meta == cal.meta
+    assert {k: v for k, v in written.meta.items() if k != "alone_band"} == \
+        {k: v for k, v in cal.meta.items() if k != "alone_band"}
+    assert written.meta["alone_band"] == printed["alone_band"]
 
 
 def test_calibration_is_reproducible(tmp_path):
@@ -289,10 +384,14 @@ def test_calibration_is_reproducible(tmp_path):
     from ratouch.train.trust import TrustConfig, calibrate
 
     enc = create_model("default-s")
-    cfg = TrustConfig(n_reference=120, n_validation=100, n_everyday=8, n_alone_blanks=20)
+    cfg = TrustConfig(n_reference=120, n_validation=100, n_everyday=8, n_alone_blanks=20,
+                      n_alone_presses=12, n_alone_check=6)
     a, b = calibrate(enc, cfg, progress=False), calibrate(enc, cfg, progress=False)
     assert a.contact_threshold == b.contact_threshold
     assert a.uncertain_alone == b.uncertain_alone and a.uncertain_alone  # on 20 blanks
+    assert a.meta["alone_band"] == b.meta["alone_band"]
+    assert {k: e for k, (_, e) in (a.press_alone or {}).items()} == \
+        {k: e for k, (_, e) in (b.press_alone or {}).items()}
     assert a.visual.threshold == b.visual.threshold
     assert a.meta["measured"]["contact_false_alarm_test_bg"] <= 0.1
 

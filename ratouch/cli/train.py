@@ -5,7 +5,6 @@ the cascade, or all of them in order.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -28,7 +27,7 @@ from ratouch.train import recipes
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
 from ratouch.train.gate import format_gate_report, gate_recipe
 from ratouch.train.geometry import calibrate as calibrate_geometry
-from ratouch.train.trust import TrustConfig, alone_band, calibrate
+from ratouch.train.trust import TrustConfig, calibrate, with_alone_band
 
 
 def run(args: argparse.Namespace) -> int:
@@ -122,11 +121,12 @@ def _train_geometry(args: argparse.Namespace) -> int:
 def _train_trust(args: argparse.Namespace) -> int:
     if args.alone_band:
         path = trust_calibration(args.encoder)
-        cal = TrustCalibration.load(path)
-        band = alone_band(cal, seed=args.seed)
-        out = dataclasses.replace(cal, uncertain_alone=band).save(args.out or path)
-        print(json.dumps({"written": str(out), "uncertain_alone": band,
-                          "contact_threshold": cal.contact_threshold}, indent=1))
+        cal = with_alone_band(TrustCalibration.load(path), seed=args.seed)
+        out = cal.save(args.out or path)
+        print(json.dumps({"written": str(out), "uncertain_alone": cal.uncertain_alone,
+                          "press_alone": sorted(cal.press_alone or {}),
+                          "contact_threshold": cal.contact_threshold,
+                          "alone_band": cal.meta["alone_band"]}, indent=1))
         return 0
     cal = calibrate(create_model(args.encoder),
                     TrustConfig(seed=args.seed, false_alarm=args.false_alarm))

@@ -297,6 +297,12 @@ class TrustCalibration:
             (`guess_family` within `LOOK_LIMIT`). A shallow, broad press that the model,
             fitted on firm presses, scores below its threshold is then answered with a
             caveat, not silenced; a blank frame still reads "no contact". None: no band.
+        press_alone: without a background, per sensor family, a model of "a press of any
+            kind (everyday presses: shallow, broad, textured; the world's) against a blank
+            frame" read alone, and the edge of its logit above which a frame of that family
+            is "uncertain" too (`ratouch.train.trust.with_alone_band`): the band widened by
+            a second reading, for a family where the disc-press model's logit leaves many
+            presses below its edge. None: none.
     """
 
     encoder: str
@@ -311,6 +317,7 @@ class TrustCalibration:
     noise_floor: float = 0.0
     uncertain: tuple[float, float] | None = None
     uncertain_alone: dict[str, float] | None = None
+    press_alone: dict[str, tuple[ContactModel, float]] | None = None
     #: the sensor families' geometry lookups and structured-change floors (shipped beside,
     #: not inside, this file: `ratouch.paths.geometry_calibration`); None: not loaded
     geometry: GeometryCalibration | None = None
@@ -323,6 +330,9 @@ class TrustCalibration:
                 "noise_floor": self.noise_floor,
                 "uncertain": None if self.uncertain is None else list(self.uncertain),
                 "uncertain_alone": self.uncertain_alone,
+                "press_alone": None if self.press_alone is None else {
+                    k: {"model": m.to_dict(), "edge": e}
+                    for k, (m, e) in self.press_alone.items()},
                 "contact": self.contact.to_dict(), "contact_bg": self.contact_bg.to_dict()}
         lines = [json.dumps(head, indent=1)[:-2] + ","]
         models = [("visual", self.visual), ("tactile", self.tactile)]
@@ -356,6 +366,10 @@ class TrustCalibration:
             if alone is not None and not isinstance(alone, dict):
                 raise ValueError(f"uncertain_alone must map sensor families to logits, got "
                                  f"{type(alone).__name__}")
+            pressed = d.get("press_alone")
+            if pressed is not None and not isinstance(pressed, dict):
+                raise ValueError(f"press_alone must map sensor families to models, got "
+                                 f"{type(pressed).__name__}")
             return cls(d["encoder"], Novelty.from_dict(d["visual"]),
                        Novelty.from_dict(d["tactile"]), ContactModel.from_dict(d["contact"]),
                        ContactModel.from_dict(d["contact_bg"]), float(d["contact_threshold"]),
@@ -363,7 +377,10 @@ class TrustCalibration:
                        None if prior is None else Novelty.from_dict(prior), d.get("meta", {}),
                        float(d["noise_floor"]),
                        None if band is None else (float(band[0]), float(band[1])),
-                       None if alone is None else {str(k): float(v) for k, v in alone.items()})
+                       None if alone is None else {str(k): float(v) for k, v in alone.items()},
+                       None if pressed is None else {
+                           str(k): (ContactModel.from_dict(v["model"]), float(v["edge"]))
+                           for k, v in pressed.items()})
         except (ValueError, KeyError, TypeError) as e:
             raise DataError(f"{path} is not a trust calibration: {e}") from e
 
@@ -418,8 +435,10 @@ class TrustCalibration:
         and else the model decides at `contact_threshold_bg`. Without:
         the model decides outside the `uncertain` band and says "uncertain" inside it, and
         below its threshold but above what the frame's family's blank frames score alone
-        (`uncertain_alone`, for a frame that looks like that family's units) too (a frame that looks like none of the rendered sensors is
-        flagged by `assess`, not here). A score that is not a finite number is never "contact": it is "uncertain".
+        (`uncertain_alone`), or above what they score on the family's `press_alone` model
+        (for a frame that looks like that family's units) too (a frame that looks like none of the
+        rendered sensors is flagged by `assess`, not here). A score that is not a finite
+        number is never "contact": it is "uncertain".
         `structured`: the `structured_contact` block where the caller already has it.
         """
         if background is not None:
@@ -441,8 +460,15 @@ class TrustCalibration:
         # the band of the family the frame looks like, where it looks like one: a band set
         # on one family's blanks says nothing of a sensor that looks like none of them
         name, distance = guess_family(frame)
-        low = (self.uncertain_alone or {}).get(name) if distance <= LOOK_LIMIT else None
-        return ("uncertain" if low is not None and score >= low else "no contact"), score
+        if distance > LOOK_LIMIT:
+            return "no contact", score
+        low = (self.uncertain_alone or {}).get(name)
+        if low is not None and score >= low:
+            return "uncertain", score
+        pressed = (self.press_alone or {}).get(name)
+        if pressed is not None and float(pressed[0].score(contact_features(frame))[0]) >= pressed[1]:
+            return "uncertain", score
+        return "no contact", score
 
     def visual_novelty(self, V: np.ndarray, prior: np.ndarray | None = None) -> dict:
         """The visual novelty block: in the prior's feature space where both the calibration

@@ -30,6 +30,7 @@ from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.presses import render_blank_pair, render_press
 from ratouch.world.sampler import TEST_SIZE, World
+from ratouch.world.sensors import LOOK_LIMIT, guess_family
 from ratouch.world.tactile import family_names, sensor_family
 
 log = logging.getLogger(__name__)
@@ -44,6 +45,10 @@ UNCERTAIN_SHARE = 0.01
 #: them the 99 % quantile moved between -1.20 and -0.72 from one random stream to the next
 #: (on 600: -0.91 to -0.62).
 ALONE_BLANKS = 600
+#: Everyday presses (and as many drifted blanks) per family that `with_alone_band` fits a
+#: family's press model on, and presses of a third stream it compares the two bands on.
+ALONE_PRESSES = 300
+ALONE_CHECK = 200
 
 
 @dataclass(frozen=True)
@@ -62,7 +67,10 @@ class TrustConfig:
             contact model's reference renders and again, freshly drawn, to its validation
             renders (`EVERYDAY_COLUMNS`).
         n_alone_blanks: per sensor family, drifted blank renders the no-background
-            "uncertain" band is set on (`alone_band`; 0: no band).
+            "uncertain" band is set on (`with_alone_band`; 0: no band).
+        n_alone_presses, n_alone_check: per sensor family, everyday presses the band's
+            press model is fitted on (0: the band stays on the contact logit) and presses
+            the two bands are compared on (`with_alone_band`).
     """
 
     seed: int = 0
@@ -72,6 +80,8 @@ class TrustConfig:
     rank: int = 16
     n_everyday: int = 140
     n_alone_blanks: int = ALONE_BLANKS
+    n_alone_presses: int = ALONE_PRESSES
+    n_alone_check: int = ALONE_CHECK
 
     def __post_init__(self) -> None:
         for name in ("n_reference", "n_validation"):
@@ -81,7 +91,7 @@ class TrustConfig:
             raise ConfigError(f"false_alarm={self.false_alarm} must lie in (0, 0.5)")
         if not 1 <= self.rank < self.n_reference:
             raise ConfigError(f"rank={self.rank} must lie in [1, n_reference)")
-        for name in ("n_everyday", "n_alone_blanks"):
+        for name in ("n_everyday", "n_alone_blanks", "n_alone_presses", "n_alone_check"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 0")
 
@@ -259,32 +269,173 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
                            thresholds[1], prior, meta, noise_floor, band)
     if not cfg.n_alone_blanks:
         return cal
-    return dataclasses.replace(cal, uncertain_alone=alone_band(cal, cfg.n_alone_blanks,
-                                                               cfg.seed, nc_val))
+    return with_alone_band(cal, cfg.n_alone_blanks, cfg.seed, nc_val, cfg.n_alone_presses,
+                           cfg.n_alone_check, val)
 
 
 def alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 0,
                world_blanks: dict | None = None) -> dict[str, float]:
-    """`TrustCalibration.uncertain_alone`: per sensor family, the (1 - `UNCERTAIN_SHARE`)
-    quantile of what the family's blank frames score alone with the no-background contact
-    model: `n` drifted blank renders (`render_blank_pair`, a stream of their own) and the
-    world's own no-contact renders of that family (`world_blanks`: {"frames", "families"},
-    as `render_samples` gives them; None: `validation_blanks(seed)`). A family whose blanks
-    reach the contact threshold gets no band."""
-    rng = np.random.default_rng([seed, 3307])
+    """`TrustCalibration.uncertain_alone` on the contact model's logit: per sensor family,
+    the (1 - `UNCERTAIN_SHARE`) quantile of what the family's blank frames score alone with
+    the no-background contact model: `n` drifted blank renders (`render_blank_pair`, a
+    stream of their own) and the world's own no-contact renders of that family
+    (`world_blanks`: {"frames", "families"}, as `render_samples` gives them; None:
+    `validation_blanks(seed)`). A family whose blanks reach the contact threshold gets no
+    band."""
     world_blanks = validation_blanks(seed) if world_blanks is None else world_blanks
+    blanks = _alone_blanks(n, seed, world_blanks)
+    out = {}
+    for fam, frames in blanks.items():
+        low = _edge([trust.contact_score(f) for f in frames])
+        if low is not None and low < trust.contact_threshold:
+            out[fam] = round(low, 4)
+    return out
+
+
+def _alone_blanks(n: int, seed: int, world_blanks: dict, part: slice = slice(None)
+                  ) -> dict[str, list[np.ndarray]]:
+    """Per family: `n` drifted blank renders of `alone_band`'s stream and the world's own
+    no-contact renders of that family (`part` of them)."""
+    rng = np.random.default_rng([seed, 3307])
     out = {}
     for fam in family_names():
         own = [f for f, name in zip(world_blanks["frames"], world_blanks["families"])
-               if name == fam]
-        scores = np.array([trust.contact_score(render_blank_pair(fam, rng)[0])
-                           for _ in range(n)] + [trust.contact_score(f) for f in own])
-        if not len(scores):
-            continue
-        low = float(np.quantile(scores, 1 - UNCERTAIN_SHARE))
-        if low < trust.contact_threshold:
-            out[fam] = round(low, 4)
+               if name == fam][part]
+        out[fam] = [render_blank_pair(fam, rng)[0] for _ in range(n)] + own
     return out
+
+
+def _edge(scores) -> float | None:
+    """The band's edge over blank frames' scores: their (1 - `UNCERTAIN_SHARE`) quantile."""
+    return float(np.quantile(scores, 1 - UNCERTAIN_SHARE)) if len(scores) else None
+
+
+#: The families whose band gets the second reading (a press model read alone). The
+#: GelSight's was tried (2026-11-28): on fresh renders it cut refusals without a background
+#: from 0.800 to 0.614, but it turned Taxim's real GelSight background alone "uncertain"
+#: (the criterion fixed before the run: a real blank must stay "no contact"), so it is not
+#: used: a choice made after seeing that real frame. The Mini's band answers every
+#: validation press without it.
+PRESS_MODEL_FAMILIES = ("digit",)
+#: Quantiles of the held-out blanks' contact logits tried as the band's logit edge when a
+#: second reading shares the band (`with_alone_band`): lower leaves the press model more.
+LOGIT_EDGE_LEVELS = (0.99, 0.992, 0.994, 0.996, 0.998, 1.0)
+
+
+def with_alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 0,
+                    world_blanks: dict | None = None, n_presses: int = ALONE_PRESSES,
+                    n_check: int = ALONE_CHECK, world_presses: dict | None = None,
+                    families: tuple[str, ...] = PRESS_MODEL_FAMILIES) -> TrustCalibration:
+    """`trust` with its no-background "uncertain" band (`uncertain_alone`, `press_alone`),
+    which calls at most `UNCERTAIN_SHARE` of a family's held-out blank frames "uncertain"
+    (`n` drifted blank renders and the odd-numbered half of the world's own no-contact
+    renders of the family, `world_blanks`; None: `validation_blanks(seed)`).
+
+    A family not in `families` gets `alone_band`'s band (on every world blank). Per sensor
+    family of `families`, a frame alone is "uncertain" above either of two edges:
+
+    * on the disc-press contact model's logit (`alone_band`'s reading);
+    * on a press model read alone: a `ContactModel` of `n_presses` everyday presses
+      (`render_press`, kind and material drawn) and the even-numbered half of the world's
+      own presses of the family (`world_presses`; None: `validation_presses(seed)`) against
+      `n_presses` drifted blanks and the even-numbered half of the world's blanks, all of
+      streams of their own.
+
+    The logit's edge is tried at each quantile of `LOGIT_EDGE_LEVELS` of the held-out
+    blanks, the press model's then set as low as the share of blanks allows; the pair that
+    answers most presses of a third stream (`n_check` everyday presses and the odd-numbered
+    half of the world's presses: contact or "uncertain", as `contact_state` decides), and
+    no fewer of those world presses than the logit alone, is kept, the logit alone (at the 99 % quantile, as `alone_band`) where the press model adds
+    nothing. `meta["alone_band"]` records the comparison. Every number is from renders.
+    """
+    world_blanks = validation_blanks(seed) if world_blanks is None else world_blanks
+    world_presses = validation_presses(seed) if world_presses is None else world_presses
+    held = {fam: frames for fam, frames in
+            _alone_blanks(n, seed, world_blanks, slice(1, None, 2)).items() if fam in families}
+    fit_world = {"frames": world_blanks["frames"][0::2],
+                 "families": world_blanks["families"][0::2]}
+    fitting = _alone_blanks(n_presses, seed + 1, fit_world) if n_presses and held else {}
+    fit_rng = np.random.default_rng([seed, 3309])
+    check_rng = np.random.default_rng([seed, 3311])
+    bands = {fam: edge for fam, edge in alone_band(trust, n, seed, world_blanks).items()
+             if fam not in families}
+    second: dict[str, tuple[ContactModel, float]] = {}
+    record: dict[str, dict] = {}
+    base = dataclasses.replace(trust, uncertain_alone=None, press_alone=None)
+    for fam, blanks in held.items():
+        logits = np.array([trust.contact_score(f) for f in blanks])
+        edge = _edge(logits)
+        if edge is not None and edge < trust.contact_threshold:
+            bands[fam] = round(edge, 4)
+        if not n_presses or not len(blanks):
+            continue
+        own = [f for f, name in zip(world_presses["frames"], world_presses["families"])
+               if name == fam]
+        model = ContactModel.fit(
+            np.stack([contact_features(render_press(fam, fit_rng).frame)
+                      for _ in range(n_presses)] + [contact_features(f) for f in own[0::2]]),
+            np.stack([contact_features(f) for f in fitting[fam]]))
+        pressed = model.score(np.stack([contact_features(f) for f in blanks]))
+        checks = [render_press(fam, check_rng).frame for _ in range(n_check)] + own[1::2]
+        # what the calibration answers without any band, and what the band would read
+        answered0 = np.array([base.contact_state(f)[0] != "no contact" for f in checks])
+        looks = np.array([(lambda g: g[0] == fam and g[1] <= LOOK_LIMIT)(guess_family(f))
+                          for f in checks])
+        c_logit = np.array([trust.contact_score(f) for f in checks])
+        c_press = model.score(np.stack([contact_features(f) for f in checks]))
+        allowed = int(np.floor(UNCERTAIN_SHARE * len(blanks)))
+        options = []
+        for level in LOGIT_EDGE_LEVELS:
+            e1 = float(np.quantile(logits, level)) if level < 1 else float("inf")
+            if level == LOGIT_EDGE_LEVELS[0] and fam in bands:
+                e1 = bands[fam]
+            left = pressed[logits < e1]
+            room = allowed - int((logits >= e1).sum())
+            if room < 0 or not len(left):
+                continue
+            e2 = float(np.sort(left)[::-1][room]) + 1e-6 if room < len(left) else -np.inf
+            hit = answered0 | (looks & ((c_logit >= e1) | (c_press >= e2)))
+            options.append((float(hit.mean()), level, e1, e2, int(hit[n_check:].sum())))
+        only = answered0 | (looks & (c_logit >= bands.get(fam, np.inf)))
+        logit_only = float(only.mean())
+        # the world's own presses: none that the logit band answers may be lost
+        options = [o for o in options if o[4] >= int(only[n_check:].sum())]
+        best = max(options, key=lambda o: (o[0], -o[1])) if options else None
+        keep = best is not None and best[0] > logit_only and np.isfinite(best[3])
+        if keep:
+            assert best is not None
+            _, level, e1, e2, _ = best
+            if np.isfinite(e1) and e1 < trust.contact_threshold:
+                bands[fam] = round(e1, 4)
+            else:
+                bands.pop(fam, None)
+            second[fam] = (model, round(e2, 4))
+        record[fam] = {
+            "answered_on_check_presses": {"logit": round(logit_only, 4),
+                                          "logit_and_press_model": None if best is None
+                                          else round(best[0], 4)},
+            "logit_edge": bands.get(fam), "logit_edge_level": best[1] if keep and best else 0.99,
+            "press_model_edge": second[fam][1] if fam in second else None,
+            "blank_share_allowed": UNCERTAIN_SHARE,
+            "uses": "logit and press model" if keep else "logit"}
+    meta = {**trust.meta, "alone_band": {
+        "blanks": f"{n} drifted blank renders and the odd half of the world's no-contact "
+                  "validation renders per family (at most "
+                  f"{UNCERTAIN_SHARE:.0%} of them uncertain)",
+        "press_model": f"{n_presses} everyday presses and the even half of the world's "
+                       f"validation presses against {n_presses} drifted blanks and the even "
+                       "half of the world's blanks per family",
+        "check": f"{n_check} everyday presses per family (a third stream) and the odd half "
+                 "of the world's validation presses",
+        "second_reading_tried_on": list(families), "families": record}}
+    return dataclasses.replace(trust, uncertain_alone=bands or None,
+                               press_alone=second or None, meta=meta)
+
+
+def validation_presses(seed: int = 0, n: int = TrustConfig.n_validation) -> dict:
+    """The world's validation renders with contact (`calibrate`'s "val")."""
+    world = World(WorldConfig(seed=seed)).warm()
+    return render_samples(world, "train", range(VALIDATION_START, VALIDATION_START + n))
 
 
 def validation_blanks(seed: int = 0, n: int = TrustConfig.n_validation) -> dict:
