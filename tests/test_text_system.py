@@ -100,3 +100,26 @@ def test_without_a_text_arm_the_text_system_says_the_paper_answers(monkeypatch):
 
     monkeypatch.setattr(pl, "generator_weights", lambda enc, kind, lm=None: Path("/nowhere"))
     assert pl.load_text_arm("default-s") is None
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HAVE_ASSETS, reason="the trained weights are not in assets/")
+def test_a_pipeline_rebuilds_the_text_arm_in_a_generator_of_its_own(real_pipeline):
+    """One loaded text generator handed to a pipeline on a corpus it was not built on is
+    left as it was: the pipeline rebuilds the arm in a generator of its own (sharing the
+    frozen prompt and decoder), so another pipeline can still serve the given one."""
+    from ratouch.serve.pipeline import RATouchPipeline, load_text_arm
+
+    given = load_text_arm("default-s")
+    if given is None:
+        pytest.skip("no shipped text arm")
+    arm = given.integrator
+    p = real_pipeline
+    other = RATouchPipeline(p.retriever, p.tgr, p.generator_ra, p.generator_base,
+                            trust=p.trust, generator_text=given)
+    assert given.integrator is arm                          # the one given is untouched
+    assert other.generator_text is not given
+    assert other.generator_text.decoder is given.decoder   # the frozen parts are shared
+    assert text_arm_fits(other.generator_text.integrator,
+                         p.corpus_embeddings("tactile_caption"))
+    assert not any(t.requires_grad for t in other.generator_text.parameters())

@@ -26,7 +26,7 @@ import torch
 from ratouch.errors import ConfigError, DataNotFoundError
 from ratouch.model.fastpath import StackCache
 from ratouch.model.gate import READ_BELOW, TouchGate
-from ratouch.model.generator import describe_together, load_generator
+from ratouch.model.generator import RATouchGenerator, describe_together, load_generator
 from ratouch.model.geometry import GeometryCalibration
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.model.neighbour_text import KIND as NEIGHBOUR_TEXT
@@ -207,16 +207,20 @@ class RATouchPipeline(RetrievalSide):
         text_emb = self.corpus_embeddings("tactile_caption")
         #: the `text` system's generator (None: the text system reads with the paper's
         #: RA-Touch generator, and says why: `text_missing`)
-        self.generator_text = generator_text
-        self.text_missing: str | None = (None if generator_text is not None
-                                         else "no text-arm generator is loaded")
         if generator_text is not None and not text_arm_fits(generator_text.integrator, text_emb):
             # built on another corpus (the default one; this is a user's or a test's): the
             # arm has nothing trained of its own, so it is rebuilt on this corpus's captions
-            # with the decoder's own (frozen) word embeddings and the words it was trained with
-            generator_text.integrator = NeighbourText.build(
-                [e.caption for e in self.corpus.entries], text_emb, generator_text.decoder,
-                words=generator_text.integrator.cfg.words)
+            # with the decoder's own (frozen) word embeddings and the words it was trained
+            # with, in a generator of this pipeline's own (the one given is left as it is:
+            # another pipeline may serve it on its corpus)
+            generator_text = RATouchGenerator(
+                generator_text.prompt, generator_text.decoder, NeighbourText.build(
+                    [e.caption for e in self.corpus.entries], text_emb, generator_text.decoder,
+                    words=generator_text.integrator.cfg.words)).train(generator_text.training)
+            generator_text.requires_grad_(False)
+        self.generator_text = generator_text
+        self.text_missing: str | None = (None if generator_text is not None
+                                         else "no text-arm generator is loaded")
         prior = getattr(self.encoders, "visual_prior", None)
         #: answers crops that look like real photos (None: the encoders have no prior)
         self.photos = None if prior is None else PhotoRoute(
