@@ -290,6 +290,10 @@ def test_without_a_background_the_press_model_widens_the_band(monkeypatch):
     for value, state in ((-0.6, "no contact"), (-0.5, "uncertain"), (3.0, "uncertain")):
         Fixed.value = value
         assert cal.contact_state(frame)[0] == state, value
+    assert cal.alone_band_reading(frame, -9.0) == {"family": "digit", "reading": "press model",
+                                                   "score": 3.0, "edge": -0.5}
+    assert cal.alone_band_reading(frame, -9.0, ("mini", 0.5)) is None     # -9 < -6
+    assert cal.alone_band_reading(frame, -5.0, ("mini", 0.5))["reading"] == "contact model"
     look["distance"] = 9.0                                   # looks like no family's units
     assert cal.contact_state(frame)[0] == "no contact"
     look.update(name="mini", distance=0.5)                   # the logit band only, -9 < -6

@@ -425,7 +425,8 @@ class TrustCalibration:
                 "height": read_height(lookup, frame, background, change) if height else None}
 
     def contact_state(self, frame: np.ndarray, background: np.ndarray | None = None,
-                      structured: dict | None = None) -> tuple[str, float]:
+                      structured: dict | None = None,
+                      look: tuple[str, float] | None = None) -> tuple[str, float]:
         """What the frame shows, one of :data:`CONTACT_STATES`, and its contact logit.
 
         With a background: a frame whose structured local change (edges and texture, the
@@ -439,7 +440,8 @@ class TrustCalibration:
         (for a frame that looks like that family's units) too (a frame that looks like none of the
         rendered sensors is flagged by `assess`, not here). A score that is not a finite
         number is never "contact": it is "uncertain".
-        `structured`: the `structured_contact` block where the caller already has it.
+        `structured`: the `structured_contact` block where the caller already has it;
+        `look`: `guess_family(frame)` where the caller already has it.
         """
         if background is not None:
             if structured is None:
@@ -459,16 +461,29 @@ class TrustCalibration:
             return "contact", score
         # the band of the family the frame looks like, where it looks like one: a band set
         # on one family's blanks says nothing of a sensor that looks like none of them
-        name, distance = guess_family(frame)
+        return ("uncertain" if self.alone_band_reading(frame, score, look) else "no contact"), score
+
+    def alone_band_reading(self, frame: np.ndarray, score: float,
+                           look: tuple[str, float] | None = None) -> dict | None:
+        """Without a background, for a frame whose contact logit `score` is below the
+        threshold: the reading of its family's band that finds it above what that family's
+        blank frames score alone, {"family", "reading" ("contact model" or "press model"),
+        "score", "edge"}; None when neither does or the frame looks like no family's units
+        (`look`: `guess_family(frame)` where the caller has it)."""
+        name, distance = guess_family(frame) if look is None else look
         if distance > LOOK_LIMIT:
-            return "no contact", score
+            return None
         low = (self.uncertain_alone or {}).get(name)
         if low is not None and score >= low:
-            return "uncertain", score
+            return {"family": name, "reading": "contact model", "score": round(score, 3),
+                    "edge": low}
         pressed = (self.press_alone or {}).get(name)
-        if pressed is not None and float(pressed[0].score(contact_features(frame))[0]) >= pressed[1]:
-            return "uncertain", score
-        return "no contact", score
+        if pressed is not None:
+            read = float(pressed[0].score(contact_features(frame))[0])
+            if read >= pressed[1]:
+                return {"family": name, "reading": "press model", "score": round(read, 3),
+                        "edge": pressed[1]}
+        return None
 
     def visual_novelty(self, V: np.ndarray, prior: np.ndarray | None = None) -> dict:
         """The visual novelty block: in the prior's feature space where both the calibration
@@ -525,7 +540,8 @@ class TrustCalibration:
             read = (None if background is None else
                     self.read_geometry(frame, background, name))
             state, score = self.contact_state(
-                frame, background, None if read is None else read["structure"])
+                frame, background, None if read is None else read["structure"],
+                (name, distance))
             tac.update({"contact": round(score, 4) if np.isfinite(score) else None,
                         "contact_threshold": round(thr, 4), "state": state,
                         "no_contact": state == "no contact", "uncertain": state == "uncertain",
@@ -556,9 +572,15 @@ class TrustCalibration:
                     f"background with nothing pressed into it{shown}; no material "
                     "description is given")
             elif tac["uncertain"]:
+                by = (self.alone_band_reading(frame, score, (name, distance))
+                      if background is None and np.isfinite(score) else None)
+                tac["uncertain_by"] = by
+                why = "" if by is None else (
+                    f" (read alone, the {by['family']} {by['reading']} scores {by['score']} "
+                    f">= {by['edge']}, above what its blank frames score)")
                 warnings.append(
                     "contact uncertain: give the sensor's no-contact frame (background); "
-                    "the description below is a guess")
+                    f"the description below is a guess{why}")
             if foreign and not tac["uncertain"] and background is None:
                 warnings.append(
                     f"the tactile frame looks like none of the sensors the contact check was "
