@@ -18,7 +18,9 @@ baseline. Criterion, fixed before the first run: a variant *reads its neighbours
 shuffle drop on scarce materials is > 0 with a paired t-test p < 0.01. If none does, learning
 rate and trainables are not why the shipped integrator ignores them.
 
-    python scripts/why_lr_trainables.py [--n 500] [--steps 600] [--variants a,b,...]
+    python scripts/why_lr_trainables.py [--n 500] [--steps 600] [--variants a,b,...] [--pairs N]
+
+(`--pairs N`: train on the first N paired training renders instead of all of them: a smoke run.)
 """
 
 from __future__ import annotations
@@ -69,16 +71,17 @@ def train_variant(stage1, dim: int, lr: float, which: str, V, T, labels, rv, rl,
     return gen
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=500)
     ap.add_argument("--steps", type=int, default=600)
     ap.add_argument("--variants", default=",".join(VARIANTS))
-    args = ap.parse_args()
+    ap.add_argument("--pairs", type=int, default=None)
+    args = ap.parse_args(argv)
     torch.set_num_threads(2)
     t0 = time.perf_counter()
     pipe = RATouchPipeline.load("default-s")
-    data = training_pairs(pipe.encoders)
+    data = training_pairs(pipe.encoders, n_pairs=args.pairs)
     rv, rl = pipe.neighbour_embeddings(pipe.joint_neighbours(data["V"], data["T"], 5))
     stage1 = load_generator(generator_weights("default-s", "ra"), stage1=True)
     tc = GeneratorTrainConfig(seed=0, stage2_steps=args.steps)

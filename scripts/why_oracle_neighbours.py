@@ -7,7 +7,9 @@ seen and scarce groups with perfect neighbours and with shuffled ones. A large g
 significant shuffle drop means the integrator can read, and the shipped one's failure lies in
 retrieval; no gain means the integrator (or its training) cannot use even perfect neighbours.
 
-    python scripts/why_oracle_neighbours.py [--n 500]
+    python scripts/why_oracle_neighbours.py [--n 500] [--steps 600] [--pairs N]
+
+(`--pairs N`: train on the first N paired training renders instead of all of them: a smoke run.)
 """
 
 from __future__ import annotations
@@ -37,22 +39,24 @@ def perfect_ids(materials, by_material, fallback, k, rng):
                      else fallback[i] for i, m in enumerate(materials)])
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=500)
-    args = ap.parse_args()
+    ap.add_argument("--steps", type=int, default=600)
+    ap.add_argument("--pairs", type=int, default=None)
+    args = ap.parse_args(argv)
     torch.set_num_threads(2)
     pipe = RATouchPipeline.load("default-s")
     by_material: dict[str, list[int]] = {}
     for i, e in enumerate(pipe.corpus.entries):
         by_material.setdefault(e.material, []).append(i)
     rng = np.random.default_rng(0)
-    data = training_pairs(pipe.encoders)
+    data = training_pairs(pipe.encoders, n_pairs=args.pairs)
     fallback = pipe.joint_neighbours(data["V"], data["T"], 5)
     ids = perfect_ids(data["materials"], by_material, fallback, 5, rng)
     rv, rl = pipe.neighbour_embeddings(ids)
     stage1 = load_generator(generator_weights("default-s", "ra"), stage1=True)
-    tc = GeneratorTrainConfig(seed=0)
+    tc = GeneratorTrainConfig(seed=0, stage2_steps=args.steps)
     gen, _ = train_stage2(stage1, TextureAwareIntegrator(IntegratorConfig(
         dim=pipe.encoders.dim, out_dim=stage1.decoder.hidden)),
         torch.from_numpy(data["V"]), torch.from_numpy(data["T"]), data["labels"],

@@ -23,8 +23,9 @@ from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.world.scarcity import ScarceRegime
 
 
-def main() -> None:
-    n = int(sys.argv[1]) if len(sys.argv) > 1 else 300
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    n = int(argv[0]) if argv else 300
     p = RATouchPipeline.load("default-s", generators=False)
     mats = entry_materials(p.corpus)
     out = {}

@@ -31,3 +31,64 @@ def test_height_hardness_check_reports_every_family(capsys):
         assert r["renders"] == 4 * len(script.KINDS)
         assert 0 < r["soft_share"] < 1 and 0.5 <= r["majority_accuracy"] <= 1
         assert 0 <= r["height_map_accuracy"] <= 1
+
+
+class _Shipped:
+    """Stands in for `RATouchPipeline` in a script: `load` gives the tests' real pipeline
+    (the shipped default-s weights on the 600-entry corpus), not the default 10k corpus."""
+
+    pipeline = None
+
+    @classmethod
+    def load(cls, *args, **kwargs):
+        return cls.pipeline
+
+
+@pytest.mark.slow
+def test_retrieval_precision_check_reports_every_mode_per_group(real_pipeline, monkeypatch,
+                                                                capsys):
+    script = _script("why_retrieval_precision")
+    _Shipped.pipeline = real_pipeline
+    monkeypatch.setattr(script, "RATouchPipeline", _Shipped)
+    script.main(["4"])
+    out = _last_json(capsys)
+    assert set(out) == {"seen", "scarce"}
+    for r in out.values():
+        assert "chance" in r
+        for mode in script.QUERY_MODES:         # every mode's retrieval, by its target
+            assert any(k.startswith(mode + "_") for k in r), mode
+        assert all(0 <= v <= 1 for v in r.values())
+
+
+@pytest.mark.slow
+def test_oracle_neighbours_check_trains_and_judges_both_groups(real_pipeline, monkeypatch,
+                                                               capsys):
+    script = _script("why_oracle_neighbours")
+    _Shipped.pipeline = real_pipeline
+    monkeypatch.setattr(script, "RATouchPipeline", _Shipped)
+    script.main(["--n", "4", "--steps", "2", "--pairs", "48"])
+    out = _last_json(capsys)
+    assert set(out) == {"seen", "scarce"}
+    for r in out.values():
+        assert {"baseline", "perfect", "perfect_shuffled", "gain", "shuffle_drop"} <= set(r)
+        assert 0 <= r["perfect"] <= 10
+
+
+@pytest.mark.slow
+def test_lr_trainables_check_trains_a_variant_and_says_whether_it_reads(real_pipeline,
+                                                                        monkeypatch, capsys):
+    script = _script("why_lr_trainables")
+    _Shipped.pipeline = real_pipeline
+    monkeypatch.setattr(script, "RATouchPipeline", _Shipped)
+    script.main(["--n", "4", "--steps", "2", "--pairs", "48", "--variants", "integrator"])
+    out = _last_json(capsys)
+    assert out["config"]["stage2_steps"] == 2 and "integrator" in out["config"]["variants"]
+    for g in ("seen", "scarce"):
+        assert {"shipped", "integrator"} <= set(out[g])
+        assert isinstance(out[g]["integrator"]["reads"], bool)
+
+
+def _last_json(capsys) -> dict:
+    """The JSON object a script prints last (after its progress lines)."""
+    text = capsys.readouterr().out
+    return json.loads(text[text.rindex("\n{") + 1:] if "\n{" in text else text)
