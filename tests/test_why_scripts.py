@@ -47,11 +47,8 @@ class _Shipped:
 @pytest.mark.slow
 def test_retrieval_precision_check_reports_every_mode_per_group(real_pipeline, monkeypatch,
                                                                 capsys):
-    script = _script("why_retrieval_precision")
-    _Shipped.pipeline = real_pipeline
-    monkeypatch.setattr(script, "RATouchPipeline", _Shipped)
-    script.main(["4"])
-    out = _last_json(capsys)
+    script, out = _run_on_shipped("why_retrieval_precision", ["4"], real_pipeline, monkeypatch,
+                                  capsys)
     assert set(out) == {"seen", "scarce"}
     for r in out.values():
         assert "chance" in r
@@ -63,11 +60,8 @@ def test_retrieval_precision_check_reports_every_mode_per_group(real_pipeline, m
 @pytest.mark.slow
 def test_oracle_neighbours_check_trains_and_judges_both_groups(real_pipeline, monkeypatch,
                                                                capsys):
-    script = _script("why_oracle_neighbours")
-    _Shipped.pipeline = real_pipeline
-    monkeypatch.setattr(script, "RATouchPipeline", _Shipped)
-    script.main(["--n", "4", "--steps", "2", "--pairs", "48"])
-    out = _last_json(capsys)
+    _, out = _run_on_shipped("why_oracle_neighbours", ["--n", "4", "--steps", "2", "--pairs", "48"],
+                             real_pipeline, monkeypatch, capsys)
     assert set(out) == {"seen", "scarce"}
     for r in out.values():
         assert {"baseline", "perfect", "perfect_shuffled", "gain", "shuffle_drop"} <= set(r)
@@ -77,15 +71,23 @@ def test_oracle_neighbours_check_trains_and_judges_both_groups(real_pipeline, mo
 @pytest.mark.slow
 def test_lr_trainables_check_trains_a_variant_and_says_whether_it_reads(real_pipeline,
                                                                         monkeypatch, capsys):
-    script = _script("why_lr_trainables")
-    _Shipped.pipeline = real_pipeline
-    monkeypatch.setattr(script, "RATouchPipeline", _Shipped)
-    script.main(["--n", "4", "--steps", "2", "--pairs", "48", "--variants", "integrator"])
-    out = _last_json(capsys)
+    _, out = _run_on_shipped("why_lr_trainables", ["--n", "4", "--steps", "2", "--pairs", "48",
+                                                   "--variants", "integrator"],
+                             real_pipeline, monkeypatch, capsys)
     assert out["config"]["stage2_steps"] == 2 and "integrator" in out["config"]["variants"]
     for g in ("seen", "scarce"):
         assert {"shipped", "integrator"} <= set(out[g])
         assert isinstance(out[g]["integrator"]["reads"], bool)
+
+
+def _run_on_shipped(name: str, argv: list[str], pipeline, monkeypatch, capsys):
+    """Run script `name` with `argv` on the tests' real pipeline: (the script's module, the
+    JSON object it printed last)."""
+    script = _script(name)
+    _Shipped.pipeline = pipeline
+    monkeypatch.setattr(script, "RATouchPipeline", _Shipped)
+    script.main(argv)
+    return script, _last_json(capsys)
 
 
 def _last_json(capsys) -> dict:

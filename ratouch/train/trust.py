@@ -283,7 +283,12 @@ def alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 0,
     `validation_blanks(seed)`). A family whose blanks reach the contact threshold gets no
     band."""
     world_blanks = validation_blanks(seed) if world_blanks is None else world_blanks
-    blanks = _alone_blanks(n, seed, world_blanks)
+    return _logit_bands(trust, _alone_blanks(n, seed, world_blanks))
+
+
+def _logit_bands(trust: TrustCalibration, blanks: dict[str, list[np.ndarray]]
+                 ) -> dict[str, float]:
+    """`alone_band` on blank frames already rendered, per family."""
     out = {}
     for fam, frames in blanks.items():
         low = _edge([trust.contact_score(f) for f in frames])
@@ -292,17 +297,26 @@ def alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 0,
     return out
 
 
-def _alone_blanks(n: int, seed: int, world_blanks: dict, part: slice = slice(None)
+def _alone_blanks(n: int, seed: int, world_blanks: dict, part: slice = slice(None),
+                  drifted: dict[str, list[np.ndarray]] | None = None
                   ) -> dict[str, list[np.ndarray]]:
-    """Per family: `n` drifted blank renders of `alone_band`'s stream and the world's own
-    no-contact renders of that family (`part` of them)."""
+    """Per family: `n` drifted blank renders of `alone_band`'s stream (`drifted`: those
+    already rendered by `_drifted_blanks(n, seed)`) and the world's own no-contact renders
+    of that family (`part` of them)."""
+    drifted = _drifted_blanks(n, seed) if drifted is None else drifted
+    return {fam: frames + _of_family(world_blanks, fam)[part] for fam, frames in drifted.items()}
+
+
+def _drifted_blanks(n: int, seed: int) -> dict[str, list[np.ndarray]]:
+    """Per family, `n` drifted blank renders of `alone_band`'s random stream."""
     rng = np.random.default_rng([seed, 3307])
-    out = {}
-    for fam in family_names():
-        own = [f for f, name in zip(world_blanks["frames"], world_blanks["families"])
-               if name == fam][part]
-        out[fam] = [render_blank_pair(fam, rng)[0] for _ in range(n)] + own
-    return out
+    return {fam: [render_blank_pair(fam, rng)[0] for _ in range(n)] for fam in family_names()}
+
+
+def _of_family(renders: dict, fam: str) -> list[np.ndarray]:
+    """The frames of `renders` ({"frames", "families"}, as `render_samples` gives them) of
+    sensor family `fam`."""
+    return [f for f, name in zip(renders["frames"], renders["families"]) if name == fam]
 
 
 def _edge(scores) -> float | None:
@@ -350,39 +364,46 @@ def with_alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 
     """
     world_blanks = validation_blanks(seed) if world_blanks is None else world_blanks
     world_presses = validation_presses(seed) if world_presses is None else world_presses
-    held = {fam: frames for fam, frames in
-            _alone_blanks(n, seed, world_blanks, slice(1, None, 2)).items() if fam in families}
+    drifted = _drifted_blanks(n, seed)  # rendered once: both bands read them
+    held = {fam: frames for fam, frames in _alone_blanks(
+        n, seed, world_blanks, slice(1, None, 2), drifted).items() if fam in families}
     fit_world = {"frames": world_blanks["frames"][0::2],
                  "families": world_blanks["families"][0::2]}
     fitting = _alone_blanks(n_presses, seed + 1, fit_world) if n_presses and held else {}
     fit_rng = np.random.default_rng([seed, 3309])
     check_rng = np.random.default_rng([seed, 3311])
-    bands = {fam: edge for fam, edge in alone_band(trust, n, seed, world_blanks).items()
-             if fam not in families}
+    bands = {fam: edge for fam, edge in _logit_bands(
+        trust, _alone_blanks(n, seed, world_blanks, drifted=drifted)).items()
+        if fam not in families}
     second: dict[str, tuple[ContactModel, float]] = {}
     record: dict[str, dict] = {}
     base = dataclasses.replace(trust, uncertain_alone=None, press_alone=None)
     for fam, blanks in held.items():
-        logits = np.array([trust.contact_score(f) for f in blanks])
+        if not blanks:
+            continue
+        # each frame's contact features once: the contact model's logit and the press
+        # model's read the same ones (`contact_score` is the contact model on them)
+        blank_feats = np.stack([contact_features(f) for f in blanks])
+        logits = trust.contact.score(blank_feats)
         edge = _edge(logits)
         if edge is not None and edge < trust.contact_threshold:
             bands[fam] = round(edge, 4)
-        if not n_presses or not len(blanks):
+        if not n_presses:
             continue
-        own = [f for f, name in zip(world_presses["frames"], world_presses["families"])
-               if name == fam]
+        own = _of_family(world_presses, fam)
         model = ContactModel.fit(
             np.stack([contact_features(render_press(fam, fit_rng).frame)
                       for _ in range(n_presses)] + [contact_features(f) for f in own[0::2]]),
             np.stack([contact_features(f) for f in fitting[fam]]))
-        pressed = model.score(np.stack([contact_features(f) for f in blanks]))
+        pressed = model.score(blank_feats)
         checks = [render_press(fam, check_rng).frame for _ in range(n_check)] + own[1::2]
         # what the calibration answers without any band, and what the band would read
         answered0 = np.array([base.contact_state(f)[0] != "no contact" for f in checks])
-        looks = np.array([(lambda g: g[0] == fam and g[1] <= LOOK_LIMIT)(guess_family(f))
-                          for f in checks])
-        c_logit = np.array([trust.contact_score(f) for f in checks])
-        c_press = model.score(np.stack([contact_features(f) for f in checks]))
+        guesses = [guess_family(f) for f in checks]
+        looks = np.array([name == fam and distance <= LOOK_LIMIT for name, distance in guesses])
+        check_feats = np.stack([contact_features(f) for f in checks])
+        c_logit = trust.contact.score(check_feats)
+        c_press = model.score(check_feats)
         allowed = int(np.floor(UNCERTAIN_SHARE * len(blanks)))
         options = []
         for level in LOGIT_EDGE_LEVELS:
