@@ -106,6 +106,12 @@ def test_trust_reads_a_shallow_press_against_its_background(pipeline):
                      p.background)
     assert out["tactile"]["structure"]["contact"]
     assert out["tactile"]["geometry"]["units"] == "mm"
+    assert out["tactile"]["firmness"]["reads"] in ("soft", "hard")
+    assert 0 <= out["tactile"]["firmness"]["soft"] <= 1
+    # a blank against its own background: no contact, so no firmness reading
+    blank = cal.assess(enc.encode_image([p.frame]), enc.encode_tactile([p.background]),
+                       p.background, p.background)
+    assert blank["tactile"]["no_contact"] and blank["tactile"]["firmness"] is None
 
 
 def test_an_unfamiliar_sensor_is_said_so_with_a_background(pipeline):
@@ -122,6 +128,70 @@ def test_an_unfamiliar_sensor_is_said_so_with_a_background(pipeline):
                                 bg)
     assert out["tactile"]["unfamiliar_sensor"]
     assert any("looks like none of the sensors" in w for w in out["warnings"])
+
+
+def test_firmness_from_shape_tells_soft_from_hard_on_fresh_renders(shipped):
+    """docs/geometry.md, "Firmness read from shape": on renders of every kind of press from a
+    stream the fit never draws from, each family's reading is right on both classes well
+    above chance (balanced accuracy), and never collapses to one answer."""
+    from ratouch.eval.presses import balanced_accuracy
+    from ratouch.train.geometry import shape_renders
+
+    for name, lookup in shipped.lookups.items():
+        model = shipped.firmness[name]
+        X, soft, _ = shape_renders(lookup, np.random.default_rng([4242, len(name)]), 6)
+        said = [model.soft(x) >= 0.5 for x in X]
+        acc = balanced_accuracy(said, list(soft))
+        assert acc["balanced"] >= 0.7 and min(acc["soft_recall"], acc["hard_recall"]) >= 0.5, (
+            name, acc)
+
+
+def test_real_ball_presses_read_hard_from_their_shape(shipped):
+    """Taxim's real presses of a rigid ball, read against their backgrounds (no real frame
+    was fitted on): every one reads hard from its shape."""
+    for family, calibration in (("gelsight", "gelsight"), ("mini", "gelsight_mini")):
+        rp = real_presses(calibration)
+        lookup = shipped.lookup(family)
+        for frame in rp["frames"]:
+            change = lookup.change(frame, rp["background"])
+            hm = read_height(lookup, frame, rp["background"], change)
+            assert shipped.read_firmness(family, hm, change)["reads"] == "hard"
+
+
+def test_firmness_models_round_trip_and_an_old_file_still_loads(shipped, tmp_path):
+    from ratouch.model.geometry import SHAPE_FEATURES
+
+    again = GeometryCalibration.load(shipped.save(tmp_path / "g.json"))
+    x = np.linspace(-1, 1, len(SHAPE_FEATURES))
+    for name, model in shipped.firmness.items():
+        assert again.firmness[name].soft(x) == pytest.approx(model.soft(x), abs=1e-5)
+    body = json.loads((tmp_path / "g.json").read_text())
+    # a calibration written before the firmness models: lookups, and no reading
+    old = {k: v for k, v in body.items() if k != "firmness"}
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    cal = GeometryCalibration.load(tmp_path / "old.json")
+    assert cal.firmness == {} and cal.read_firmness("mini", None, None) is None  # type: ignore[arg-type]
+    # a model that reads other features is not silently misread
+    body["firmness"]["mini"]["features"] = ["log depth"]
+    (tmp_path / "other.json").write_text(json.dumps(body))
+    with pytest.raises(DataError, match="other shape features"):
+        GeometryCalibration.load(tmp_path / "other.json")
+
+
+@pytest.mark.slow
+def test_train_geometry_firmness_only_keeps_the_lookups(shipped, tmp_path, capsys):
+    out = tmp_path / "lookups.json"
+    shipped.save(out)
+    assert main(["train", "geometry", "--firmness-only", "--firmness-per-kind", "2",
+                 "--out", str(out)]) == 0
+    report = json.loads(capsys.readouterr().out)["firmness"]
+    assert set(report) == {"digit", "gelsight", "mini"}
+    assert report["mini"]["renders"] == 14 and 0 < report["mini"]["soft_share"] < 1
+    cal = GeometryCalibration.load(out)
+    assert set(cal.firmness) == set(cal.lookups)
+    assert (json.loads(out.read_text())["lookups"]
+            == json.loads(shipped.save(tmp_path / "s.json").read_text())["lookups"])
+    assert cal.firmness["mini"].meta["per_kind"] == 2
 
 
 def test_calibration_file_errors_are_clear(tmp_path):
@@ -161,6 +231,8 @@ def test_eval_presses_cli(capsys):
     rep = json.loads(capsys.readouterr().out)
     assert set(rep) == {"digit", "gelsight", "mini"}
     assert set(rep["mini"]["kinds"]) >= {"fabric", "foam", "edge"}
+    shape = rep["mini"]["shape_firmness"]
+    assert shape["n"] == 7 and 0 <= shape["balanced"] <= 1
 
 
 class _ReadsSoftWithBackground:

@@ -272,6 +272,12 @@ def _add_train(sub) -> None:
                     help="pixels each family's lookup is fitted on")
     ge.add_argument("--pairs", type=_pos_int, default=300,
                     help="drifted blank render pairs each family's contact floors are set on")
+    ge.add_argument("--firmness-per-kind", type=_pos_int, default=60,
+                    help="renders per kind of everyday press each family's firmness model "
+                         "is fitted on")
+    ge.add_argument("--firmness-only", action="store_true",
+                    help="keep the calibration's lookups and floors; fit only the firmness "
+                         "models (read from --out or the shipped file)")
     ge.add_argument("--out", default=None,
                     help="calibration JSON (default: assets/geometry/lookups.json)")
     cc = tsub.add_parser("cascade", help="calibrate the encoder cascade (smallest confident "

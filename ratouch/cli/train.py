@@ -11,6 +11,7 @@ from typing import Any
 
 from ratouch.cli.common import usage
 from ratouch.encoders.factory import DEFAULT_SETS, create_model, shipped_weights
+from ratouch.model.geometry import GeometryCalibration
 from ratouch.model.pretrained_lm import PRETRAINED_LMS
 from ratouch.model.trust import TrustCalibration
 from ratouch.paths import (
@@ -27,6 +28,7 @@ from ratouch.train import recipes
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
 from ratouch.train.gate import format_gate_report, gate_recipe
 from ratouch.train.geometry import calibrate as calibrate_geometry
+from ratouch.train.geometry import with_firmness
 from ratouch.train.trust import TrustConfig, calibrate, with_alone_band
 
 
@@ -110,7 +112,15 @@ def _train_cascade(args: argparse.Namespace) -> int:
 
 
 def _train_geometry(args: argparse.Namespace) -> int:
-    cal, held_out = calibrate_geometry(args.seed, samples=args.samples, pairs=args.pairs)
+    if args.firmness_only:
+        path = args.out or geometry_calibration()
+        cal, fits = with_firmness(GeometryCalibration.load(path), args.seed,
+                                  args.firmness_per_kind)
+        out = cal.save(path)
+        print(json.dumps({"written": str(out), "firmness": fits}, indent=1))
+        return 0
+    cal, held_out = calibrate_geometry(args.seed, samples=args.samples, pairs=args.pairs,
+                                       per_kind=args.firmness_per_kind)
     out = cal.save(args.out or geometry_calibration())
     print(json.dumps({"written": str(out), "held_out": {
         k: {m: v for m, v in r.items() if m != "presses"} for k, r in held_out.items()},

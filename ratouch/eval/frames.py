@@ -100,6 +100,7 @@ def read_frame(pipeline, item: Frame, k: int = 5) -> dict:
            "ra_touch": (result.get("description") or {}).get("ra_touch", ""),
            "neighbours": [n.get("caption") for n in tactile[:k]],
            "geometry": tac.get("geometry"), "structure": tac.get("structure"),
+           "shape": tac.get("firmness"),
            "unfamiliar_sensor": bool(tac.get("unfamiliar_sensor")),
            "warnings": list(result.get("warnings", [])),
            "known_touch": item.centre is not None}
@@ -182,6 +183,11 @@ def summarise(rows: list[dict]) -> dict:
         "presses_region_on_touch": sum(bool(r.get("region_overlaps_touch")) for r in presses),
         "presses_read_soft": sum(r["firmness"] == "soft" for r in presses),
         "presses_read_hard": sum(r["firmness"] == "hard" for r in presses),
+        # firmness read from the press's shape against its background (none alone)
+        "presses_shape_soft": sum((r.get("shape") or {}).get("reads") == "soft"
+                                  for r in presses),
+        "presses_shape_hard": sum((r.get("shape") or {}).get("reads") == "hard"
+                                  for r in presses),
         "blanks": len(blanks),
         "blanks_no_contact": sum(r["state"] == "no contact" for r in blanks),
         "blanks_uncertain": sum(r["state"] == "uncertain" for r in blanks),
@@ -200,21 +206,25 @@ def format_frames(rows: list[dict]) -> str:
     if not rows:
         raise ConfigError("no frames to show")
     lines = [f"{'frame':<44} {'sensor':<9} {'state':<11} {'contact':>8} {'depth':>14} "
-             f"{'spread':>6}  reading -> RA-Touch"]
+             f"{'spread':>6} {'shape':>10}  reading -> RA-Touch"]
     for r in rows:
         score = "-" if r["contact"] is None else f"{r['contact']:.2f}"
         geo = r.get("geometry") or {}
         depth = (f"{geo['depth']:.3g} {'mm' if geo['units'] == 'mm' else 'r.u.'}"
                  if geo else "-")
         spread = f"{geo['spread']:.2f}" if geo else "-"
+        shape = r.get("shape")
+        shape = f"{shape['reads']} {shape['soft']:.2f}" if shape else "-"
         lines.append(f"{r['frame'][:44]:<44} {str(r['sensor']):<9} {str(r['state']):<11} "
-                     f"{score:>8} {depth:>14} {spread:>6}  {r['reading'] or '-'} -> "
+                     f"{score:>8} {depth:>14} {spread:>6} {shape:>10}  {r['reading'] or '-'} -> "
                      f"{r['ra_touch'] or '-'}")
     s = summarise(rows)
     lines.append("")
     lines.append(
         f"presses: {s['presses_detected']}/{s['presses']} detected, "
         f"{s['presses_read_soft']} read as soft, {s['presses_read_hard']} as hard"
+        + (f" (from shape: {s['presses_shape_soft']} soft, {s['presses_shape_hard']} hard)"
+           if s["presses_shape_soft"] + s["presses_shape_hard"] else "")
         + (f", {s['presses_region_on_touch']} with the contact region on the known touch"
            if any("region_overlaps_touch" in r for r in rows) else "")
         + f"; blank frames: {s['blanks_no_contact']}/{s['blanks']} no contact, "
@@ -229,7 +239,7 @@ def height_sheet(trust, frames: Iterable[Frame], path: str | Path, columns: int 
                  tile: int = 160) -> Path:
     """A contact sheet (PNG): each frame beside its height map (read against its background by
     the guessed family's lookup; frames without a background get none), captioned with the
-    frame's name, depth and spread. Written atomically.
+    frame's name, depth, spread and the firmness read from its shape. Written atomically.
 
     Raises:
         ConfigError: no frame, or no geometry calibration loaded.
@@ -251,7 +261,8 @@ def height_sheet(trust, frames: Iterable[Frame], path: str | Path, columns: int 
         sheet.paste(Image.fromarray(f).resize((tile, th)), (x, y))
         caption = item.name[:30]
         if item.background is not None:
-            hm = trust.height_map(item.frame, item.background)
+            read = trust.read_geometry(item.frame, item.background)
+            hm = None if read is None else read["height"]
             if hm is not None:
                 img = hm.image()
                 if img.shape[0] > img.shape[1]:
@@ -259,6 +270,8 @@ def height_sheet(trust, frames: Iterable[Frame], path: str | Path, columns: int 
                 sheet.paste(Image.fromarray(img).resize((tile, th)), (x + tile + 4, y))
                 unit = "mm" if hm.units == "mm" else "r.u."
                 caption += f" | {hm.depth:.2g} {unit}, spread {hm.spread:.2f}"
+                if read["firmness"] is not None:
+                    caption += f", {read['firmness']['reads']}"
         else:
             draw.text((x + tile + 12, y + th // 2), "no background:\nno height map",
                       fill=(90, 90, 90))

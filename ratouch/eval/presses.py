@@ -27,13 +27,16 @@ def press_contact(trust: TrustCalibration, n: int = 10, blanks: int = 40, seed: 
                   ) -> dict:
     """Per family: per kind the share of presses read as contact (with background, without,
     and by the structured check alone), the depth and spread of their height maps, and the
-    share of blank pairs read as contact (false alarms). A miss is any reading but
+    share of blank pairs read as contact (false alarms), and the balanced accuracy of the
+    firmness read from shape (`shape_firmness`, every press read against its background;
+    `shape_soft` per kind). A miss is any reading but
     "contact"; a refusal is "no contact" (the answer withheld), where "uncertain" still
     answers with a caveat: both are counted, for presses and for blanks."""
     rng = np.random.default_rng([seed, 911])
     out: dict = {}
     for fam in family_names():
         rows: dict = defaultdict(lambda: defaultdict(list))
+        shape: tuple[list, list] = ([], [])  # firmness read from shape, and the truth
         for kind in PRESS_KINDS:
             for _ in range(n):
                 p = render_press(fam, rng, kind)
@@ -48,6 +51,11 @@ def press_contact(trust: TrustCalibration, n: int = 10, blanks: int = 40, seed: 
                 r["refused_with_background"].append(st_bg == "no contact")
                 r["refused_without_background"].append(st == "no contact")
                 r["structured"].append(bool(sc and sc["contact"]))
+                firm = None if read is None else read["firmness"]
+                if firm is not None:
+                    r["shape_soft"].append(firm["reads"] == "soft")
+                    shape[0].append(firm["reads"] == "soft")
+                    shape[1].append(p.soft)
                 if hm is not None:
                     r["depth"].append(hm.depth)
                     r["spread"].append(hm.spread)
@@ -74,8 +82,19 @@ def press_contact(trust: TrustCalibration, n: int = 10, blanks: int = 40, seed: 
             "false_alarm_without_background": round(float(np.mean(fa)), 4),
             "blank_recognised_with_background": round(float(np.mean(empty_bg)), 4),
             "blank_recognised_without_background": round(float(np.mean(empty)), 4),
+            "shape_firmness": balanced_accuracy(*shape) if shape[0] else None,
             "n_presses": n * len(PRESS_KINDS), "n_blanks": blanks}
     return out
+
+
+def balanced_accuracy(soft: list[bool], truth: list[bool]) -> dict:
+    """{"balanced", "soft_recall", "hard_recall", "n"} of soft-or-hard readings against the
+    truth (balanced: the mean of the two recalls)."""
+    s, t = np.asarray(soft, bool), np.asarray(truth, bool)
+    rs = float((s & t).sum() / max(t.sum(), 1))
+    rh = float((~s & ~t).sum() / max((~t).sum(), 1))
+    return {"balanced": round((rs + rh) / 2, 3), "soft_recall": round(rs, 3),
+            "hard_recall": round(rh, 3), "n": int(len(t))}
 
 
 def format_press_contact(rep: dict) -> str:
@@ -98,6 +117,12 @@ def format_press_contact(rep: dict) -> str:
                      f"{f['false_alarm_without_background']:.3f} | "
                      f"{f['blank_recognised_with_background']:.3f} | "
                      f"{f['blank_recognised_without_background']:.3f} |")
+    shaped = {fam: f["shape_firmness"] for fam, f in rep.items() if f.get("shape_firmness")}
+    if shaped:
+        lines += ["", "| family | firmness from shape: balanced accuracy | soft recall | "
+                  "hard recall | presses |", "|---|---|---|---|---|"]
+        lines += [f"| {fam} | {r['balanced']:.3f} | {r['soft_recall']:.3f} | "
+                  f"{r['hard_recall']:.3f} | {r['n']} |" for fam, r in shaped.items()]
     return "\n".join(lines)
 
 

@@ -138,13 +138,15 @@ class GradientLookup:
         return working_change(frame, background, self.work_size, turn=turn)
 
     def contact(self, frame: np.ndarray, background: np.ndarray,
-                change: np.ndarray | None = None) -> tuple[bool, float]:
+                change: np.ndarray | None = None, stats: np.ndarray | None = None
+                ) -> tuple[bool, float]:
         """Whether `frame` shows contact against `background` by its structured change, and
         the score against this family's floors (above :attr:`structure_threshold`: contact).
-        `change`: `self.change(frame, background)` where already computed."""
-        if change is None:
-            change = self.change(frame, background)
-        score = structure_score(band_stats(change), self.structure_floors)
+        `change`: `self.change(frame, background)`, `stats`: `band_stats(change)`, where
+        already computed."""
+        if stats is None:
+            stats = band_stats(self.change(frame, background) if change is None else change)
+        score = structure_score(stats, self.structure_floors)
         return bool(score > self.structure_threshold), score
 
 
@@ -311,21 +313,117 @@ def structure_score(stats: np.ndarray, floors: tuple[float, ...]) -> float:
     return float(np.max(np.asarray(stats) / np.maximum(np.asarray(floors), 1e-9)))
 
 
+# ------------------------------------------------------------------- firmness from shape
+
+#: Scales (working px) the height map's detail is measured at, for :func:`shape_features`.
+SHAPE_SCALES = (1.0, 2.0, 4.0, 8.0)
+#: Names of :func:`shape_features`' numbers, in order.
+SHAPE_FEATURES = (
+    "log depth", "spread", "log relief / depth", "log p99 slope / depth",
+    "log p90 slope / depth", "height / depth q50", "height / depth q75", "height / depth q90",
+    "height / depth q95", *(f"log detail s{s:g} / depth" for s in SHAPE_SCALES),
+    "log detail inside / depth",
+    *(f"log band {lo:g}-{hi:g} {stat}" for lo, hi in ((1, 3), (2, 6), (3, 10))
+      for stat in ("p99.5", "rms")))
+
+
+def shape_features(hm: HeightMap, change: np.ndarray, stats: np.ndarray | None = None
+                   ) -> np.ndarray:
+    """What a press's shape and its change's texture say about firmness: the height map's
+    profile (its depth, spread, relief, slopes and detail at :data:`SHAPE_SCALES`, each as a
+    log ratio to the depth, and quantiles of height over depth: a rigid thing pushes a
+    steep-edged, textured dent, a compliant one a wide, smooth-edged one) and the drift-free
+    change's structured statistics (:func:`band_stats`, log). (20,) float64, named by
+    :data:`SHAPE_FEATURES`; per family (the depth is in its units). `stats`:
+    `band_stats(change)` where already computed."""
+    z = hm.height.astype(np.float64)
+    d = max(hm.depth, 1e-6)
+    gy, gx = np.gradient(z)
+    slope = np.hypot(gx, gy)
+    f = [np.log(d), hm.spread, np.log(max(hm.relief, 1e-7) / d),
+         np.log(np.percentile(slope, 99) / d + 1e-9), np.log(np.percentile(slope, 90) / d + 1e-9)]
+    f += [float(q) for q in np.quantile(np.clip(z / d, -1, 2), [0.5, 0.75, 0.9, 0.95])]
+    for s in SHAPE_SCALES:
+        detail = z - gaussian_filter(z, s)
+        f.append(np.log(np.sqrt(np.mean(detail * detail)) / d + 1e-9))
+    inside = z > d / 3
+    detail = z - gaussian_filter(z, 2.0)
+    f.append(np.log(np.sqrt(np.mean(detail[inside] ** 2)) / d + 1e-9)
+             if inside.sum() > 5 else -10.0)
+    f += [float(v) for v in np.log((band_stats(change) if stats is None else stats) + 1e-6)]
+    return np.nan_to_num(np.asarray(f, np.float64), nan=0.0, posinf=0.0, neginf=-20.0)
+
+
+@dataclass(frozen=True)
+class FirmnessModel:
+    """One family's reading of firmness from shape: a logistic model on standardised
+    :func:`shape_features`, fitted on renders of everyday presses (`ratouch train
+    geometry`); its probability is that the pressed thing is soft (compliance >= 0.5).
+
+    Attributes:
+        family: the sensor family.
+        mean, scale: the features' standardisation.
+        coef, bias: the logistic model.
+        meta: provenance and measured figures.
+    """
+
+    family: str
+    mean: np.ndarray
+    scale: np.ndarray
+    coef: np.ndarray
+    bias: float
+    meta: dict = field(default_factory=dict)
+
+    def soft(self, features: np.ndarray) -> float:
+        """Probability that the press is of a soft thing."""
+        x = (np.asarray(features, np.float64) - self.mean) / self.scale
+        return float(1.0 / (1.0 + np.exp(-np.clip(x @ self.coef + self.bias, -30, 30))))
+
+    def read(self, features: np.ndarray) -> dict:
+        """{"soft": probability, "reads": "soft" or "hard" (at 0.5)}."""
+        p = self.soft(features)
+        return {"soft": round(p, 3), "reads": "soft" if p >= 0.5 else "hard"}
+
+    def to_dict(self) -> dict:
+        return {"family": self.family, "features": list(SHAPE_FEATURES),
+                "mean": np.round(self.mean, 6).tolist(),
+                "scale": np.round(self.scale, 6).tolist(),
+                "coef": np.round(self.coef, 6).tolist(), "bias": round(self.bias, 6),
+                "meta": self.meta}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> FirmnessModel:
+        if list(d.get("features", [])) != list(SHAPE_FEATURES):
+            raise ValueError("its firmness model reads other shape features")
+        return cls(str(d["family"]), np.asarray(d["mean"], np.float64),
+                   np.asarray(d["scale"], np.float64), np.asarray(d["coef"], np.float64),
+                   float(d["bias"]), dict(d.get("meta", {})))
+
+
 # ----------------------------------------------------------------------- the calibration
 
 @dataclass(frozen=True)
 class GeometryCalibration:
-    """Every family's lookup, with provenance."""
+    """Every family's lookup and firmness model (a family may have none), with provenance."""
 
     lookups: dict[str, GradientLookup]
     meta: dict = field(default_factory=dict)
+    firmness: dict[str, FirmnessModel] = field(default_factory=dict)
 
     def lookup(self, family: str) -> GradientLookup | None:
         return self.lookups.get(family)
 
+    def read_firmness(self, family: str, hm: HeightMap, change: np.ndarray,
+                      stats: np.ndarray | None = None) -> dict | None:
+        """`family`'s firmness reading of a press (`FirmnessModel.read`; `stats`:
+        `band_stats(change)` where already computed), or None (no model for the family)."""
+        model = self.firmness.get(family)
+        return None if model is None else model.read(shape_features(hm, change, stats))
+
     def save(self, path: str | os.PathLike) -> Path:
         body = {"format": FORMAT, "meta": self.meta,
-                "lookups": {k: v.to_dict() for k, v in self.lookups.items()}}
+                "lookups": {k: v.to_dict() for k, v in self.lookups.items()},
+                "firmness": {k: v.to_dict() for k, v in self.firmness.items()}}
         return write_atomic(path, json.dumps(body, indent=1) + "\n")
 
     @classmethod
@@ -343,7 +441,9 @@ class GeometryCalibration:
             if d.get("format") != FORMAT:
                 raise ValueError(f"format {d.get('format')!r}, expected {FORMAT!r}")
             return cls({k: GradientLookup.from_dict(v) for k, v in d["lookups"].items()},
-                       dict(d.get("meta", {})))
+                       dict(d.get("meta", {})),
+                       {k: FirmnessModel.from_dict(v)
+                        for k, v in d.get("firmness", {}).items()})
         except (ValueError, KeyError, TypeError, UnicodeDecodeError) as e:
             raise DataError(f"{path} is not a geometry calibration: {e}") from e
 

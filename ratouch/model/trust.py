@@ -39,7 +39,7 @@ from scipy.ndimage import gaussian_filter
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
 from ratouch.images import check_background_size, resize_array
-from ratouch.model.geometry import GeometryCalibration, HeightMap, read_height
+from ratouch.model.geometry import GeometryCalibration, HeightMap, band_stats, read_height
 from ratouch.world.sensors import LOOK_LIMIT, guess_family
 
 log = logging.getLogger(__name__)
@@ -407,8 +407,10 @@ class TrustCalibration:
     def read_geometry(self, frame: np.ndarray, background: np.ndarray,
                       family: str | None = None, height: bool = True) -> dict | None:
         """The frame's drift-free change against its background, computed once, read both
-        ways: {"structure": the structured-contact block, "height": its `HeightMap` (None
-        unless `height`)}; None when no geometry calibration or lookup for the family."""
+        ways: {"structure": the structured-contact block, "height": its `HeightMap` and
+        "firmness": the family's firmness reading of it (`GeometryCalibration.read_firmness`;
+        both None unless `height`, the firmness None where the family has no model)}; None
+        when no geometry calibration or lookup for the family."""
         if self.geometry is None:
             return None
         check_background_size(background.shape[1::-1], frame.shape[1::-1], "the background")
@@ -417,12 +419,16 @@ class TrustCalibration:
         if lookup is None:
             return None
         change = lookup.change(frame, background)
-        hit, score = lookup.contact(frame, background, change)
+        stats = band_stats(change)  # read by the contact check and the firmness model
+        hit, score = lookup.contact(frame, background, change, stats)
+        hm = read_height(lookup, frame, background, change) if height else None
         return {"structure": {"contact": hit,
                               "score": round(score, 3) if np.isfinite(score) else None,
                               "threshold": round(lookup.structure_threshold, 3),
                               "family": name},
-                "height": read_height(lookup, frame, background, change) if height else None}
+                "height": hm,
+                "firmness": (None if hm is None else
+                             self.geometry.read_firmness(name, hm, change, stats))}
 
     def contact_state(self, frame: np.ndarray, background: np.ndarray | None = None,
                       structured: dict | None = None,
@@ -510,8 +516,8 @@ class TrustCalibration:
             "uniform"}, "tactile": {... plus
             "contact" (None when not a number), "contact_threshold", "state",
             "no_contact", "uncertain", "background", "sensor" (the family read, guessed from the
-            frame's colours), "unfamiliar_sensor", and with a background "structure" and
-            "geometry"} or None,
+            frame's colours), "unfamiliar_sensor", and with a background "structure",
+            "geometry" and "firmness" (read from shape; None for no contact)} or None,
             "warnings": [...],
             "height_map": the frame's `HeightMap` against the background (an object, not
             JSON: its numbers are "geometry"), or None}
@@ -550,6 +556,9 @@ class TrustCalibration:
                 tac["structure"] = None if read is None else read["structure"]
                 tac["geometry"] = None if read is None else read["height"].to_dict()
                 out["height_map"] = None if read is None else read["height"]
+                # firmness from shape: a reading of a press, none of a blank
+                tac["firmness"] = (None if read is None or state == "no contact"
+                                   else read["firmness"])
             unlike = distance > LOOK_LIMIT
             tac["sensor"] = {"family": name, "distance": round(distance, 3), "source": (
                 "the nearest guess: the frame looks like none of the families' units"

@@ -10,6 +10,9 @@
 * **DIGIT**: no real calibration exists; the lookup is fitted on the world shader's own
   renders of ball presses (so a render is inverted exactly by the shader's mapping, and a
   real DIGIT frame gets the shader's mapping too: its depth is in render units, a guess).
+* **Firmness from shape**: per family, a logistic model on :func:`shape_features` of
+  renders of every kind of everyday press (`ratouch.world.presses.render_press`, a stream of
+  its own) read against their drifted backgrounds; soft is compliance >= 0.5. Renders only.
 * **Contact floors**: per family, the 99.5th percentiles of the structured change
   (`ratouch.model.geometry.band_stats`) over blank pairs (a unit's background and a
   later no-contact frame, drifted as Taxim's real pairs drift: `ratouch.world.presses`).
@@ -25,11 +28,13 @@ import numpy as np
 
 from ratouch.model.geometry import (
     WORK_LANDSCAPE,
+    FirmnessModel,
     GeometryCalibration,
     GradientLookup,
     band_stats,
     fit_lookup,
     read_height,
+    shape_features,
     sphere_gradients,
     structure_score,
     working_change,
@@ -44,6 +49,13 @@ HOLD_OUT_EVERY = 6
 #: Blank pairs per family the floors are set on, and the quantile.
 FLOOR_PAIRS = 300
 FLOOR_QUANTILE = 0.995
+#: Renders per kind of press (`ratouch.world.presses.PRESS_KINDS`) each family's firmness
+#: model is fitted on.
+FIRMNESS_PER_KIND = 60
+#: Columns of `shape_features` in each group, for the fit's report (the height map's profile
+#: and the change's structured statistics).
+PROFILE_COLUMNS = tuple(range(14))
+CHANGE_COLUMNS = tuple(range(14, 20))
 
 
 def _taxim_pixels(calibration: str) -> float:
@@ -176,11 +188,81 @@ def set_floors(lookup: GradientLookup, seed: int = 0, pairs: int = FLOOR_PAIRS
         f"on the other {pairs - half}, {FLOOR_QUANTILE:.1%} quantiles"))
 
 
-def calibrate(seed: int = 0, samples: int = 120_000, pairs: int = FLOOR_PAIRS
-              ) -> tuple[GeometryCalibration, dict[str, Any]]:
-    """Every family's lookup with its floors, and the held-out reconstruction per family
-    (`samples`: pixels each lookup is fitted on; `pairs`: blank pairs the floors are set on).
-    """
+def shape_renders(lookup: GradientLookup, rng: np.random.Generator, per_kind: int
+                  ) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """`per_kind` renders of every kind of everyday press on `lookup`'s family, read against
+    their drifted backgrounds: their shape features (N, 20), whether each is soft (N,) bool,
+    and each kind."""
+    from ratouch.world.presses import PRESS_KINDS, render_press
+
+    X, y, kinds = [], [], []
+    for kind in PRESS_KINDS:
+        for _ in range(per_kind):
+            p = render_press(lookup.family, rng, kind)
+            change = lookup.change(p.frame, p.background)
+            X.append(shape_features(read_height(lookup, p.frame, p.background, change),
+                                    change))
+            y.append(p.soft)
+            kinds.append(kind)
+    return np.asarray(X), np.asarray(y, bool), kinds
+
+
+def _logistic(X: np.ndarray, y: np.ndarray):  # noqa: ANN202 (an sklearn pipeline)
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    return make_pipeline(StandardScaler(), LogisticRegression(
+        max_iter=2000, class_weight="balanced")).fit(X, y) if len(X) else None
+
+
+def fit_firmness(lookup: GradientLookup, seed: int = 0, per_kind: int = FIRMNESS_PER_KIND
+                 ) -> tuple[FirmnessModel, dict]:
+    """`lookup`'s family's firmness model, fitted on renders (a stream of its own); and the
+    fit's report: renders, soft share, and 5-fold balanced accuracy of the model on both
+    feature groups together and on each alone."""
+    from sklearn.model_selection import cross_val_score
+
+    rng = np.random.default_rng([seed, 53, sum(map(ord, lookup.family))])
+    X, y, _ = shape_renders(lookup, rng, per_kind)
+    fit = _logistic(X, y)
+    scaler, model = fit.named_steps["standardscaler"], fit.named_steps["logisticregression"]
+    folds = int(min(5, y.sum(), (~y).sum()))
+    cv = {}
+    for name, cols in (("both", None), ("profile", PROFILE_COLUMNS),
+                       ("change", CHANGE_COLUMNS)):
+        Xg = X if cols is None else X[:, list(cols)]
+        cv[name] = (round(float(cross_val_score(
+            _logistic(Xg, y), Xg, y, cv=folds, scoring="balanced_accuracy").mean()), 3)
+            if folds >= 2 else None)
+    report = {"renders": int(len(y)), "soft_share": round(float(y.mean()), 3),
+              "cv_balanced_accuracy": cv, "seed": seed, "per_kind": per_kind}
+    return FirmnessModel(lookup.family, np.asarray(scaler.mean_, np.float64),
+                         np.asarray(scaler.scale_, np.float64),
+                         np.asarray(model.coef_[0], np.float64), float(model.intercept_[0]),
+                         {"fitted_on": f"{len(y)} renders of everyday presses "
+                                       f"({per_kind} a kind), soft: compliance >= 0.5",
+                          **report}), report
+
+
+def with_firmness(cal: GeometryCalibration, seed: int = 0,
+                  per_kind: int = FIRMNESS_PER_KIND) -> tuple[GeometryCalibration, dict]:
+    """`cal` with every family's firmness model fitted (its lookups unchanged), and the fits'
+    reports."""
+    models, report = {}, {}
+    for name, lookup in cal.lookups.items():
+        models[name], report[name] = fit_firmness(lookup, seed, per_kind)
+        log.info("firmness %s: cv balanced accuracy %s", name,
+                 report[name]["cv_balanced_accuracy"])
+    return GeometryCalibration(cal.lookups, cal.meta, models), report
+
+
+def calibrate(seed: int = 0, samples: int = 120_000, pairs: int = FLOOR_PAIRS,
+              per_kind: int = FIRMNESS_PER_KIND) -> tuple[GeometryCalibration, dict[str, Any]]:
+    """Every family's lookup with its floors and its firmness model, and per family the
+    held-out reconstruction and the firmness fit's report (`samples`: pixels each lookup is
+    fitted on; `pairs`: blank pairs the floors are set on; `per_kind`: renders per kind of
+    press the firmness model is fitted on)."""
     from ratouch.world.sensors import SENSOR_FAMILIES
 
     lookups, report = {}, {}
@@ -196,8 +278,12 @@ def calibrate(seed: int = 0, samples: int = 120_000, pairs: int = FLOOR_PAIRS
         log.info("geometry %s: depth MAE %s, radius MAE %s px, threshold %.3g", name,
                  rec["depth_error_mae"], rec["radius_error_px_mae"],
                  lookup.structure_threshold)
-    return GeometryCalibration(lookups, {"seed": seed, "ball_mm": BALL_MM, "samples": samples,
-                                         "blank_pairs": pairs}), report
+    cal, firmness = with_firmness(GeometryCalibration(
+        lookups, {"seed": seed, "ball_mm": BALL_MM, "samples": samples,
+                  "blank_pairs": pairs}), seed, per_kind)
+    for name, rec in firmness.items():
+        report[name]["firmness"] = rec
+    return cal, report
 
 
 def _brief(rec: dict) -> dict:
