@@ -235,6 +235,27 @@ def test_eval_presses_cli(capsys):
     assert shape["n"] == 7 and 0 <= shape["balanced"] <= 1
 
 
+@pytest.mark.slow
+def test_eval_presses_probe_cli(capsys):
+    """`ratouch eval presses --probe N`: per family, linear probes of the material and of
+    soft against hard from the embedding (with and without the background), the shape and
+    both, as a table and as JSON."""
+    assert main(["eval", "presses", "--n", "1", "--blanks", "1", "--probe", "2"]) == 0
+    table = capsys.readouterr().out
+    for said in ("| digit | embedding with background |", "| mini | shape |",
+                 "| gelsight | embedding and shape |"):
+        assert said in table, said
+    assert main(["eval", "presses", "--n", "1", "--blanks", "1", "--probe", "2",
+                 "--json"]) == 0
+    probe = json.loads(capsys.readouterr().out)["probe"]
+    assert set(probe) == {"digit", "gelsight", "mini"}
+    for row in probe.values():
+        assert row["presses"] == 14 and 0 < row["material_chance"] < 1
+        for key in ("embedding_with_background", "embedding_alone", "shape",
+                    "embedding_and_shape"):
+            assert 0 <= row[key]["material"] <= 1 and 0 <= row[key]["firmness"] <= 1
+
+
 class _ReadsSoftWithBackground:
     """A stand-in pipeline: "soft, plush" where a background is given, no contact without."""
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from ratouch.cli.common import usage, world_cfg
 from ratouch.cli.judge import make_judge
+from ratouch.encoders.factory import create_model
 from ratouch.errors import DataNotFoundError
 from ratouch.eval import stress as S
 from ratouch.eval.controls import format_controls, run_controls
@@ -38,8 +39,10 @@ from ratouch.eval.photos import (
 from ratouch.eval.premise import format_premise, run_premise, why_ignored
 from ratouch.eval.presses import (
     format_press_contact,
+    format_press_probe,
     format_press_readings,
     press_contact,
+    press_probe,
     press_readings,
 )
 from ratouch.eval.recaption import format_recaption_agreement, recaption_agreement
@@ -121,13 +124,21 @@ def _eval_presses(args: argparse.Namespace) -> int:
     if args.readings:
         readings = press_readings(RATouchPipeline.load(args.encoder), OfflineJudge(),
                                   n=args.readings, seed=args.seed + 1)
+    probe = None
+    if args.probe:
+        probe = press_probe(create_model(args.encoder), trust, n=args.probe, seed=args.seed + 3)
     if args.json:
-        print(json.dumps({**rep, "readings": readings} if readings else rep, indent=1))
+        extra = {**({"readings": readings} if readings else {}),
+                 **({"probe": probe} if probe else {})}
+        print(json.dumps({**rep, **extra}, indent=1))
         return 0
     print(format_press_contact(rep))
     if readings:
         print()
         print(format_press_readings(readings))
+    if probe:
+        print()
+        print(format_press_probe(probe))
     return 0
 
 

@@ -434,6 +434,10 @@ def _add_eval(sub) -> None:
                     help="also read N presses per family and kind through the whole pipeline "
                          "by touch alone, with and without the background: hard against "
                          "soft, the judge against the material's words, distinct readings")
+    pe.add_argument("--probe", type=_nonneg_int, default=0, metavar="N",
+                    help="also probe N presses per family and kind: material and soft against "
+                         "hard from the tactile embedding (with and without the background), "
+                         "the press's shape, and both")
     pe.add_argument("--json", action="store_true")
     rp = esub.add_parser("recaption", help="recaptioners against the world's own adjectives "
                                            "on corpus entries: adjective F1 and offline judge, "

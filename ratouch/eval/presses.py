@@ -13,6 +13,7 @@ from collections import defaultdict
 
 import numpy as np
 
+from ratouch.errors import ConfigError
 from ratouch.eval.frames import Frame, read_frame
 from ratouch.model.trust import TrustCalibration
 from ratouch.world.material import material
@@ -95,6 +96,75 @@ def balanced_accuracy(soft: list[bool], truth: list[bool]) -> dict:
     rh = float((~s & ~t).sum() / max((~t).sum(), 1))
     return {"balanced": round((rs + rh) / 2, 3), "soft_recall": round(rs, 3),
             "hard_recall": round(rh, 3), "n": int(len(t))}
+
+
+def press_probe(encoders, trust: TrustCalibration, n: int = 20, seed: int = 4,
+                folds: int = 5) -> dict:
+    """What the tactile encoder and the press's shape hold about the pressed thing, on
+    renders of everyday presses: per family, `n` presses of every kind, and linear probes
+    (standardised logistic regression, `folds`-fold cross-validation over shuffled presses)
+    of the material (accuracy; chance: the most common material's share) and of soft against
+    hard (balanced accuracy) from the tactile embedding with the background, without it, the
+    shape features (`model.geometry.shape_features`, against the background) and the
+    embedding with the background and the shape together.
+
+    Raises:
+        ConfigError: no geometry calibration loaded."""
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.model_selection import KFold, cross_val_predict
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    from ratouch.model.geometry import band_stats, read_height, shape_features
+
+    if trust.geometry is None:
+        raise ConfigError("no geometry calibration loaded: `ratouch train geometry`")
+    rng = np.random.default_rng([seed, 977])
+    out: dict = {}
+    for fam in family_names():
+        lookup = trust.geometry.lookup(fam)
+        if lookup is None:
+            continue
+        presses = [render_press(fam, rng, kind) for kind in PRESS_KINDS for _ in range(n)]
+        frames = [p.frame for p in presses]
+        bgs = [p.background for p in presses]
+        shapes = []
+        for p in presses:
+            change = lookup.change(p.frame, p.background)
+            shapes.append(shape_features(read_height(lookup, p.frame, p.background, change),
+                                         change, band_stats(change)))
+        with_bg = encoders.encode_tactile(frames, bgs, sensors=[fam] * len(frames))
+        alone = encoders.encode_tactile(frames, None, sensors=[fam] * len(frames))
+        inputs = {"embedding_with_background": with_bg, "embedding_alone": alone,
+                  "shape": np.asarray(shapes),
+                  "embedding_and_shape": np.concatenate([with_bg, np.asarray(shapes)], 1)}
+        names = np.array([p.material for p in presses])
+        soft = np.array([p.soft for p in presses])
+        split = KFold(folds, shuffle=True, random_state=seed)
+        row: dict = {"presses": len(presses), "materials": int(len(set(names))),
+                     "material_chance": round(float(max(np.mean(names == m)
+                                                        for m in set(names))), 3)}
+        for key, X in inputs.items():
+            probe = make_pipeline(StandardScaler(), LogisticRegression(max_iter=3000))
+            said = cross_val_predict(probe, X, names, cv=split)
+            firm = make_pipeline(StandardScaler(), LogisticRegression(
+                max_iter=3000, class_weight="balanced"))
+            soft_said = cross_val_predict(firm, X, soft, cv=split)
+            row[key] = {"material": round(float(np.mean(said == names)), 3),
+                        "firmness": balanced_accuracy(list(soft_said), list(soft))["balanced"]}
+        out[fam] = row
+    return out
+
+
+def format_press_probe(rep: dict) -> str:
+    lines = ["| family | input | material accuracy (chance) | soft vs hard, balanced |",
+             "|---|---|---|---|"]
+    for fam, r in rep.items():
+        for key in ("embedding_with_background", "embedding_alone", "shape",
+                    "embedding_and_shape"):
+            lines.append(f"| {fam} | {key.replace('_', ' ')} | {r[key]['material']:.3f} "
+                         f"({r['material_chance']:.3f}) | {r[key]['firmness']:.3f} |")
+    return "\n".join(lines)
 
 
 def format_press_contact(rep: dict) -> str:
