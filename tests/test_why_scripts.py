@@ -80,6 +80,21 @@ def test_lr_trainables_check_trains_a_variant_and_says_whether_it_reads(real_pip
         assert isinstance(out[g]["integrator"]["reads"], bool)
 
 
+@pytest.mark.slow
+def test_press_adapter_check_fits_its_arms_and_reads_both_regimes(real_pipeline, monkeypatch,
+                                                                  capsys):
+    _, out = _run_on_shipped("why_press_adapter", ["--fit", "1", "--world", "12", "--eval", "1",
+                                                   "--world-eval", "8", "--steps", "3"],
+                             real_pipeline, monkeypatch, capsys)
+    assert out["config"]["steps"] == 3
+    for arm in ("identity", "map", "shuffled", "everyday_only"):
+        for fam in ("digit", "gelsight", "mini"):
+            assert set(out[arm][fam]) == {"everyday_bg", "everyday_alone", "world"}
+            assert all(0 <= v <= 1 for v in out[arm][fam].values())
+    gain = out["map_gain"]
+    assert gain["everyday_ci95"][0] <= gain["everyday"] <= gain["everyday_ci95"][1]
+
+
 def _run_on_shipped(name: str, argv: list[str], pipeline, monkeypatch, capsys):
     """Run script `name` with `argv` on the tests' real pipeline: (the script's module, the
     JSON object it printed last)."""
