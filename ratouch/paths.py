@@ -62,6 +62,11 @@ def touch_gate(encoder: str) -> Path:
     return assets_dir() / "gate" / f"{encoder}.json"
 
 
+def press_map(encoder: str) -> Path:
+    """The shipped press map of an encoder set (`ratouch.model.press_map`)."""
+    return assets_dir() / "press_map" / f"{encoder}.npz"
+
+
 def geometry_calibration() -> Path:
     """The shipped geometry lookups (colour change to surface gradient, per sensor family)."""
     return ASSETS / "geometry" / "lookups.json"

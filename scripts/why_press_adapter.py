@@ -4,9 +4,9 @@ A feasibility check for docs/geometry.md ("Everyday presses land away from their
 On renders of the presses people make (`ratouch.world.presses`), the shipped tactile encoder's
 embedding holds the material (a linear probe: 2.3-3 times chance, `ratouch eval presses
 --probe`), but the tactile query's top-5 captions are of the right material far less often
-than for the world's own disc presses. This fits a residual map on tactile embeddings (384 ->
-256 -> 384, its output layer starting at zero: the identity) with a softmax over the corpus
-materials' mean caption embeddings, on everyday presses (fit stream) and the world's
+than for the world's own disc presses. This fits a residual map on tactile embeddings
+(`ratouch.train.press_map`, what `ratouch train press-map` ships) with a softmax over the
+corpus materials' mean caption embeddings, on everyday presses (fit stream) and the world's
 training-split disc presses, with a term that keeps world presses where they are; then reads
 material precision@5 of the tactile query against the default corpus's captions on fresh
 renders (a stream the fit never draws from; the world's validation renders), with and without
@@ -25,83 +25,19 @@ import json
 import sys
 
 import numpy as np
-import torch
-import torch.nn.functional as F
 
-from ratouch.eval.retrieval import entry_materials
 from ratouch.serve.pipeline import RATouchPipeline
-from ratouch.train.trust import VALIDATION_START, render_samples
-from ratouch.world.config import WorldConfig
-from ratouch.world.presses import PRESS_KINDS, render_press
-from ratouch.world.sampler import World
+from ratouch.train.press_map import (
+    KEEP,
+    TAU,
+    everyday_presses,
+    fit_map,
+    material_index,
+    precision_at5,
+    world_presses,
+)
+from ratouch.train.trust import VALIDATION_START
 from ratouch.world.sensors import family_names
-
-#: Temperature of the softmax over material prototypes, and the weight of the term that keeps
-#: world presses where the shipped encoder puts them (fixed before the first run).
-TAU = 0.05
-KEEP = 10.0
-
-
-def everyday(enc, index: dict, seed: int, n: int):
-    """`n` presses a kind a family, each encoded with and without its background: (T, material
-    index (-1: not in the corpus), family, with-background flag)."""
-    rng = np.random.default_rng([seed, 61])
-    T, y, fam, bg = [], [], [], []
-    for f in family_names():
-        ps = [render_press(f, rng, k) for k in PRESS_KINDS for _ in range(n)]
-        for with_bg in (True, False):
-            T.append(enc.encode_tactile([p.frame for p in ps],
-                                        [p.background for p in ps] if with_bg else None,
-                                        sensors=[f] * len(ps)))
-            y += [index.get(p.material, -1) for p in ps]
-            fam += [f] * len(ps)
-            bg += [with_bg] * len(ps)
-    return np.concatenate(T), np.array(y), np.array(fam), np.array(bg)
-
-
-def world_presses(enc, index: dict, start: int, n: int):
-    """The world's renders `start`.. of the train split, with and without the background."""
-    d = render_samples(World(WorldConfig(seed=0)).warm(), "train", range(start, start + n))
-    T = np.concatenate([enc.encode_tactile(d["frames"], d["backgrounds"]),
-                        enc.encode_tactile(d["frames"], None)])
-    y = np.array([index.get(m, -1) for m in d["materials"]] * 2)
-    return T, y, np.array(list(d["families"]) * 2), np.array([True] * n + [False] * n)
-
-
-def fit_map(Te, ye, Tw, yw, protos, steps: int, seed: int, keep: float = KEEP):
-    """The residual map (a function of (N, D) float32 arrays)."""
-    g = torch.Generator().manual_seed(seed)
-    torch.manual_seed(seed)
-    Xe, Ye, Xw, Yw = (torch.from_numpy(np.ascontiguousarray(a)) for a in (Te, ye, Tw, yw))
-    d = Xe.shape[1]
-    l1, l2 = torch.nn.Linear(d, 256), torch.nn.Linear(256, d)
-    torch.nn.init.zeros_(l2.weight)
-    torch.nn.init.zeros_(l2.bias)
-    opt = torch.optim.AdamW([*l1.parameters(), *l2.parameters()], 1e-3, weight_decay=1e-3)
-    P = torch.from_numpy(protos)
-
-    def f(x):
-        return F.normalize(x + l2(F.gelu(l1(x))), dim=1)
-
-    def named(z, y):  # the softmax over materials, on the presses whose material is known
-        known = y >= 0
-        return F.cross_entropy(z[known] @ P.T / TAU, y[known]) if known.any() else z.sum() * 0
-
-    for _ in range(steps):
-        i = torch.randint(0, len(Xe), (min(256, len(Xe)),), generator=g)
-        loss = named(f(Xe[i]), Ye[i])
-        if keep and len(Xw):
-            j = torch.randint(0, len(Xw), (min(256, len(Xw)),), generator=g)
-            zw = f(Xw[j])
-            loss = loss + keep * (1 - (zw * Xw[j]).sum(1)).mean() + named(zw, Yw[j])
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-
-    def apply(T: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return f(torch.from_numpy(np.ascontiguousarray(T, np.float32))).numpy()
-    return apply
 
 
 def _ci(hits_a: np.ndarray, hits_b: np.ndarray, seed: int, draws: int = 2000) -> list[float]:
@@ -123,32 +59,28 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
 
     p = RATouchPipeline.load("default-s", generators=False)
-    enc, mats = p.encoders, entry_materials(p.corpus)
-    names = sorted({str(m) for m in mats if m is not None})
+    enc = p.encoders
+    mats, names, protos = material_index(p)
     index = {m: i for i, m in enumerate(names)}
-    C = np.asarray(p.corpus_embeddings("tactile_caption"), np.float32)
-    protos = np.stack([C[mats == m].mean(0) for m in names])
-    protos /= np.linalg.norm(protos, axis=1, keepdims=True)
 
-    fit_e = everyday(enc, index, args.seed, args.fit)
+    fit_e = everyday_presses(enc, index, args.seed, args.fit)
     fit_w = world_presses(enc, index, 0, args.world)
-    ev_e = everyday(enc, index, args.seed + 1, args.eval)
+    ev_e = everyday_presses(enc, index, args.seed + 1, args.eval)
     ev_w = world_presses(enc, index, VALIDATION_START, args.world_eval)
 
     def hits(T, y):
-        _, ids = p.corpus.search("text", np.ascontiguousarray(T, np.float32), 5)
-        truth = np.array([names[i] if i >= 0 else "" for i in y])
-        return (mats[ids] == truth[:, None]).mean(1)
+        return precision_at5(p, mats, names, T, y)
 
     shuffled_y = np.random.default_rng(args.seed).permutation(fit_e[1])
     shuffled_w = np.random.default_rng(args.seed + 1).permutation(fit_w[1])
     arms = {
         "identity": lambda T: T,
-        "map": fit_map(fit_e[0], fit_e[1], fit_w[0], fit_w[1], protos, args.steps, args.seed),
+        "map": fit_map(fit_e[0], fit_e[1], fit_w[0], fit_w[1], protos, args.steps,
+                       args.seed).apply,
         "shuffled": fit_map(fit_e[0], shuffled_y, fit_w[0], shuffled_w, protos, args.steps,
-                            args.seed),
+                            args.seed).apply,
         "everyday_only": fit_map(fit_e[0], fit_e[1], fit_w[0][:0], fit_w[1][:0], protos,
-                                 args.steps, args.seed, keep=0.0),
+                                 args.steps, args.seed, keep=0.0).apply,
     }
     out: dict = {"config": {**vars(args), "tau": TAU, "keep": KEEP,
                             "materials": len(names)}}

@@ -68,7 +68,9 @@ class FakePipeline:
         self.generator_base = FakeGenerator("hard, smooth")
         self.generator_ra = FakeGenerator("soft, fuzzy, fabric")
 
-    def joint_query(self, V, T, gated=False):
+    def joint_query(self, V, T, gated=False, adapted=False):
+        if adapted:
+            return np.asarray(T, np.float32)
         return (V + (1 if gated else 2) * T).astype(np.float32)
 
     def neighbour_embeddings(self, ids):
@@ -87,11 +89,12 @@ def test_rows_hold_scores_precisions_and_the_joint_verdict(fake):
     assert [(r["condition"], r["index"]) for r in rows[:2]] == [("natural", 0), ("natural", 5)]
     judge = OfflineJudge()
     mats = np.array([e.material for e in fake.corpus.entries])
-    # the searches in order per condition: RA-Touch's joint one, then image, tactile, gated
-    q_joint, q_image, q_tac, q_gated = fake.corpus.searches[:4]
+    # the searches in order per condition: RA-Touch's joint one, then image, tactile, gated,
+    # adapted
+    q_joint, q_image, q_tac, q_gated, q_adapted = fake.corpus.searches[:5]
     ids = {m: fake.corpus.search("text", q, 3)[1]
            for m, q in (("joint", q_joint), ("image", q_image), ("tactile", q_tac),
-                        ("gated", q_gated))}
+                        ("gated", q_gated), ("adapted", q_adapted))}
     first = rows[:len(INDICES)]  # one system's answers are judged together (its word rates)
     ra_scores = judge.score_many([(r["label"], r["ra_touch"]) for r in first])
     for j, r in enumerate(first):

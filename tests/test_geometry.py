@@ -267,7 +267,8 @@ class _ReadsSoftWithBackground:
         state = "contact" if background is not None else "no contact"
         return {"trust": {"tactile": {"state": state, "contact": 1.0,
                                       "sensor": {"family": "mini"}}},
-                "neighbours": {"tactile": [{"caption": "soft, plush"}]},
+                "neighbours": {"tactile": [{"caption": "soft, plush"}],
+                               "adapted": [{"caption": "hard, rigid"}]},
                 "description": {"ra_touch": "soft"}, "warnings": []}
 
 
@@ -293,6 +294,11 @@ def test_press_readings_count_firmness_refusals_and_the_judge():
         assert alone["refused"] == alone["presses"] and alone["hard_read_soft"] == 0
         assert alone["firmness_right"] == 0 and alone["distinct_readings"] == 0
         assert bg["judge"] > alone["judge"]  # an empty answer scores lowest
+        # the adapted tactile query's reading, counted the same way
+        ad = bg["adapted"]
+        assert ad["presses"] == bg["presses"] and ad["hard_read_soft"] == 0
+        assert ad["soft_read_hard"] == ad["soft"] == bg["soft"] and ad["distinct_readings"] == 1
+        assert alone["adapted"]["refused"] == alone["presses"]
     assert material_label("terry_cloth").count(",") == 4
 
 
@@ -305,8 +311,8 @@ def test_eval_presses_readings_cli(monkeypatch, capsys):
                         classmethod(lambda cls, *a, **kw: _ReadsSoftWithBackground()))
     assert main(["eval", "presses", "--n", "1", "--blanks", "1", "--readings", "1"]) == 0
     out = capsys.readouterr().out
-    assert "| family | background | refused | hard read soft |" in out
-    assert "| mini | without | 7/7 |" in out
+    assert "| family | background | reading | refused | hard read soft |" in out
+    assert "| mini | without | tactile | 7/7 |" in out and "| mini | with | adapted | 0/7 |" in out
     assert main(["eval", "presses", "--n", "1", "--blanks", "1", "--readings", "1",
                  "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)

@@ -32,10 +32,10 @@ def mean_mode():
 
 
 def test_built_in_modes_and_their_rows():
-    assert list(QUERY_MODES) == ["image", "tactile", "joint", "gated"]
+    assert list(QUERY_MODES) == ["image", "tactile", "joint", "gated", "adapted"]
     assert RA_TOUCH_MODE == "joint"
-    assert QUERY_MODES.needing_touch() == ("tactile", "joint", "gated")
-    assert "".join(QUERY_MODES[m].letter for m in QUERY_MODES) == "ITJG"
+    assert QUERY_MODES.needing_touch() == ("tactile", "joint", "gated", "adapted")
+    assert "".join(QUERY_MODES[m].letter for m in QUERY_MODES) == "ITJGA"
     with pytest.raises(ConfigError, match="'both'"):
         QUERY_MODES["both"]
     with pytest.raises(ConfigError, match="already registered"):
@@ -60,7 +60,7 @@ def test_a_registered_mode_reaches_the_pipeline_json_and_app(mean_mode, debug_pi
 
     s = world.sample("test", 3)
     r = debug_pipeline.query(s.visual, s.tactile, box=s.box, k=4)
-    assert list(r["neighbours"]) == ["image", "tactile", "joint", "gated", "mean"]
+    assert list(r["neighbours"]) == ["image", "tactile", "joint", "gated", "adapted", "mean"]
     enc = debug_pipeline.encoders
     crop = s.visual[s.box[1]:s.box[3], s.box[0]:s.box[2]]
     q = _mean(enc.encode_image([crop]), enc.encode_tactile([s.tactile]), None)
@@ -72,7 +72,7 @@ def test_a_registered_mode_reaches_the_pipeline_json_and_app(mean_mode, debug_pi
     alone = debug_pipeline.query(s.visual, None, box=s.box, k=4)
     assert list(alone["neighbours"]) == ["image"]
     # the app: one gallery per mode, its header, letter and colour from the row
-    assert list(view.MODES) == ["image", "tactile", "joint", "gated", "mean"]
+    assert list(view.MODES) == ["image", "tactile", "joint", "gated", "adapted", "mean"]
     strips = [view.neighbour_strip(r, m, lambda i: np.zeros((2, 2, 3), np.uint8))
               for m in view.MODES]
     assert len(strips) == len(view.MODES) and "<figure" in strips[-1]
@@ -88,14 +88,15 @@ def test_a_registered_mode_is_a_stress_report_column(mean_mode, debug_pipeline):
 
     result = run_stress(debug_pipeline, build_sweeps(["missing"]), k=3, n=4, collapse=False,
                         encoder="debug")
-    assert set(result["reference"]["retrieval"]) == {"image", "tactile", "joint", "gated", "mean"}
+    assert set(result["reference"]["retrieval"]) == {"image", "tactile", "joint", "gated", "adapted",
+                                                   "mean"}
     missing = result["knobs"]["missing"]
     assert "P@3 mean" in missing["break_points"] and "overlap mean" in missing["break_points"]
     # a missing frame: the mode needs one, so it falls back to the image query's neighbours
     point = missing["points"][1]
     assert point["retrieval"]["mean"]["material_precision"] == \
         point["retrieval"]["image"]["material_precision"]
-    assert set(point["retrieval_no_fallback"]) == {"tactile", "joint", "gated", "mean"}
+    assert set(point["retrieval_no_fallback"]) == {"tactile", "joint", "gated", "adapted", "mean"}
     md = format_markdown(result, None, "not requested")
     assert "| P@3 mean " in md and "| overlap mean " in md and "| mean | " in md
     header = next(line for line in md.splitlines() if line.startswith("| value "))

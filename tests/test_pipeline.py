@@ -18,7 +18,7 @@ from ratouch.serve.request import QueryRequest, QueryResult, answer_one
 def test_query_returns_every_documented_field(pipeline, world):
     s = world.sample("test", 120)
     r = pipeline.query(s.visual, s.tactile, box=s.box, k=5, label=s.caption)
-    assert set(r["neighbours"]) == {"image", "tactile", "joint", "gated"}
+    assert set(r["neighbours"]) == {"image", "tactile", "joint", "gated", "adapted"}
     for items in r["neighbours"].values():
         assert len(items) == 5
         assert {"id", "score", "class_name", "caption"} <= set(items[0])

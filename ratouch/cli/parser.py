@@ -254,6 +254,22 @@ def _add_train(sub) -> None:
     gt.add_argument("--n", type=_pos_int, default=1200, help="probe pairs (half fit, half measure)")
     gt.add_argument("--out", default=None,
                     help="gate JSON (default: assets/gate/ENCODER.json)")
+    pm = tsub.add_parser("press-map", help="fit the press map (the adapted tactile query: "
+                                           "everyday presses brought back to their material's "
+                                           "captions) on renders of everyday and world presses")
+    pm.add_argument("--encoder", default=DEFAULT_ENCODER)
+    pm.add_argument("--seed", type=_nonneg_int, default=0)
+    pm.add_argument("--fit", type=_pos_int, default=40,
+                    help="everyday presses per family and kind fitted on")
+    pm.add_argument("--world", type=_pos_int, default=600,
+                    help="the world's training renders fitted on")
+    pm.add_argument("--eval", type=_pos_int, default=12,
+                    help="fresh everyday presses per family and kind the report reads")
+    pm.add_argument("--world-eval", type=_pos_int, default=300,
+                    help="the world's validation renders the report reads")
+    pm.add_argument("--steps", type=_pos_int, default=600)
+    pm.add_argument("--out", default=None,
+                    help="press map file (default: assets/press_map/ENCODER.npz)")
     rd = _stage2_parser(tsub, "reader", "train the gated system's generator (the reader): "
                                         "RA-Touch's stage 2 on the gated query's neighbours, "
                                         "half the samples with touch degraded")

@@ -29,6 +29,7 @@ from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
 from ratouch.train.gate import format_gate_report, gate_recipe
 from ratouch.train.geometry import calibrate as calibrate_geometry
 from ratouch.train.geometry import with_firmness
+from ratouch.train.press_map import PressMapConfig, press_map_recipe
 from ratouch.train.trust import TrustConfig, calibrate, with_alone_band
 
 
@@ -62,6 +63,14 @@ def run(args: argparse.Namespace) -> int:
         return _train_cascade(args)
     if args.train_cmd == "geometry":
         return _train_geometry(args)
+    if args.train_cmd == "press-map":
+        cfg = PressMapConfig(fit_per_kind=args.fit, world=args.world,
+                             eval_per_kind=args.eval, world_eval=args.world_eval,
+                             steps=args.steps, seed=args.seed)
+        with intra_op_threads(2):
+            rep = press_map_recipe(args.encoder, cfg, args.out)
+        print(json.dumps(rep, indent=1))
+        return 0
     if args.train_cmd == "gate":
         if args.n < 20:
             raise usage(f"--n {args.n}: the gate needs at least 20 probe pairs")

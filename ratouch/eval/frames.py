@@ -93,10 +93,13 @@ def read_frame(pipeline, item: Frame, k: int = 5) -> dict:
     tac = (result.get("trust") or {}).get("tactile") or {}
     tactile = (result.get("neighbours") or {}).get("tactile", [])
     reading = tactile[0]["caption"] if tactile else ""
+    adapted = (result.get("neighbours") or {}).get("adapted", [])
     row = {"frame": item.name, "sensor": (tac.get("sensor") or {}).get("family"),
            "background": item.background is not None,
            "state": tac.get("state"), "contact": tac.get("contact"),
            "reading": reading, "firmness": firmness(reading),
+           # the adapted tactile query's top caption (the press map's reading)
+           "reading_adapted": adapted[0]["caption"] if adapted else "",
            "ra_touch": (result.get("description") or {}).get("ra_touch", ""),
            "neighbours": [n.get("caption") for n in tactile[:k]],
            "geometry": tac.get("geometry"), "structure": tac.get("structure"),

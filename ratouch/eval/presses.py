@@ -14,7 +14,7 @@ from collections import defaultdict
 import numpy as np
 
 from ratouch.errors import ConfigError
-from ratouch.eval.frames import Frame, read_frame
+from ratouch.eval.frames import Frame, firmness, read_frame
 from ratouch.model.trust import TrustCalibration
 from ratouch.world.material import material
 from ratouch.world.presses import PRESS_KINDS, render_blank_pair, render_press
@@ -214,7 +214,8 @@ def press_readings(pipeline, judge, n: int = 4, seed: int = 2, k: int = 5) -> di
     firmness from the judge's soft and hard words, `frames.firmness`; a refused press has
     none); the share whose firmness is right (a refused press is not); the offline judge of the reading against the pressed material's own
     words (`material_label`), a refused press scoring as an empty answer; and how many
-    distinct readings."""
+    distinct readings. The same figures for the adapted tactile query's reading (the press
+    map's, `ratouch.model.press_map`) under "adapted"."""
     rng = np.random.default_rng([seed, 912])
     out: dict = {}
     for fam in family_names():
@@ -225,33 +226,43 @@ def press_readings(pipeline, judge, n: int = 4, seed: int = 2, k: int = 5) -> di
                                                p.background if way == "with_background"
                                                else None), k)
                     for p in presses]
-            # a refused press has no reading: neither firmness, and not right
-            firm = [r["firmness"] if r["state"] != "no contact" else "refused" for r in rows]
-            hard = [f for f, p in zip(firm, presses) if not p.soft]
-            soft = [f for f, p in zip(firm, presses) if p.soft]
-            right = sum(f == ("soft" if p.soft else "hard") for f, p in zip(firm, presses))
-            scores = judge.score_many([(material_label(p.material),
-                                        r["reading"] if r["state"] != "no contact" else None)
-                                       for r, p in zip(rows, presses)])
-            out[fam][way] = {
-                "presses": len(rows), "hard": len(hard), "soft": len(soft),
-                "refused": sum(r["state"] == "no contact" for r in rows),
-                "hard_read_soft": hard.count("soft"),
-                "soft_read_hard": soft.count("hard"),
-                "firmness_right": round(right / len(rows), 4),
-                "judge": round(float(np.mean(scores)), 3),
-                "distinct_readings": len({r["reading"] for r in rows
-                                          if r["state"] != "no contact"})}
+            out[fam][way] = {**_reading_stats(rows, presses, "reading", judge),
+                             "adapted": _reading_stats(rows, presses, "reading_adapted",
+                                                       judge)}
     return out
 
 
+def _reading_stats(rows: list[dict], presses: list, key: str, judge) -> dict:
+    """The figures of `press_readings` for one reading of the rows (`key`: "reading", the
+    tactile query's top caption, or "reading_adapted", the adapted tactile query's)."""
+    # a refused press has no reading: neither firmness, and not right
+    firm = [firmness(r[key]) if r["state"] != "no contact" else "refused" for r in rows]
+    hard = [f for f, p in zip(firm, presses) if not p.soft]
+    soft = [f for f, p in zip(firm, presses) if p.soft]
+    right = sum(f == ("soft" if p.soft else "hard") for f, p in zip(firm, presses))
+    scores = judge.score_many([(material_label(p.material),
+                                r[key] if r["state"] != "no contact" else None)
+                               for r, p in zip(rows, presses)])
+    return {"presses": len(rows), "hard": len(hard), "soft": len(soft),
+            "refused": sum(r["state"] == "no contact" for r in rows),
+            "hard_read_soft": hard.count("soft"), "soft_read_hard": soft.count("hard"),
+            "firmness_right": round(right / len(rows), 4),
+            "judge": round(float(np.mean(scores)), 3),
+            "distinct_readings": len({r[key] for r in rows if r["state"] != "no contact"})}
+
+
 def format_press_readings(rep: dict) -> str:
-    lines = ["| family | background | refused | hard read soft | soft read hard | "
-             "firmness right | judge | distinct readings |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["| family | background | reading | refused | hard read soft | soft read hard | "
+             "firmness right | judge | distinct readings |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for fam, ways in rep.items():
-        for way, r in ways.items():
-            lines.append(f"| {fam} | {'with' if way == 'with_background' else 'without'} | "
-                         f"{r['refused']}/{r['presses']} | {r['hard_read_soft']}/{r['hard']} | "
-                         f"{r['soft_read_hard']}/{r['soft']} | {r['firmness_right']:.2f} | "
-                         f"{r['judge']:.2f} | {r['distinct_readings']} |")
+        for way, both in ways.items():
+            for name, r in (("tactile", both), ("adapted", both.get("adapted"))):
+                if r is None:
+                    continue
+                lines.append(
+                    f"| {fam} | {'with' if way == 'with_background' else 'without'} | {name} | "
+                    f"{r['refused']}/{r['presses']} | {r['hard_read_soft']}/{r['hard']} | "
+                    f"{r['soft_read_hard']}/{r['soft']} | {r['firmness_right']:.2f} | "
+                    f"{r['judge']:.2f} | {r['distinct_readings']} |")
     return "\n".join(lines)

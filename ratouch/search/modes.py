@@ -30,9 +30,11 @@ from ratouch.errors import ConfigError
 
 class JointQuery(Protocol):
     """(V, T) -> joint queries: the Tactile-Guided Retriever (`RetrievalSide.joint_query`);
-    `gated=True`: the trust-gated query (`ratouch.model.gate`)."""
+    `gated=True`: the trust-gated query (`ratouch.model.gate`); `adapted=True`: the tactile
+    query through the retrieval side's press map (`ratouch.model.press_map`)."""
 
-    def __call__(self, V: np.ndarray, T: np.ndarray, *, gated: bool = False) -> np.ndarray: ...
+    def __call__(self, V: np.ndarray, T: np.ndarray, *, gated: bool = False,
+                 adapted: bool = False) -> np.ndarray: ...
 
 #: The inputs a mode may need: the crops' image embeddings, the frames' tactile embeddings,
 #: the Tactile-Guided Retriever.
@@ -189,6 +191,10 @@ def _gated(V, T, joint_query):
     return joint_query(V, T, gated=True)
 
 
+def _adapted(V, T, joint_query):
+    return joint_query(V, T, adapted=True)
+
+
 _BUILTIN = (
     QueryMode("image", "Image query", "I", "#1f77b4", frozenset({"image"}), _image,
               keys=("image", "text")),
@@ -198,6 +204,10 @@ _BUILTIN = (
               frozenset({"image", "tactile", "retriever"}), _joint),
     QueryMode("gated", "Trust-gated query", "G", "#d62728",
               frozenset({"image", "tactile", "retriever"}), _gated),
+    # the tactile query brought back to its material for the presses people make (the
+    # retrieval side's press map; the paper's tactile query above stays the embedding)
+    QueryMode("adapted", "Tactile query, adapted to everyday presses", "A", "#9467bd",
+              frozenset({"tactile", "retriever"}), _adapted, keys=("image", "text")),
 )
 _BUILTIN_NAMES = frozenset(m.name for m in _BUILTIN)
 

@@ -24,8 +24,10 @@ from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
 from ratouch.encoders.factory import create_model, shipped_fingerprint
 from ratouch.errors import ConfigError
 from ratouch.model.gate import TouchGate
+from ratouch.model.press_map import PressMap
 from ratouch.model.retriever import RetrieverConfig, TactileGuidedRetriever
 from ratouch.paths import cache_dir, retriever_weights, touch_gate
+from ratouch.paths import press_map as press_map_path
 from ratouch.search.index import IndexConfig
 from ratouch.search.retrieval import CorpusIndex, CorpusSearch
 
@@ -106,6 +108,16 @@ def load_tgr(encoder: str, folder: str | os.PathLike | None = None):
     return model.eval()
 
 
+def load_press_map(encoder: str) -> PressMap | None:
+    """The shipped press map of an encoder set, or None (logged) when there is none."""
+    path = press_map_path(encoder)
+    if not path.is_file():
+        log.warning("no press map for %s (%s): `ratouch train press-map --encoder %s`",
+                    encoder, path, encoder)
+        return None
+    return PressMap.load(path)
+
+
 def load_gate(encoder: str, trust) -> TouchGate | None:
     """The shipped touch gate of an encoder set, reading novelty with `trust` (the encoder
     set's trust calibration); None (logged) when either is missing."""
@@ -143,6 +155,10 @@ class RetrievalSide:
         #: calibration's novelty models; None: the gated query is the paper's (warned once)
         self.gate: TouchGate | None = None
         self._gate_warned = False
+        #: the press map of the adapted tactile query (`ratouch.model.press_map`); None: the
+        #: adapted query is the tactile embedding itself (warned once)
+        self.press_map: PressMap | None = None
+        self._map_warned = False
 
     @classmethod
     def load(cls, encoder: str = "default-s", corpus: str | os.PathLike | None = None,
@@ -152,16 +168,32 @@ class RetrievalSide:
         corpus = corpus or default_corpus(encoder, progress=progress)
         return cls(open_retriever(corpus, encoder, index), load_tgr(encoder))
 
-    def joint_query(self, V: np.ndarray, T: np.ndarray, tgr=None, gated: bool = False
-                    ) -> np.ndarray:
+    def joint_query(self, V: np.ndarray, T: np.ndarray, tgr=None, gated: bool = False,
+                    adapted: bool = False) -> np.ndarray:
         """The Tactile-Guided Retriever's joint query Q for (N, D) visual and tactile
         embeddings (`tgr`: another trained retriever, e.g. an ablation's; default this
-        side's own); `gated`: the trust-gated query instead (`gated_query`)."""
+        side's own); `gated`: the trust-gated query instead (`gated_query`); `adapted`: the
+        tactile query through the press map instead (`adapted_query`; V is not read)."""
+        if adapted:
+            return self.adapted_query(T)
         with torch.no_grad():
             J = (tgr or self.tgr)(torch.from_numpy(np.ascontiguousarray(V, np.float32)),
                                   torch.from_numpy(np.ascontiguousarray(T, np.float32))
                                   ).query.numpy()
         return self._gated(V, T, J)[0] if gated else J
+
+    def adapted_query(self, T: np.ndarray) -> np.ndarray:
+        """(N, D) tactile queries through the press map (`ratouch.model.press_map`): brought
+        back towards their material's captions for the presses people make; without a map,
+        the tactile embeddings themselves (warned once)."""
+        if self.press_map is None:
+            if not self._map_warned:
+                log.warning("no press map for %s: the adapted tactile query is the tactile "
+                            "embedding (`ratouch train press-map --encoder %s`)",
+                            self.encoders.name, self.encoders.name)
+                self._map_warned = True
+            return np.ascontiguousarray(T, np.float32)
+        return self.press_map.apply(T)
 
     def gated_query(self, V: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """((N, D) trust-gated queries, (N,) touch weights): the joint query moved towards

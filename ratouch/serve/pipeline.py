@@ -33,6 +33,7 @@ from ratouch.model.neighbour_text import KIND as NEIGHBOUR_TEXT
 from ratouch.model.neighbour_text import NeighbourText, NeighbourTextConfig
 from ratouch.model.neighbour_tokens import KIND as NEIGHBOUR_TOKENS
 from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
+from ratouch.model.press_map import PressMap
 from ratouch.model.trust import TrustCalibration
 from ratouch.paths import generator_weights, geometry_calibration, trust_calibration
 from ratouch.search.modes import IMAGE_MODE, QUERY_MODES, RA_TOUCH_MODE, RETRIEVAL_SYSTEMS
@@ -42,6 +43,7 @@ from ratouch.search.retrieval_side import (
     RetrievalSide,
     default_corpus,
     load_gate,
+    load_press_map,
     load_tgr,
     open_retriever,
 )
@@ -186,8 +188,10 @@ class RATouchPipeline(RetrievalSide):
     def __init__(self, retriever: CorpusSearch, tgr, generator_ra, generator_base,
                  pca: PCA2D | None = None, trust: TrustCalibration | None = None,
                  gate: TouchGate | None = None, retrieval: str = DEFAULT_RETRIEVAL,
-                 generator_reader=None, lm: str | None = None, generator_text=None):
+                 generator_reader=None, lm: str | None = None, generator_text=None,
+                 press_map: PressMap | None = None):
         super().__init__(retriever, tgr)
+        self.press_map = press_map
         #: the pretrained language model the generators were adapted from (None: the small
         #: decoder)
         self.lm = lm
@@ -261,7 +265,7 @@ class RATouchPipeline(RetrievalSide):
         return cls(retriever, load_tgr(encoder), gen_ra, gen_base, trust=trust,
                    gate=load_gate(encoder, trust), retrieval=retrieval,
                    generator_reader=gen_reader, lm=lm,
-                   generator_text=gen_text)
+                   generator_text=gen_text, press_map=load_press_map(encoder))
 
     @property
     def name(self) -> str:

@@ -27,6 +27,7 @@ from ratouch.timing import Laps
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
 from ratouch.train.gate import gate_recipe
 from ratouch.train.geometry import calibrate as calibrate_geometry
+from ratouch.train.press_map import PressMapConfig, press_map_recipe
 from ratouch.train.recipes import (
     READER_ARM,
     generator_recipe,
@@ -76,6 +77,9 @@ def train_all(seed: int = 0, progress: bool = True, report=print, encoders: bool
         # the touch gate reads the retriever and the trust calibration's novelty models
         report({"gate": name, **gate_recipe(name, seed=seed)})
         lap(f"gate_{name}")
+        # the press map reads the encoders and the corpus's caption embeddings
+        report({"press_map": name, **press_map_recipe(name, PressMapConfig(seed=seed))})
+        lap(f"press_map_{name}")
         prior = generator_weights(name, "prior")
         if prior.is_dir():
             shutil.rmtree(prior)  # trained on the old encoders' text embeddings

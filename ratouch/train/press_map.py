@@ -1,0 +1,187 @@
+"""Fitting the press map (`ratouch train press-map`; `ratouch.model.press_map`).
+
+Per encoder set, on its retrieval side (encoders, the default corpus and its caption
+embeddings): everyday presses (`ratouch.world.presses.render_press`, every kind, every
+family, each encoded with and without its drifted background) from a fit stream, and the
+world's training-split presses (with and without their backgrounds). The map is fitted with a
+softmax (temperature :data:`TAU`) of each press against the corpus materials' mean caption
+embeddings, plus, on the world's presses, a term (weight :data:`KEEP`) that keeps them where
+the encoder puts them; both fixed before the first run (scripts/why_press_adapter.py, which
+also runs the shuffled-material and everyday-only controls). The report reads material
+precision@5 of the tactile query against the corpus's captions before and after, on a fresh
+stream of everyday presses and on the world's validation renders, per family.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from ratouch.model.press_map import PressMap
+from ratouch.train.trust import VALIDATION_START, render_samples
+from ratouch.world.config import WorldConfig
+from ratouch.world.presses import PRESS_KINDS, render_press
+from ratouch.world.sampler import World
+from ratouch.world.sensors import family_names
+
+log = logging.getLogger(__name__)
+
+#: Temperature of the softmax over material prototypes.
+TAU = 0.05
+#: Weight of the term that keeps the world's presses where the encoder puts them.
+KEEP = 10.0
+#: Hidden width of the map.
+HIDDEN = 256
+
+
+@dataclass(frozen=True)
+class PressMapConfig:
+    """fit_per_kind: everyday presses per family and kind fitted on; world: the world's
+    training renders fitted on; eval_per_kind / world_eval: the fresh presses and validation
+    renders the report reads; steps: AdamW steps (batches of 256)."""
+
+    fit_per_kind: int = 40
+    world: int = 600
+    eval_per_kind: int = 12
+    world_eval: int = 300
+    steps: int = 600
+    seed: int = 0
+
+
+def material_index(side) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """The corpus's entry materials (by id), the sorted material names, and their prototypes:
+    each material's mean caption embedding, unit length, (M, D) float32."""
+    mats = np.array([e.material for e in side.corpus.entries])
+    names = sorted({str(m) for m in mats if m is not None})
+    C = np.asarray(side.corpus_embeddings("tactile_caption"), np.float32)
+    protos = np.stack([C[mats == m].mean(0) for m in names])
+    return mats, names, (protos / np.linalg.norm(protos, axis=1, keepdims=True)).astype(
+        np.float32)
+
+
+def everyday_presses(enc, index: dict, seed: int, n: int):
+    """`n` everyday presses a kind a family, each encoded with and without its background:
+    (T (2N, D), material index (-1: not in the corpus), family, with-background flag)."""
+    rng = np.random.default_rng([seed, 61])
+    T, y, fam, bg = [], [], [], []
+    for f in family_names():
+        ps = [render_press(f, rng, k) for k in PRESS_KINDS for _ in range(n)]
+        for with_bg in (True, False):
+            T.append(enc.encode_tactile([p.frame for p in ps],
+                                        [p.background for p in ps] if with_bg else None,
+                                        sensors=[f] * len(ps)))
+            y += [index.get(p.material, -1) for p in ps]
+            fam += [f] * len(ps)
+            bg += [with_bg] * len(ps)
+    return np.concatenate(T), np.array(y), np.array(fam), np.array(bg)
+
+
+def world_presses(enc, index: dict, start: int, n: int):
+    """The world's train-split renders `start`.., with and without their backgrounds (as
+    `everyday_presses`)."""
+    d = render_samples(World(WorldConfig(seed=0)).warm(), "train", range(start, start + n))
+    T = np.concatenate([enc.encode_tactile(d["frames"], d["backgrounds"]),
+                        enc.encode_tactile(d["frames"], None)])
+    y = np.array([index.get(m, -1) for m in d["materials"]] * 2)
+    return T, y, np.array(list(d["families"]) * 2), np.array([True] * n + [False] * n)
+
+
+def fit_map(Te: np.ndarray, ye: np.ndarray, Tw: np.ndarray, yw: np.ndarray,
+            protos: np.ndarray, steps: int, seed: int, keep: float = KEEP,
+            meta: dict | None = None) -> PressMap:
+    """The map fitted on everyday presses (Te, ye) and world presses (Tw, yw; the keep term
+    with weight `keep`, none when 0 or no world presses); labels -1 are left out of the
+    softmax."""
+    g = torch.Generator().manual_seed(seed)
+    torch.manual_seed(seed)
+    Xe, Ye, Xw, Yw = (torch.from_numpy(np.ascontiguousarray(a)) for a in (Te, ye, Tw, yw))
+    d = Xe.shape[1]
+    l1, l2 = torch.nn.Linear(d, HIDDEN), torch.nn.Linear(HIDDEN, d)
+    torch.nn.init.zeros_(l2.weight)
+    torch.nn.init.zeros_(l2.bias)
+    opt = torch.optim.AdamW([*l1.parameters(), *l2.parameters()], 1e-3, weight_decay=1e-3)
+    P = torch.from_numpy(protos)
+
+    def f(x):
+        return F.normalize(x + l2(F.gelu(l1(x))), dim=1)
+
+    def named(z, y):  # the softmax over materials, on the presses whose material is known
+        known = y >= 0
+        return F.cross_entropy(z[known] @ P.T / TAU, y[known]) if known.any() else z.sum() * 0
+
+    for _ in range(steps):
+        i = torch.randint(0, len(Xe), (min(256, len(Xe)),), generator=g)
+        loss = named(f(Xe[i]), Ye[i])
+        if keep and len(Xw):
+            j = torch.randint(0, len(Xw), (min(256, len(Xw)),), generator=g)
+            zw = f(Xw[j])
+            loss = loss + keep * (1 - (zw * Xw[j]).sum(1)).mean() + named(zw, Yw[j])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    w1, b1, w2, b2 = (t.detach().numpy().astype(np.float32) for t in
+                      (l1.weight.T, l1.bias, l2.weight.T, l2.bias))
+    return PressMap(w1, b1, w2, b2, meta=dict(meta or {}))
+
+
+def precision_at5(side, mats: np.ndarray, names: list[str], T: np.ndarray,
+                  y: np.ndarray) -> np.ndarray:
+    """Per query, the share of the tactile query's top-5 captions made of its material."""
+    _, ids = side.corpus.search("text", np.ascontiguousarray(T, np.float32), 5)
+    truth = np.array([names[i] if i >= 0 else "" for i in y])
+    return (mats[ids] == truth[:, None]).mean(1)
+
+
+def _mean(x: np.ndarray) -> float | None:
+    """The mean, 4 decimals; None for no value (a family without renders in a small run)."""
+    return round(float(x.mean()), 4) if len(x) else None
+
+
+def fit_press_map(side, cfg: PressMapConfig = PressMapConfig()) -> tuple[PressMap, dict]:
+    """The encoder set's press map on `side` (its encoders and the corpus), and the report:
+    per family P@5 of the tactile query before and after, on fresh everyday presses (with and
+    without the background) and on the world's validation renders."""
+    enc = side.encoders
+    mats, names, protos = material_index(side)
+    index = {m: i for i, m in enumerate(names)}
+    Te, ye, _, _ = everyday_presses(enc, index, cfg.seed, cfg.fit_per_kind)
+    Tw, yw, _, _ = world_presses(enc, index, 0, cfg.world)
+    pm = fit_map(Te, ye, Tw, yw, protos, cfg.steps, cfg.seed)
+    Ee, ey, ef, eb = everyday_presses(enc, index, cfg.seed + 1, cfg.eval_per_kind)
+    Ew, wy, wf, _ = world_presses(enc, index, VALIDATION_START, cfg.world_eval)
+    report: dict = {}
+    for name, f in (("before", lambda T: T), ("after", pm.apply)):
+        he, hw = (precision_at5(side, mats, names, f(Ee), ey),
+                  precision_at5(side, mats, names, f(Ew), wy))
+        report[name] = {fam: {"everyday_bg": _mean(he[(ef == fam) & eb]),
+                              "everyday_alone": _mean(he[(ef == fam) & ~eb]),
+                              "world": _mean(hw[wf == fam])}
+                        for fam in family_names()}
+        report[name]["all"] = {"everyday": _mean(he), "world": _mean(hw)}
+    meta = {"encoder": enc.name, "config": asdict(cfg), "tau": TAU, "keep": KEEP,
+            "materials": len(names), "p_at_5": report,
+            "fitted_on": f"{len(Te)} everyday-press and {len(Tw)} world-press embeddings "
+                         "(each press with and without its background)"}
+    log.info("press map %s: everyday P@5 %s -> %s, world %s -> %s", enc.name,
+             report["before"]["all"]["everyday"], report["after"]["all"]["everyday"],
+             report["before"]["all"]["world"], report["after"]["all"]["world"])
+    return PressMap(pm.w1, pm.b1, pm.w2, pm.b2, meta), report
+
+
+def press_map_recipe(encoder: str, cfg: PressMapConfig = PressMapConfig(), out=None) -> dict:
+    """`ratouch train press-map`: fit an encoder set's press map on its shipped retrieval
+    side (its encoders and default corpus), save it (default `paths.press_map(encoder)`), and
+    return its report."""
+    from pathlib import Path
+
+    from ratouch.paths import press_map
+    from ratouch.search.retrieval_side import RetrievalSide
+
+    pm, report = fit_press_map(RetrievalSide.load(encoder), cfg)
+    path = Path(out) if out else press_map(encoder)
+    pm.save(path)
+    return {"written": str(path), "p_at_5": report}
