@@ -319,24 +319,25 @@ def geometry_html(result: dict | None, picture: np.ndarray | None, background: b
             f"more than a third of the depth: a compliant object wraps the gel wide, a rigid "
             f"one small and deep'>spread <b>{geo['spread']:.0%}</b></span> · <span "
             f"title='RMS of the height map&#39;s fine detail: texture'>relief "
-            f"<b>{geo['relief']:.{digits + 1}f} {unit}</b></span></div>"
-            f"{firmness_line(tactile.get('firmness'))}"
+            f"<b>{geo['relief']:.{digits + 1}f} {unit}</b></span>"
+            f"{firmness_line(tactile.get('firmness'))}</div>"
             f"{structure_line(structure)}</div></div>")
 
 
 def firmness_line(firmness: dict | None) -> str:
-    """The firmness read from the press's shape (the trust block's `firmness`): soft or
+    """The firmness read from the press's shape (the trust block's `firmness`), on the
+    numbers' line (the strip keeps its height, so Run stays on the first screen): soft or
     hard, and how sure; nothing for a blank or a family without a model."""
     if not firmness:
         return ""
     p = float(firmness["soft"])
     sure = p if firmness["reads"] == "soft" else 1 - p
-    said = "over 99%" if sure > 0.99 else f"{sure:.0%}"
-    return (f"<div id='geometry-firmness' title='read from the height map&#39;s profile and "
-            f"the change&#39;s texture by a model fitted on renders of everyday presses (soft: "
-            f"fabrics, foams; hard: flat faces, tape, wire, edges, small caps); a reading "
-            f"beside the description, not its input'>shape reads <b>{escape(firmness['reads'])}"
-            f"</b> ({said} sure)</div>")
+    said = "&gt;99%" if sure > 0.99 else f"{sure:.0%}"
+    return (f" · <span id='geometry-firmness' title='firmness read from the height map&#39;s "
+            f"profile and the change&#39;s texture by a model fitted on renders of everyday "
+            f"presses (soft: fabrics, foams; hard: flat faces, tape, wire, edges, small caps), "
+            f"{said} sure; a reading beside the description, not its input'>shape "
+            f"<b>{escape(firmness['reads'])}</b> {said}</span>")
 
 
 def structure_line(structure: dict | None) -> str:

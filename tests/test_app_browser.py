@@ -512,7 +512,7 @@ def test_a_registered_mode_is_a_fourth_row_in_chromium(mean_app_url, page):
     assert page.locator("#table-mean tr").count() == 6  # header + K=5
     ids = page.evaluate("[...document.querySelectorAll('[id^=gallery-]')].map(e => e.id)")
     assert ids == ["gallery-joint", "gallery-image", "gallery-tactile", "gallery-gated",
-                   "gallery-mean"]
+                   "gallery-adapted", "gallery-mean"]
     page.screenshot(path=str(SHOTS / "fourth_mode_1440x900.png"), full_page=True)
 
 

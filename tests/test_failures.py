@@ -175,6 +175,7 @@ def _row(cond, i, subset, ra, base, pi, pt, pj):
             "label": "hard, smooth", "ra_touch": "hard, smooth, flat", "baseline": "soft",
             "baseline_score": base, "ra_delta": ra - base, "precision_image": pi,
             "precision_tactile": pt, "precision_joint": pj, "precision_gated": pj,
+            "precision_adapted": pt,
             "best_unimodal": best, "joint_gap": best - pj, "joint_loses": pj < best}
 
 
@@ -203,6 +204,9 @@ def test_views_filter_and_sort():
     assert lo <= summary[0]["ra_delta"] <= hi
     assert summary[0]["ra_f1"] == pytest.approx(0.8) and summary[0]["baseline_f1"] == 0.0
     assert summary[0]["ra_mean_length"] == 3 and summary[0]["baseline_mean_length"] == 1
+    # a table computed before a mode was registered: that mode's precision is None
+    before = [{k: v for k, v in r.items() if k != "precision_adapted"} for r in rows]
+    assert failures.summarise(before)[0]["precision_adapted"] is None
 
 
 def test_judge_scores_of_a_query_result():

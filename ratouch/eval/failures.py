@@ -386,7 +386,10 @@ def summarise(rows: Sequence[dict]) -> list[dict]:
                        for short, st in (("baseline", stats["baseline"]),
                                          ("ra", stats["ra_touch"]))
                        for field in ("ci", "f1", "mean_length")},
-                    **{f"precision_{m}": mean(f"precision_{m}") for m in MODES},
+                    # a mode the rows do not hold (a table from before it was registered):
+                    # None, not an error
+                    **{f"precision_{m}": (mean(f"precision_{m}") if all(
+                        f"precision_{m}" in r for r in rs) else None) for m in MODES},
                     "joint_loses": round(float(np.mean([r["joint_loses"] for r in rs])), 3)})
     order = {c: i for i, c in enumerate(dict.fromkeys(r["condition"] for r in rows))}
     sub_order = {"all": 0, "structured": 1, "wild": 2}
