@@ -1,8 +1,9 @@
 """What `ratouch train all` runs: every shipped weight retrained in dependency order (the
-geometry lookups, the encoders, the corpus embeddings, and per encoder set of the chain the
-retriever, the trust calibration, the language prior, both generators, the gated system's
-reader and the text system's generator), then the cascade calibrated over the chain's
-pipelines.
+geometry lookups and firmness models, the encoders, the corpus embeddings, and per encoder
+set of the chain the retriever, the trust calibration, the touch gate, the press map, the
+language prior, both generators, the gated system's reader and the text system's
+generator), then the cascade calibrated over the chain's pipelines (`tests/test_retrain.py`
+runs it with every step a stand-in).
 
 It sits above serving and training: the cascade is calibrated by answering validation renders
 with the loaded pipelines (`ratouch.ship.cascade`). Each step is a training recipe
