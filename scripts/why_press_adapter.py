@@ -26,6 +26,7 @@ import sys
 
 import numpy as np
 
+from ratouch.eval.judge.stats import mean_ci
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.train.press_map import (
     KEEP,
@@ -40,12 +41,10 @@ from ratouch.train.trust import VALIDATION_START
 from ratouch.world.sensors import family_names
 
 
-def _ci(hits_a: np.ndarray, hits_b: np.ndarray, seed: int, draws: int = 2000) -> list[float]:
-    rng = np.random.default_rng(seed)
-    d = hits_a - hits_b
-    means = [d[rng.integers(0, len(d), len(d))].mean() for _ in range(draws)]
-    return [round(float(np.percentile(means, 2.5)), 4), round(float(np.percentile(means, 97.5)),
-                                                               4)]
+def _ci(hits_a: np.ndarray, hits_b: np.ndarray, seed: int) -> list[float]:
+    """95 % bootstrap CI of the paired difference (the project's `mean_ci`)."""
+    _, lo, hi = mean_ci(hits_a - hits_b, seed=seed)
+    return [round(lo, 4), round(hi, 4)]
 
 
 def main(argv: list[str] | None = None) -> None:

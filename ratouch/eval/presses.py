@@ -17,7 +17,7 @@ from ratouch.errors import ConfigError
 from ratouch.eval.frames import Frame, firmness, read_frame
 from ratouch.model.trust import TrustCalibration
 from ratouch.world.material import material
-from ratouch.world.presses import PRESS_KINDS, render_blank_pair, render_press
+from ratouch.world.presses import PRESS_KINDS, render_blank_pair, render_press, render_presses
 from ratouch.world.sensors import family_names
 
 #: Adjectives of a pressed material's reference label: its profile's strongest words.
@@ -115,7 +115,7 @@ def press_probe(encoders, trust: TrustCalibration, n: int = 20, seed: int = 4,
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    from ratouch.model.geometry import band_stats, read_height, shape_features
+    from ratouch.model.geometry import press_shape
 
     if trust.geometry is None:
         raise ConfigError("no geometry calibration loaded: `ratouch train geometry`")
@@ -125,14 +125,10 @@ def press_probe(encoders, trust: TrustCalibration, n: int = 20, seed: int = 4,
         lookup = trust.geometry.lookup(fam)
         if lookup is None:
             continue
-        presses = [render_press(fam, rng, kind) for kind in PRESS_KINDS for _ in range(n)]
+        presses = render_presses(fam, rng, n)
         frames = [p.frame for p in presses]
         bgs = [p.background for p in presses]
-        shapes = []
-        for p in presses:
-            change = lookup.change(p.frame, p.background)
-            shapes.append(shape_features(read_height(lookup, p.frame, p.background, change),
-                                         change, band_stats(change)))
+        shapes = [press_shape(lookup, p.frame, p.background) for p in presses]
         with_bg = encoders.encode_tactile(frames, bgs, sensors=[fam] * len(frames))
         alone = encoders.encode_tactile(frames, None, sensors=[fam] * len(frames))
         inputs = {"embedding_with_background": with_bg, "embedding_alone": alone,
@@ -219,7 +215,7 @@ def press_readings(pipeline, judge, n: int = 4, seed: int = 2, k: int = 5) -> di
     rng = np.random.default_rng([seed, 912])
     out: dict = {}
     for fam in family_names():
-        presses = [render_press(fam, rng, kind) for kind in PRESS_KINDS for _ in range(n)]
+        presses = render_presses(fam, rng, n)
         out[fam] = {}
         for way in ("with_background", "without_background"):
             rows = [read_frame(pipeline, Frame(f"{p.kind} {p.material}", p.frame,

@@ -354,6 +354,13 @@ def shape_features(hm: HeightMap, change: np.ndarray, stats: np.ndarray | None =
     return np.nan_to_num(np.asarray(f, np.float64), nan=0.0, posinf=0.0, neginf=-20.0)
 
 
+def press_shape(lookup: GradientLookup, frame: np.ndarray, background: np.ndarray
+                ) -> np.ndarray:
+    """:func:`shape_features` of a frame read against its background by `lookup`."""
+    change = lookup.change(frame, background)
+    return shape_features(read_height(lookup, frame, background, change), change)
+
+
 @dataclass(frozen=True)
 class FirmnessModel:
     """One family's reading of firmness from shape: a logistic model on standardised

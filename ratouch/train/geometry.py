@@ -33,8 +33,8 @@ from ratouch.model.geometry import (
     GradientLookup,
     band_stats,
     fit_lookup,
+    press_shape,
     read_height,
-    shape_features,
     sphere_gradients,
     structure_score,
     working_change,
@@ -193,18 +193,11 @@ def shape_renders(lookup: GradientLookup, rng: np.random.Generator, per_kind: in
     """`per_kind` renders of every kind of everyday press on `lookup`'s family, read against
     their drifted backgrounds: their shape features (N, 20), whether each is soft (N,) bool,
     and each kind."""
-    from ratouch.world.presses import PRESS_KINDS, render_press
+    from ratouch.world.presses import render_presses
 
-    X, y, kinds = [], [], []
-    for kind in PRESS_KINDS:
-        for _ in range(per_kind):
-            p = render_press(lookup.family, rng, kind)
-            change = lookup.change(p.frame, p.background)
-            X.append(shape_features(read_height(lookup, p.frame, p.background, change),
-                                    change))
-            y.append(p.soft)
-            kinds.append(kind)
-    return np.asarray(X), np.asarray(y, bool), kinds
+    presses = render_presses(lookup.family, rng, per_kind)
+    return (np.asarray([press_shape(lookup, p.frame, p.background) for p in presses]),
+            np.asarray([p.soft for p in presses], bool), [p.kind for p in presses])
 
 
 def _logistic(X: np.ndarray, y: np.ndarray):  # noqa: ANN202 (an sklearn pipeline)

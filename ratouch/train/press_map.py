@@ -24,7 +24,7 @@ import torch.nn.functional as F
 from ratouch.model.press_map import PressMap
 from ratouch.train.trust import VALIDATION_START, render_samples
 from ratouch.world.config import WorldConfig
-from ratouch.world.presses import PRESS_KINDS, render_press
+from ratouch.world.presses import render_presses
 from ratouch.world.sampler import World
 from ratouch.world.sensors import family_names
 
@@ -69,7 +69,7 @@ def everyday_presses(enc, index: dict, seed: int, n: int):
     rng = np.random.default_rng([seed, 61])
     T, y, fam, bg = [], [], [], []
     for f in family_names():
-        ps = [render_press(f, rng, k) for k in PRESS_KINDS for _ in range(n)]
+        ps = render_presses(f, rng, n)
         for with_bg in (True, False):
             T.append(enc.encode_tactile([p.frame for p in ps],
                                         [p.background for p in ps] if with_bg else None,

@@ -210,6 +210,13 @@ def render_press(family_name: str, rng: np.random.Generator, kind: str | None = 
                  material(name).feel.compliance >= SOFT_AT, float(z.max()))
 
 
+def render_presses(family_name: str, rng: np.random.Generator, per_kind: int,
+                   hw: tuple[int, int] = (128, 96)) -> list[Press]:
+    """`per_kind` presses of every kind (`PRESS_KINDS`, in its order) on `family_name`."""
+    return [render_press(family_name, rng, kind, hw) for kind in PRESS_KINDS
+            for _ in range(per_kind)]
+
+
 def render_blank_pair(family_name: str, rng: np.random.Generator,
                       hw: tuple[int, int] = (128, 96)) -> tuple[np.ndarray, np.ndarray]:
     """A no-contact frame and its unit's background, captured at two moments (uint8)."""
