@@ -19,8 +19,8 @@ from ratouch.model.geometry import (
     working_change,
 )
 from ratouch.paths import geometry_calibration
-from ratouch.train.geometry import BALL_MM, HOLD_OUT_EVERY
-from ratouch.world.presses import render_blank_pair, render_press
+from ratouch.train.geometry import HOLD_OUT_EVERY
+from ratouch.world.presses import BALL_MM, render_ball, render_blank_pair, render_press
 from ratouch.world.taxim_optics import optics, real_presses
 
 
@@ -90,6 +90,30 @@ def test_everyday_presses_stand_above_the_floors_that_blanks_stay_under(shipped)
     assert sum(hits) >= 7
     blanks = [lookup.contact(*render_blank_pair("mini", rng))[0] for _ in range(20)]
     assert sum(blanks) <= 1
+
+
+def test_a_rendered_rigid_ball_is_taxims_ball_and_reads_as_one(shipped):
+    """`render_ball` on the calibrated families: a hard press of the calibration's 2 mm ball,
+    as deep as a cap whose contact radius is 0.5-0.95 of the ball's; read back through the
+    shipped lookup it is contact, and on the Mini its depth is the cap's within 40 % (the
+    GelSight's lookup, fitted on real frames, reads these renders shallower)."""
+    from ratouch.world.sensors import family as family_row
+
+    rng = np.random.default_rng(2024)
+    lo = BALL_MM - np.sqrt(BALL_MM ** 2 - (0.5 * BALL_MM) ** 2)
+    hi = BALL_MM - np.sqrt(BALL_MM ** 2 - (0.95 * BALL_MM) ** 2)
+    for fam in ("gelsight", "mini"):
+        for _ in range(3):
+            p = render_ball(fam, rng)
+            assert (p.kind, p.soft, p.family) == ("ball", False, fam)
+            depth_mm = p.depth * family_row(fam).press_mm
+            assert lo * 0.9 < depth_mm < hi * 1.1
+            lookup = shipped.lookup(fam)
+            assert lookup.contact(p.frame, p.background)[0]
+            read = read_height(lookup, p.frame, p.background).depth
+            assert 0 < read < 2.5
+            if fam == "mini":
+                assert abs(read - depth_mm) < 0.4 * depth_mm
 
 
 def test_trust_reads_a_shallow_press_against_its_background(pipeline):

@@ -85,14 +85,17 @@ def test_train_press_map_cli_fits_saves_and_reports(pipeline, tmp_path, monkeypa
     monkeypatch.setattr(retrieval_side.RetrievalSide, "load",
                         classmethod(lambda cls, *a, **kw: pipeline))
     out = tmp_path / "map.npz"
-    assert main(["train", "press-map", "--fit", "1", "--world", "8", "--eval", "1",
-                 "--world-eval", "6", "--steps", "3", "--out", str(out)]) == 0
+    assert main(["train", "press-map", "--fit", "1", "--world", "8", "--balls", "2",
+                 "--eval", "1", "--world-eval", "6", "--balls-eval", "1", "--steps", "3",
+                 "--out", str(out)]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["written"] == str(out)
     for when in ("before", "after"):
         assert set(rep["p_at_5"][when]) == {"digit", "gelsight", "mini", "all"}
     m = PressMap.load(out)
     assert m.meta["config"]["steps"] == 3 and m.dim == pipeline.encoders.dim
+    assert m.meta["config"]["balls"] == 2 and "12 rigid-ball" in m.meta["fitted_on"]
+    assert 0 <= rep["p_at_5"]["after"]["all"]["balls_rigid_top1"] <= 1
 
 
 def test_fit_press_map_reports_before_and_after(pipeline):

@@ -263,10 +263,16 @@ def _add_train(sub) -> None:
                     help="everyday presses per family and kind fitted on")
     pm.add_argument("--world", type=_pos_int, default=600,
                     help="the world's training renders fitted on")
+    pm.add_argument("--balls", type=_nonneg_int, default=0,
+                    help="rigid-ball renders per family fitted on with the world's presses "
+                         "(default 0, the shipped recipe; docs/geometry.md: 40 was tried "
+                         "and not shipped)")
     pm.add_argument("--eval", type=_pos_int, default=12,
                     help="fresh everyday presses per family and kind the report reads")
     pm.add_argument("--world-eval", type=_pos_int, default=300,
                     help="the world's validation renders the report reads")
+    pm.add_argument("--balls-eval", type=_pos_int, default=20,
+                    help="fresh rigid balls per family the report reads")
     pm.add_argument("--steps", type=_pos_int, default=600)
     pm.add_argument("--out", default=None,
                     help="press map file (default: assets/press_map/ENCODER.npz)")

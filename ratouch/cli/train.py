@@ -64,9 +64,9 @@ def run(args: argparse.Namespace) -> int:
     if args.train_cmd == "geometry":
         return _train_geometry(args)
     if args.train_cmd == "press-map":
-        cfg = PressMapConfig(fit_per_kind=args.fit, world=args.world,
+        cfg = PressMapConfig(fit_per_kind=args.fit, world=args.world, balls=args.balls,
                              eval_per_kind=args.eval, world_eval=args.world_eval,
-                             steps=args.steps, seed=args.seed)
+                             balls_eval=args.balls_eval, steps=args.steps, seed=args.seed)
         with intra_op_threads(2):
             rep = press_map_recipe(args.encoder, cfg, args.out)
         print(json.dumps(rep, indent=1))

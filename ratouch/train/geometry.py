@@ -39,11 +39,10 @@ from ratouch.model.geometry import (
     structure_score,
     working_change,
 )
+from ratouch.world.presses import BALL_MM
 
 log = logging.getLogger(__name__)
 
-#: Radius (mm) of the ball Taxim's calibrations were pressed with (see the module).
-BALL_MM = 2.0
 #: Every how-many-th real press is held out of a lookup's fit.
 HOLD_OUT_EVERY = 6
 #: Blank pairs per family the floors are set on, and the quantile.

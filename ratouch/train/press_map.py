@@ -3,13 +3,15 @@
 Per encoder set, on its retrieval side (encoders, the default corpus and its caption
 embeddings): everyday presses (`ratouch.world.presses.render_press`, every kind, every
 family, each encoded with and without its drifted background) from a fit stream, and the
-world's training-split presses (with and without their backgrounds). The map is fitted with a
-softmax (temperature :data:`TAU`) of each press against the corpus materials' mean caption
-embeddings, plus, on the world's presses, a term (weight :data:`KEEP`) that keeps them where
+world's training-split presses and renders of a rigid ball (`render_ball`, named
+`polished_metal`; each with and without its background). The map is fitted with a softmax
+(temperature :data:`TAU`) of each press against the corpus materials' mean caption embeddings,
+plus, on the world's presses and the balls, a term (weight :data:`KEEP`) that keeps them where
 the encoder puts them; both fixed before the first run (scripts/why_press_adapter.py, which
 also runs the shuffled-material and everyday-only controls). The report reads material
 precision@5 of the tactile query against the corpus's captions before and after, on a fresh
-stream of everyday presses and on the world's validation renders, per family.
+stream of everyday presses and on the world's validation renders, per family, and the share
+of fresh rigid balls whose top-1 caption reads hard.
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ import torch.nn.functional as F
 from ratouch.model.press_map import PressMap
 from ratouch.train.trust import VALIDATION_START, render_samples
 from ratouch.world.config import WorldConfig
-from ratouch.world.presses import render_presses
+from ratouch.world.material import material
+from ratouch.world.presses import BALL_MATERIAL, SOFT_AT, render_ball, render_presses
 from ratouch.world.sampler import World
 from ratouch.world.sensors import family_names
 
@@ -41,13 +44,16 @@ HIDDEN = 256
 @dataclass(frozen=True)
 class PressMapConfig:
     """fit_per_kind: everyday presses per family and kind fitted on; world: the world's
-    training renders fitted on; eval_per_kind / world_eval: the fresh presses and validation
-    renders the report reads; steps: AdamW steps (batches of 256)."""
+    training renders fitted on; balls: rigid-ball renders per family fitted on (with the
+    world's presses); eval_per_kind / world_eval / balls_eval: the fresh presses, validation
+    renders and balls the report reads; steps: AdamW steps (batches of 256)."""
 
     fit_per_kind: int = 40
     world: int = 600
+    balls: int = 0
     eval_per_kind: int = 12
     world_eval: int = 300
+    balls_eval: int = 20
     steps: int = 600
     seed: int = 0
 
@@ -67,9 +73,22 @@ def everyday_presses(enc, index: dict, seed: int, n: int):
     """`n` everyday presses a kind a family, each encoded with and without its background:
     (T (2N, D), material index (-1: not in the corpus), family, with-background flag)."""
     rng = np.random.default_rng([seed, 61])
+    return _encoded(enc, index, {f: render_presses(f, rng, n) for f in family_names()})
+
+
+def ball_presses(enc, index: dict, seed: int, n: int):
+    """`n` rigid-ball presses a family (`render_ball`, a stream of their own), as
+    `everyday_presses`."""
+    rng = np.random.default_rng([seed, 67])
+    return _encoded(enc, index, {f: [render_ball(f, rng) for _ in range(n)]
+                                 for f in family_names()})
+
+
+def _encoded(enc, index: dict, presses: dict):
+    """Each family's presses encoded with and without their backgrounds: (T, material index,
+    family, with-background flag)."""
     T, y, fam, bg = [], [], [], []
-    for f in family_names():
-        ps = render_presses(f, rng, n)
+    for f, ps in presses.items():
         for with_bg in (True, False):
             T.append(enc.encode_tactile([p.frame for p in ps],
                                         [p.background for p in ps] if with_bg else None,
@@ -77,7 +96,7 @@ def everyday_presses(enc, index: dict, seed: int, n: int):
             y += [index.get(p.material, -1) for p in ps]
             fam += [f] * len(ps)
             bg += [with_bg] * len(ps)
-    return np.concatenate(T), np.array(y), np.array(fam), np.array(bg)
+    return np.concatenate(T), np.array(y, np.int64), np.array(fam), np.array(bg, bool)
 
 
 def world_presses(enc, index: dict, start: int, n: int):
@@ -138,34 +157,46 @@ def precision_at5(side, mats: np.ndarray, names: list[str], T: np.ndarray,
 
 def _mean(x: np.ndarray) -> float | None:
     """The mean, 4 decimals; None for no value (a family without renders in a small run)."""
-    return round(float(x.mean()), 4) if len(x) else None
+    return round(float(np.mean(x)), 4) if len(x) else None
 
 
 def fit_press_map(side, cfg: PressMapConfig = PressMapConfig()) -> tuple[PressMap, dict]:
     """The encoder set's press map on `side` (its encoders and the corpus), and the report:
     per family P@5 of the tactile query before and after, on fresh everyday presses (with and
-    without the background) and on the world's validation renders."""
+    without the background) and on the world's validation renders, and the share of fresh
+    rigid balls whose top-1 caption is of a rigid material."""
     enc = side.encoders
     mats, names, protos = material_index(side)
     index = {m: i for i, m in enumerate(names)}
     Te, ye, _, _ = everyday_presses(enc, index, cfg.seed, cfg.fit_per_kind)
     Tw, yw, _, _ = world_presses(enc, index, 0, cfg.world)
+    n_world, n_balls = len(Tw), 0
+    if cfg.balls:
+        Tb, yb, _, _ = ball_presses(enc, index, cfg.seed, cfg.balls)
+        Tw, yw, n_balls = np.concatenate([Tw, Tb]), np.concatenate([yw, yb]), len(Tb)
     pm = fit_map(Te, ye, Tw, yw, protos, cfg.steps, cfg.seed)
     Ee, ey, ef, eb = everyday_presses(enc, index, cfg.seed + 1, cfg.eval_per_kind)
     Ew, wy, wf, _ = world_presses(enc, index, VALIDATION_START, cfg.world_eval)
+    Eb, _, bf, _ = ball_presses(enc, index, cfg.seed + 1, cfg.balls_eval)
+    rigid = np.array([bool(m) and material(str(m)).feel.compliance < SOFT_AT for m in mats])
     report: dict = {}
     for name, f in (("before", lambda T: T), ("after", pm.apply)):
         he, hw = (precision_at5(side, mats, names, f(Ee), ey),
                   precision_at5(side, mats, names, f(Ew), wy))
+        _, top = side.corpus.search("text", np.ascontiguousarray(f(Eb), np.float32), 1)
+        hb = rigid[top[:, 0]]
         report[name] = {fam: {"everyday_bg": _mean(he[(ef == fam) & eb]),
                               "everyday_alone": _mean(he[(ef == fam) & ~eb]),
-                              "world": _mean(hw[wf == fam])}
+                              "world": _mean(hw[wf == fam]),
+                              "balls_rigid_top1": _mean(hb[bf == fam])}
                         for fam in family_names()}
-        report[name]["all"] = {"everyday": _mean(he), "world": _mean(hw)}
+        report[name]["all"] = {"everyday": _mean(he), "world": _mean(hw),
+                               "balls_rigid_top1": _mean(hb)}
     meta = {"encoder": enc.name, "config": asdict(cfg), "tau": TAU, "keep": KEEP,
             "materials": len(names), "p_at_5": report,
-            "fitted_on": f"{len(Te)} everyday-press and {len(Tw)} world-press embeddings "
-                         "(each press with and without its background)"}
+            "fitted_on": f"{len(Te)} everyday-press, {n_world} world-press "
+                         f"and {n_balls} rigid-ball ({BALL_MATERIAL}) embeddings (each "
+                         "press with and without its background)"}
     log.info("press map %s: everyday P@5 %s -> %s, world %s -> %s", enc.name,
              report["before"]["all"]["everyday"], report["after"]["all"]["everyday"],
              report["before"]["all"]["world"], report["after"]["all"]["world"])

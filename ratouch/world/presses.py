@@ -13,6 +13,11 @@ renders them with the same sensor families and renderers (`tactile.contact_chang
 * ``edge``: the edge of a ruler: a straight ridge across the gel;
 * ``small_curved``: an egg, a pebble: a small curved cap.
 
+And a **rigid ball** (:func:`render_ball`), kept apart from the everyday kinds: the press
+Taxim's calibrations were made with (a steel ball of radius :data:`BALL_MM`; on the GelSight
+and Mini at the calibration's pixel size, on the DIGIT in render units as the shader lookup's
+fit draws it), so that a fit can be held to what a rigid press reads.
+
 And a sensor's **drift**: the background is captured at one moment and the press at another;
 between them each channel's gain and offset change, the illumination field shifts slowly and
 the camera adds noise. :func:`measure_drift` measures these on Taxim's real pairs (away from
@@ -23,6 +28,7 @@ the touch), :func:`drifted` applies a drawn drift to a frame. The geometry calib
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -47,6 +53,10 @@ PRESS_KINDS: dict[str, tuple[str, ...]] = {
 }
 #: Whether a kind's material is soft (for hard-against-soft measures): compliance >= 0.5.
 SOFT_AT = 0.5
+#: Radius (mm) of the rigid ball Taxim's calibrations were pressed with (Taxim's procedure
+#: presses "a small sphere (about 4 mm)"), and the material a rendered ball is named by.
+BALL_MM = 2.0
+BALL_MATERIAL = "polished_metal"
 
 
 @dataclass(frozen=True)
@@ -199,15 +209,60 @@ def render_press(family_name: str, rng: np.random.Generator, kind: str | None = 
     not given), with its background captured at another moment (drifted, `family_drift`)."""
     kind = str(rng.choice(list(PRESS_KINDS))) if kind is None else kind
     name = str(rng.choice(list(PRESS_KINDS[kind])))
+    return _pressed(family_name, rng, kind, name, lambda: _surface(kind, name, rng, hw), hw)
+
+
+def _pressed(family_name: str, rng: np.random.Generator, kind: str, name: str,
+             surface: Callable[[], np.ndarray], hw: tuple[int, int]) -> Press:
+    """A press of the indentation `surface()` draws, on a random unit of `family_name`, with
+    its background captured at another moment."""
     sensor = int(rng.choice(list(family_sensors(family_name))))
     bg = sensor_background(sensor, hw).astype(np.float64)
-    z = _surface(kind, name, rng, hw)
+    z = surface()
     change = gaussian_filter(contact_change(sensor, z).astype(np.float64), (0.7, 0.7, 0))
     drift = family_drift(family_name)
     frame = drifted(bg + change, drift, rng)
     later = drifted(bg, drift, rng)
     return Press(to_uint8(frame), to_uint8(later), kind, name, family_name,
                  material(name).feel.compliance >= SOFT_AT, float(z.max()))
+
+
+def _ball_surface(family_name: str, rng: np.random.Generator, hw: tuple[int, int]
+                  ) -> np.ndarray:
+    """The indentation (gel-thickness units, (H, W)) of a rigid ball pressed in: a spherical
+    cap whose contact radius is 0.5-0.95 of the ball's. GelSight, Mini: a ball of
+    :data:`BALL_MM` at the calibration's pixel size (the frame's long side spans the sensor's);
+    DIGIT: contact radius 0.12-0.35 of the frame's width in render units (as the shader
+    lookup's fit draws its balls)."""
+    from ratouch.world.tactile import _SHADER_RELIEF  # the shader's height scale
+    from ratouch.world.taxim_optics import optics
+
+    h, w = hw
+    ys, xs = pixel_grid(h, w)
+    cx, cy = rng.uniform(0.3, 0.7) * w, rng.uniform(0.3, 0.7) * h
+    share = float(rng.uniform(0.5, 0.95))  # contact radius / ball radius
+    row = family(family_name)
+    if row.renderer == "taxim":
+        o = optics(str(row.calibration))
+        mm_per_px = o.pixmm * max(o.hw) / max(hw)
+        ball = BALL_MM / mm_per_px
+        per_px = mm_per_px / row.press_mm  # gel-thickness units per pixel of height
+    else:
+        ball = float(rng.uniform(0.12, 0.35)) * w / share
+        per_px = 1.0 / _SHADER_RELIEF
+    r = share * ball
+    d2 = (xs - cx) ** 2 + (ys - cy) ** 2
+    cap = np.where(d2 < r * r, np.sqrt(np.maximum(ball * ball - d2, 0.0))
+                   - np.sqrt(ball * ball - r * r), 0.0)
+    return cap * per_px
+
+
+def render_ball(family_name: str, rng: np.random.Generator, hw: tuple[int, int] = (128, 96)
+                ) -> Press:
+    """A rigid ball (:data:`BALL_MM`, named :data:`BALL_MATERIAL`, hard) pressed on a random
+    unit of `family_name`, with its background captured at another moment."""
+    return _pressed(family_name, rng, "ball", BALL_MATERIAL,
+                    lambda: _ball_surface(family_name, rng, hw), hw)
 
 
 def render_presses(family_name: str, rng: np.random.Generator, per_kind: int,
