@@ -146,6 +146,44 @@ def test_real_pipeline_reads_the_system_the_request_names(real_pipeline, world):
 
 
 @pytest.mark.slow
+def test_the_gated_system_withholds_an_unfamiliar_sensors_touch(real_pipeline, world):
+    """docs/premise.md, "An unfamiliar sensor's touch withheld": a frame that looks like none
+    of the sensor families' units (a pair's own frame, its channels turned and brightened):
+    with the rule on, the gated system reads the image query's neighbours with a neutral
+    touch (touch weight 0, kind "withheld", and why) and the paper's system reads it as
+    before; with the rule off (the shipped default: tried, not shipped) the gate weighs it."""
+    from ratouch.world.sensors import LOOK_LIMIT, guess_family
+
+    s = world.sample("test", 40)
+    odd = np.clip(s.tactile.astype(np.float32)[..., [2, 0, 1]] * 1.1, 0, 255).astype(np.uint8)
+    assert guess_family(odd)[1] > LOOK_LIMIT >= guess_family(s.tactile)[1]
+
+    def ask(system):
+        return QueryRequest.decode(s.visual, odd, s.box, 5, retrieval=system)
+
+    assert real_pipeline.withhold_unfamiliar is False
+    off = real_pipeline.answer([ask("gated")])[0].to_dict()["retrieval"]
+    assert off["reads"] == "gated" and off["kind"] != "withheld"
+    real_pipeline.withhold_unfamiliar = True
+    try:
+        g = real_pipeline.answer([ask("gated")])[0].to_dict()
+        again = real_pipeline.regenerate(ask("gated"),
+                                         [n["id"] for n in g["neighbours"]["image"]])
+        paper = real_pipeline.answer([ask("paper")])[0].to_dict()["retrieval"]
+    finally:
+        real_pipeline.withhold_unfamiliar = False
+    r = g["retrieval"]
+    assert (r["kind"], r["touch_weight"], r["reads"]) == ("withheld", 0.0, "image")
+    assert "looks like none of the sensors" in r["why"][0]
+    assert r["generator"] == ("reader" if real_pipeline.generator_reader is not None
+                              else "paper")
+    # the answer is the chosen generator's from the image neighbours and the neutral touch
+    assert again["description"]["ra_touch"] == g["description"]["ra_touch"]
+    assert g["description"]["baseline"]  # the baseline still reads the frame
+    assert paper["reads"] == "joint" and paper["kind"] != "withheld"
+
+
+@pytest.mark.slow
 @pytest.mark.skipif(not HAVE_ASSETS, reason="the trained weights are not in assets/")
 def test_fit_gate_on_a_few_probe_pairs(real_pipeline):
     """The trainer end to end on 40 pairs: a learnt gate and a held-out table per variant."""

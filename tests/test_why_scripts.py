@@ -1,5 +1,5 @@
-"""scripts/why_height_hardness.py: the check behind docs/geometry.md's "Does the height map
-carry hardness?", run small."""
+"""The scripts/why_*.py checks behind docs/geometry.md and docs/premise.md, each run small on
+the tests' pipeline."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import importlib.util
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ratouch.paths import geometry_calibration
@@ -93,6 +94,26 @@ def test_press_adapter_check_fits_its_arms_and_reads_both_regimes(real_pipeline,
             assert all(0 <= v <= 1 for v in out[arm][fam].values())
     gain = out["map_gain"]
     assert gain["everyday_ci95"][0] <= gain["everyday"] <= gain["everyday_ci95"][1]
+
+
+@pytest.mark.slow
+def test_withhold_check_reads_its_three_measures(real_pipeline, monkeypatch, capsys):
+    """scripts/why_withhold.py on the first 14 test pairs (one of them, 13, a DIGIT frame
+    beyond the look limit): the flagged rows, the rule against gated, against the baseline
+    with a neutral touch, and against paper on recoloured frames, each with its CI."""
+    script, out = _run_on_shipped("why_withhold", ["--n", "14"], real_pipeline, monkeypatch,
+                                  capsys)
+    assert out["config"]["n"] == 14
+    assert out["natural"]["flagged_indices"] == [13]
+    assert out["recoloured"]["flagged"] >= 12  # the recolouring looks like no family
+    for block, key in (("natural", "rule_vs_gated"), ("neutral_touch", "rule_vs_baseline"),
+                       ("recoloured", "rule_vs_paper")):
+        d = out[block][key]
+        assert d["ci95"][0] <= d["diff"] <= d["ci95"][1]
+    assert all(1 <= v <= 10 for v in (out["natural"]["gated"], out["neutral_touch"]["rule"],
+                                      out["recoloured"]["paper"]))
+    frame = np.full((8, 8, 3), (10, 100, 200), np.uint8)
+    assert script.recoloured(frame)[0, 0].tolist() == [220, 11, 110]
 
 
 def _run_on_shipped(name: str, argv: list[str], pipeline, monkeypatch, capsys):

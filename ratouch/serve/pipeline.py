@@ -57,6 +57,7 @@ from ratouch.serve.request import (
     slots_for,
 )
 from ratouch.timing import Laps
+from ratouch.world.sensors import LOOK_LIMIT, guess_family
 
 log = logging.getLogger(__name__)
 
@@ -162,6 +163,8 @@ class Encoded:
         photo: the photo route's query where it answered the crop (its image neighbours
             are then the route's ranking, not a search), else None.
         warnings: what encoding adds to the request's warnings (the photo route's note).
+        look: the sensor family the frame looks like and how far from its units
+            (`guess_family`), or None (no frame).
     """
 
     V: np.ndarray
@@ -170,6 +173,12 @@ class Encoded:
     prior: np.ndarray | None = None
     photo: PhotoQuery | None = None
     warnings: list[str] = field(default_factory=list)
+    look: tuple[str, float] | None = None
+
+    @property
+    def unfamiliar(self) -> bool:
+        """The frame looks like none of the sensor families' units (beyond `LOOK_LIMIT`)."""
+        return self.look is not None and self.look[1] > LOOK_LIMIT
 
     @property
     def route(self) -> dict:
@@ -197,6 +206,11 @@ class RATouchPipeline(RetrievalSide):
         self.lm = lm
         self.trust = trust  # None: queries say that nothing flags unfamiliar inputs
         self.gate = gate
+        #: whether the `gated` system withholds the touch of a frame that looks like none of
+        #: the sensor families' units (`withholds`). Off: the gate alone weighs it. Tried and
+        #: not shipped (docs/premise.md, "An unfamiliar sensor's touch withheld": the look
+        #: check's false alarms on the world's DIGIT frames cost the world split 0.03).
+        self.withhold_unfamiliar = False
         if retrieval not in RETRIEVAL_SYSTEMS:
             raise ConfigError(f"unknown retrieval system {retrieval!r}; one of "
                               f"{', '.join(RETRIEVAL_SYSTEMS)}")
@@ -332,6 +346,9 @@ class RATouchPipeline(RetrievalSide):
             clock.lap("encode_tactile")
             for r, j in enumerate(touch):
                 encoded[j].T = T[r:r + 1]
+                frame = requests[j].frame
+                assert frame is not None  # `touch` holds the requests with a frame
+                encoded[j].look = guess_family(frame)
             for mode in QUERY_MODES.values():
                 if mode.needs_touch:
                     q = mode.vectors(V[touch], T, self.joint_query)
@@ -375,10 +392,30 @@ class RATouchPipeline(RetrievalSide):
             height_map=None if t is None else t.get("height_map"))
             for j, (req, t) in enumerate(zip(requests, trust))]
 
-    def reads(self, request: QueryRequest) -> str:
+    def reads(self, request: QueryRequest, encoded: Encoded | None = None) -> str:
         """The query mode whose neighbours RA-Touch reads for `request`: its retrieval
-        system's (`RETRIEVAL_SYSTEMS`), or this pipeline's default."""
+        system's (`RETRIEVAL_SYSTEMS`), or this pipeline's default; the image query's where
+        the request's touch is withheld (`withholds`)."""
+        if encoded is not None and self.withholds(request, encoded):
+            return IMAGE_MODE
         return RETRIEVAL_SYSTEMS[request.retrieval or self.retrieval]
+
+    def withholds(self, request: QueryRequest, encoded: Encoded) -> bool:
+        """Whether `request`'s touch is withheld from its answer (docs/premise.md, "An
+        unfamiliar sensor's touch withheld"): the `gated` system, a frame that looks like
+        none of the sensor families' units (`Encoded.unfamiliar`), `withhold_unfamiliar`
+        on, and a neutral touch to read instead (a trust calibration)."""
+        return ((request.retrieval or self.retrieval) == "gated" and self.withhold_unfamiliar
+                and encoded.unfamiliar and self.trust is not None)
+
+    def neutral_touch(self) -> np.ndarray:
+        """(1, D) the touch read where touch is withheld: the trust calibration's mean
+        training tactile embedding, unit length (the regime the reader's episodes trained
+        it for: touch that tells nothing)."""
+        if self.trust is None:
+            raise ConfigError("a neutral touch needs a trust calibration")
+        m = np.asarray(self.trust.tactile.mean, np.float32)
+        return (m / max(float(np.linalg.norm(m)), 1e-12))[None]
 
     def generator_for(self, request: QueryRequest, encoded: Encoded):
         """The RA-Touch generator that answers `request`: for `text`, the text arm (where one
@@ -387,6 +424,8 @@ class RATouchPipeline(RetrievalSide):
         system = request.retrieval or self.retrieval
         if system == "text":
             return self.generator_text or self.generator_ra
+        if encoded.T is not None and self.withholds(request, encoded):
+            return self.generator_reader or self.generator_ra
         if (system != "gated" or self.generator_reader is None or self.gate is None
                 or encoded.T is None):
             return self.generator_ra
@@ -421,7 +460,7 @@ class RATouchPipeline(RetrievalSide):
         if encoded.T is None:
             return None
         system = request.retrieval or self.retrieval
-        out: dict = {"system": system, "reads": RETRIEVAL_SYSTEMS[system],
+        out: dict = {"system": system, "reads": self.reads(request, encoded),
                      "generator": ("reader" if self.generator_reader is not None
                                    and generator is self.generator_reader else
                                    "text" if self.generator_text is not None
@@ -439,6 +478,15 @@ class RATouchPipeline(RetrievalSide):
                 ["its neighbours' captions are written into the prompt, word by word (no "
                  "Texture-Aware Integrator)"] if out["generator"] == "text" else
                 [f"{self.text_missing}: the paper's generator answers"])
+        elif self.withholds(request, encoded):
+            assert encoded.look is not None  # withheld: the frame was read
+            out.update(kind="withheld", touch_weight=0.0,
+                       why=[f"the tactile frame looks like none of the sensors the models "
+                            f"learnt (distance {encoded.look[1]:.2f} > {LOOK_LIMIT}): touch is "
+                            "withheld, and the answer reads the image query's neighbours",
+                            f"the {out['generator']}'s generator answers with a neutral touch"
+                            + (", as in its reading episodes" if out["generator"] == "reader"
+                               else "")])
         elif out["generator"] == "reader":
             out["why"] = list(out["why"]) + [
                 f"touch has less than {READ_BELOW:.0%} of the say: the reader, trained to "
@@ -500,7 +548,9 @@ class RATouchPipeline(RetrievalSide):
         for j in touch:  # each prompt on its own (a batched one rounds differently)
             e = encoded[j]
             gen = gens[j]
-            prefix, weights = self.ra_prefix(e.V, e.T, found[j][self.reads(requests[j])][1],
+            held = self.withholds(requests[j], e)
+            prefix, weights = self.ra_prefix(e.V, self.neutral_touch() if held else e.T,
+                                             found[j][self.reads(requests[j], e)][1],
                                              generator=gen)
             groups.setdefault(id(gen), (gen, [], []))
             groups[id(gen)][1].append(j)
@@ -596,11 +646,15 @@ class RATouchPipeline(RetrievalSide):
         T = self.encoders.encode_tactile([request.frame], None if bg is None else [bg])
         clock.lap("encode")
         J = self.joint_query(V, T)
-        q = (J if self.reads(request) == RA_TOUCH_MODE else self._gated(V, T, J)[0])[0]
+        e = Encoded(V, T, {RA_TOUCH_MODE: J}, look=guess_family(request.frame))
+        reads = self.reads(request, e)
+        q = (J if reads == RA_TOUCH_MODE else V if reads == IMAGE_MODE
+             else self._gated(V, T, J)[0])[0]
         text = self.corpus_embeddings("tactile_caption")[ids]        # (K, D)
         scores = text @ q / np.maximum(np.linalg.norm(text, axis=1) * np.linalg.norm(q), 1e-12)
-        gen = self.generator_for(request, Encoded(V, T, {RA_TOUCH_MODE: J}))
-        p_ra, weights = self.ra_prefix(V, T, ids[None], generator=gen)
+        gen = self.generator_for(request, e)
+        p_ra, weights = self.ra_prefix(V, self.neutral_touch() if self.withholds(request, e)
+                                       else T, ids[None], generator=gen)
         ra = self._describe([gen], [p_ra])[0][0]
         clock.lap("generate")
         return {"description": {"ra_touch": ra},

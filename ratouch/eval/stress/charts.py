@@ -71,10 +71,10 @@ def figures(result: dict):
     n = result["n"]
     quality.update_layout(
         title=f"Quality under stress (n={n}, K={k}): material P@{k} per query mode (solid, left "
-              f"axis), judge score per generator (dashed, right axis 1-10); star = unperturbed",
+              f"axis),<br>judge score per generator (dashed, right axis 1-10); star = unperturbed",
         height=330 * rows + 120, width=1300, template="plotly_white")
     stability.update_layout(
         title=f"Stability under stress (n={n}): top-{k} overlap with the unperturbed answer "
-              f"(solid), adjective Jaccard with the unperturbed description (dashed)",
+              f"(solid),<br>adjective Jaccard with the unperturbed description (dashed)",
         height=330 * rows + 120, width=1300, template="plotly_white")
     return quality, stability
