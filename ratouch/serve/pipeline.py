@@ -164,7 +164,7 @@ class Encoded:
             are then the route's ranking, not a search), else None.
         warnings: what encoding adds to the request's warnings (the photo route's note).
         look: the sensor family the frame looks like and how far from its units
-            (`guess_family`), or None (no frame).
+            (`guess_family`), or None (no frame, or `withhold_unfamiliar` off).
     """
 
     V: np.ndarray
@@ -348,7 +348,8 @@ class RATouchPipeline(RetrievalSide):
                 encoded[j].T = T[r:r + 1]
                 frame = requests[j].frame
                 assert frame is not None  # `touch` holds the requests with a frame
-                encoded[j].look = guess_family(frame)
+                if self.withhold_unfamiliar:  # read only where the rule may use it
+                    encoded[j].look = guess_family(frame)
             for mode in QUERY_MODES.values():
                 if mode.needs_touch:
                     q = mode.vectors(V[touch], T, self.joint_query)
@@ -646,7 +647,8 @@ class RATouchPipeline(RetrievalSide):
         T = self.encoders.encode_tactile([request.frame], None if bg is None else [bg])
         clock.lap("encode")
         J = self.joint_query(V, T)
-        e = Encoded(V, T, {RA_TOUCH_MODE: J}, look=guess_family(request.frame))
+        e = Encoded(V, T, {RA_TOUCH_MODE: J},
+                    look=guess_family(request.frame) if self.withhold_unfamiliar else None)
         reads = self.reads(request, e)
         q = (J if reads == RA_TOUCH_MODE else V if reads == IMAGE_MODE
              else self._gated(V, T, J)[0])[0]
