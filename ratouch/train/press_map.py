@@ -3,15 +3,16 @@
 Per encoder set, on its retrieval side (encoders, the default corpus and its caption
 embeddings): everyday presses (`ratouch.world.presses.render_press`, every kind, every
 family, each encoded with and without its drifted background) from a fit stream, and the
-world's training-split presses and renders of a rigid ball (`render_ball`, named
-`polished_metal`; each with and without its background). The map is fitted with a softmax
+world's training-split presses (with and without their backgrounds; with
+`PressMapConfig.balls` > 0 also renders of a rigid ball, `render_ball`, named
+`polished_metal`: tried, not shipped, docs/geometry.md). The map is fitted with a softmax
 (temperature :data:`TAU`) of each press against the corpus materials' mean caption embeddings,
-plus, on the world's presses and the balls, a term (weight :data:`KEEP`) that keeps them where
+plus, on the world's presses (and balls), a term (weight :data:`KEEP`) that keeps them where
 the encoder puts them; both fixed before the first run (scripts/why_press_adapter.py, which
 also runs the shuffled-material and everyday-only controls). The report reads material
 precision@5 of the tactile query against the corpus's captions before and after, on a fresh
 stream of everyday presses and on the world's validation renders, per family, and the share
-of fresh rigid balls whose top-1 caption reads hard.
+of fresh rigid balls whose top-1 caption is of a rigid material.
 """
 
 from __future__ import annotations
