@@ -72,9 +72,9 @@ def figures(result: dict):
     quality.update_layout(
         title=f"Quality under stress (n={n}, K={k}): material P@{k} per query mode (solid, left "
               f"axis),<br>judge score per generator (dashed, right axis 1-10); star = unperturbed",
-        height=330 * rows + 120, width=1300, template="plotly_white")
+        height=330 * rows + 120, width=1300, template="plotly_white", margin={"t": 120})
     stability.update_layout(
         title=f"Stability under stress (n={n}): top-{k} overlap with the unperturbed answer "
               f"(solid),<br>adjective Jaccard with the unperturbed description (dashed)",
-        height=330 * rows + 120, width=1300, template="plotly_white")
+        height=330 * rows + 120, width=1300, template="plotly_white", margin={"t": 120})
     return quality, stability
