@@ -5,7 +5,7 @@ The three measures of docs/premise.md, "An unfamiliar sensor's touch withheld", 
 test split (its first N pairs), offline judge, the shipped weights. The rule is the one the
 serving path answers with when `RATouchPipeline.withhold_unfamiliar` is on (it was tried and
 is off: not shipped): in the `gated` system, a frame that looks like none of
-the sensor families' units (`guess_family` beyond `LOOK_LIMIT`) is answered from the image
+the sensor families' units (`unfamiliar_look`) is answered from the image
 query's neighbours by the reader (the paper's generator without one) with the pipeline's
 neutral touch (`RATouchPipeline.neutral_touch`); every other frame as `gated` answers.
 
@@ -34,7 +34,7 @@ from ratouch.eval.judge.stats import mean_ci
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.world.config import WorldConfig
 from ratouch.world.sampler import TEST_SIZE
-from ratouch.world.sensors import LOOK_LIMIT, guess_family
+from ratouch.world.sensors import LOOK_LIMIT, guess_family, unfamiliar_look
 from ratouch.world.splits import encode_test_split, world_for
 
 
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> None:
                      name="withheld")
 
     def flags(fs) -> np.ndarray:
-        return np.array([guess_family(f)[1] > LOOK_LIMIT for f in fs])
+        return np.array([unfamiliar_look(guess_family(f)) for f in fs])
 
     out: dict = {"config": {**vars(args), "n": len(test.T), "look_limit": LOOK_LIMIT,
                             "reader": p.generator_reader is not None}}

@@ -40,7 +40,7 @@ from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
 from ratouch.images import check_background_size, resize_array
 from ratouch.model.geometry import GeometryCalibration, HeightMap, band_stats, read_height
-from ratouch.world.sensors import LOOK_LIMIT, guess_family
+from ratouch.world.sensors import guess_family, unfamiliar_look
 
 log = logging.getLogger(__name__)
 
@@ -477,7 +477,7 @@ class TrustCalibration:
         "score", "edge"}; None when neither does or the frame looks like no family's units
         (`look`: `guess_family(frame)` where the caller has it)."""
         name, distance = guess_family(frame) if look is None else look
-        if distance > LOOK_LIMIT:
+        if unfamiliar_look((name, distance)):
             return None
         low = (self.uncertain_alone or {}).get(name)
         if low is not None and score >= low:
@@ -559,7 +559,7 @@ class TrustCalibration:
                 # firmness from shape: a reading of a press, none of a blank
                 tac["firmness"] = (None if read is None or state == "no contact"
                                    else read["firmness"])
-            unlike = distance > LOOK_LIMIT
+            unlike = unfamiliar_look((name, distance))
             tac["sensor"] = {"family": name, "distance": round(distance, 3), "source": (
                 "the nearest guess: the frame looks like none of the families' units"
                 if unlike else "guessed from the frame's colours")}

@@ -57,7 +57,7 @@ from ratouch.serve.request import (
     slots_for,
 )
 from ratouch.timing import Laps
-from ratouch.world.sensors import LOOK_LIMIT, guess_family
+from ratouch.world.sensors import LOOK_LIMIT, guess_family, unfamiliar_look
 
 log = logging.getLogger(__name__)
 
@@ -177,8 +177,8 @@ class Encoded:
 
     @property
     def unfamiliar(self) -> bool:
-        """The frame looks like none of the sensor families' units (beyond `LOOK_LIMIT`)."""
-        return self.look is not None and self.look[1] > LOOK_LIMIT
+        """The frame looks like none of the sensor families' units (`unfamiliar_look`)."""
+        return self.look is not None and unfamiliar_look(self.look)
 
     @property
     def route(self) -> dict:
@@ -346,9 +346,9 @@ class RATouchPipeline(RetrievalSide):
             clock.lap("encode_tactile")
             for r, j in enumerate(touch):
                 encoded[j].T = T[r:r + 1]
-                frame = requests[j].frame
-                assert frame is not None  # `touch` holds the requests with a frame
                 if self.withhold_unfamiliar:  # read only where the rule may use it
+                    frame = requests[j].frame
+                    assert frame is not None  # `touch` holds the requests with a frame
                     encoded[j].look = guess_family(frame)
             for mode in QUERY_MODES.values():
                 if mode.needs_touch:

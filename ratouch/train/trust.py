@@ -30,7 +30,7 @@ from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.presses import render_blank_pair, render_press
 from ratouch.world.sampler import TEST_SIZE, World
-from ratouch.world.sensors import LOOK_LIMIT, guess_family
+from ratouch.world.sensors import guess_family, unfamiliar_look
 from ratouch.world.tactile import family_names, sensor_family
 
 log = logging.getLogger(__name__)
@@ -400,7 +400,7 @@ def with_alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 
         # what the calibration answers without any band, and what the band would read
         answered0 = np.array([base.contact_state(f)[0] != "no contact" for f in checks])
         guesses = [guess_family(f) for f in checks]
-        looks = np.array([name == fam and distance <= LOOK_LIMIT for name, distance in guesses])
+        looks = np.array([g[0] == fam and not unfamiliar_look(g) for g in guesses])
         check_feats = np.stack([contact_features(f) for f in checks])
         c_logit = trust.contact.score(check_feats)
         c_press = model.score(check_feats)

@@ -390,6 +390,12 @@ def _family_looks(digest: str) -> tuple[np.ndarray, np.ndarray]:
 LOOK_LIMIT = 1.66
 
 
+def unfamiliar_look(look: tuple[str, float]) -> bool:
+    """Whether a `guess_family` answer (family, distance) lies beyond :data:`LOOK_LIMIT`: the
+    frame looks like none of the families' units (the one check every reader of it shares)."""
+    return look[1] > LOOK_LIMIT
+
+
 def guess_family(frame: np.ndarray) -> tuple[str, float]:
     """The sensor family a frame (uint8 RGB) most looks like, from its colours alone, and how
     far it is from that family's units (in units of their spread; large: a guess at best)."""
