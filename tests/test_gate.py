@@ -147,31 +147,32 @@ def test_real_pipeline_reads_the_system_the_request_names(real_pipeline, world):
 
 @pytest.mark.slow
 def test_the_gated_system_withholds_an_unfamiliar_sensors_touch(real_pipeline, world):
-    """docs/premise.md, "An unfamiliar sensor's touch withheld": a frame that looks like none
-    of the sensor families' units (a pair's own frame, its channels turned and brightened):
-    with the rule on, the gated system reads the image query's neighbours with a neutral
-    touch (touch weight 0, kind "withheld", and why) and the paper's system reads it as
-    before; with the rule off (the shipped default: tried, not shipped) the gate weighs it."""
-    from ratouch.world.sensors import LOOK_LIMIT, guess_family
+    """docs/premise.md, "Touch withheld only beyond every validation render": a frame beyond
+    every rendered unit (a pair's own frame, its colours inverted): with the rule on, the
+    gated system reads the image query's neighbours with a neutral touch (touch weight 0,
+    kind "withheld", and why) and the paper's system reads it as before; with the rule off
+    the gate weighs it."""
+    from ratouch.world.sensors import WITHHOLD_LIMIT, guess_family
 
     s = world.sample("test", 40)
-    odd = np.clip(s.tactile.astype(np.float32)[..., [2, 0, 1]] * 1.1, 0, 255).astype(np.uint8)
-    assert guess_family(odd)[1] > LOOK_LIMIT >= guess_family(s.tactile)[1]
+    odd = 255 - s.tactile
+    assert guess_family(odd)[1] > WITHHOLD_LIMIT >= guess_family(s.tactile)[1]
 
     def ask(system):
         return QueryRequest.decode(s.visual, odd, s.box, 5, retrieval=system)
 
-    assert real_pipeline.withhold_unfamiliar is False
-    off = real_pipeline.answer([ask("gated")])[0].to_dict()["retrieval"]
-    assert off["reads"] == "gated" and off["kind"] != "withheld"
-    real_pipeline.withhold_unfamiliar = True
+    shipped = real_pipeline.withhold_unfamiliar
+    real_pipeline.withhold_unfamiliar = False
     try:
+        off = real_pipeline.answer([ask("gated")])[0].to_dict()["retrieval"]
+        real_pipeline.withhold_unfamiliar = True
         g = real_pipeline.answer([ask("gated")])[0].to_dict()
         again = real_pipeline.regenerate(ask("gated"),
                                          [n["id"] for n in g["neighbours"]["image"]])
         paper = real_pipeline.answer([ask("paper")])[0].to_dict()["retrieval"]
     finally:
-        real_pipeline.withhold_unfamiliar = False
+        real_pipeline.withhold_unfamiliar = shipped
+    assert off["reads"] == "gated" and off["kind"] != "withheld"
     r = g["retrieval"]
     assert (r["kind"], r["touch_weight"], r["reads"]) == ("withheld", 0.0, "image")
     assert "looks like none of the sensors" in r["why"][0]
@@ -181,6 +182,26 @@ def test_the_gated_system_withholds_an_unfamiliar_sensors_touch(real_pipeline, w
     assert again["description"]["ra_touch"] == g["description"]["ra_touch"]
     assert g["description"]["baseline"]  # the baseline still reads the frame
     assert paper["reads"] == "joint" and paper["kind"] != "withheld"
+
+
+@pytest.mark.slow
+def test_a_look_checks_false_alarm_keeps_its_touch(real_pipeline, world):
+    """A world DIGIT frame beyond the look check's caution limit (test pair 13, one of its six
+    false alarms on the test split) but within every rendered unit's: the trust line still
+    cautions, and the gated system still reads its touch, rule on or off."""
+    from ratouch.world.sensors import LOOK_LIMIT, WITHHOLD_LIMIT, guess_family
+
+    s = world.sample("test", 13)
+    assert LOOK_LIMIT < guess_family(s.tactile)[1] <= WITHHOLD_LIMIT
+    shipped = real_pipeline.withhold_unfamiliar
+    real_pipeline.withhold_unfamiliar = True
+    try:
+        out = real_pipeline.answer([QueryRequest.decode(s.visual, s.tactile, s.box, 5,
+                                                        retrieval="gated")])[0].to_dict()
+    finally:
+        real_pipeline.withhold_unfamiliar = shipped
+    assert out["retrieval"]["kind"] != "withheld" and out["retrieval"]["reads"] == "gated"
+    assert out["trust"]["tactile"]["unfamiliar_sensor"] is True
 
 
 @pytest.mark.slow

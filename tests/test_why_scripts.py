@@ -99,13 +99,23 @@ def test_press_adapter_check_fits_its_arms_and_reads_both_regimes(real_pipeline,
 @pytest.mark.slow
 def test_withhold_check_reads_its_three_measures(real_pipeline, monkeypatch, capsys):
     """scripts/why_withhold.py on the first 14 test pairs (one of them, 13, a DIGIT frame
-    beyond the look limit): the flagged rows, the rule against gated, against the baseline
-    with a neutral touch, and against paper on recoloured frames, each with its CI."""
-    script, out = _run_on_shipped("why_withhold", ["--n", "14"], real_pipeline, monkeypatch,
-                                  capsys)
-    assert out["config"]["n"] == 14
-    assert out["natural"]["flagged_indices"] == [13]
-    assert out["recoloured"]["flagged"] >= 12  # the recolouring looks like no family
+    beyond the look check's caution but within every rendered unit, so not withheld): the
+    flagged rows, the rule against gated, against the baseline with a neutral touch, and
+    against paper on recoloured frames, each with its CI; and the fresh renders' count."""
+    from ratouch.world.config import WorldConfig
+    from ratouch.world.sensors import WITHHOLD_LIMIT, guess_family
+    from ratouch.world.splits import world_for
+
+    script, out = _run_on_shipped("why_withhold", ["--n", "14", "--fresh", "3"], real_pipeline,
+                                  monkeypatch, capsys)
+    assert out["config"]["n"] == 14 and out["config"]["withhold_limit"] == WITHHOLD_LIMIT
+    assert out["natural"]["flagged_indices"] == []
+    assert out["natural"]["rule_vs_gated"]["diff"] == 0
+    world = world_for(WorldConfig())
+    odd = [script.recoloured(world.sample("test", i).tactile) for i in range(14)]
+    assert out["recoloured"]["flagged"] == sum(guess_family(f)[1] > WITHHOLD_LIMIT for f in odd)
+    fresh = out["fresh_renders"]
+    assert fresh["renders"] == 6 and fresh["beyond"] == sum(fresh["by_family"].values())
     for block, key in (("natural", "rule_vs_gated"), ("neutral_touch", "rule_vs_baseline"),
                        ("recoloured", "rule_vs_paper")):
         d = out[block][key]

@@ -57,7 +57,7 @@ from ratouch.serve.request import (
     slots_for,
 )
 from ratouch.timing import Laps
-from ratouch.world.sensors import LOOK_LIMIT, guess_family, unfamiliar_look
+from ratouch.world.sensors import WITHHOLD_LIMIT, guess_family, unfamiliar_look
 
 log = logging.getLogger(__name__)
 
@@ -164,7 +164,7 @@ class Encoded:
             are then the route's ranking, not a search), else None.
         warnings: what encoding adds to the request's warnings (the photo route's note).
         look: the sensor family the frame looks like and how far from its units
-            (`guess_family`), or None (no frame, or `withhold_unfamiliar` off).
+            (`guess_family`), or None (no frame, or a request the rule cannot answer).
     """
 
     V: np.ndarray
@@ -177,8 +177,9 @@ class Encoded:
 
     @property
     def unfamiliar(self) -> bool:
-        """The frame looks like none of the sensor families' units (`unfamiliar_look`)."""
-        return self.look is not None and unfamiliar_look(self.look)
+        """The frame lies beyond every validation render of the sensor families
+        (`unfamiliar_look` at `WITHHOLD_LIMIT`): the withholding rule's test."""
+        return self.look is not None and unfamiliar_look(self.look, WITHHOLD_LIMIT)
 
     @property
     def route(self) -> dict:
@@ -206,11 +207,12 @@ class RATouchPipeline(RetrievalSide):
         self.lm = lm
         self.trust = trust  # None: queries say that nothing flags unfamiliar inputs
         self.gate = gate
-        #: whether the `gated` system withholds the touch of a frame that looks like none of
-        #: the sensor families' units (`withholds`). Off: the gate alone weighs it. Tried and
-        #: not shipped (docs/premise.md, "An unfamiliar sensor's touch withheld": the look
-        #: check's false alarms on the world's DIGIT frames cost the world split 0.03).
-        self.withhold_unfamiliar = False
+        #: whether the `gated` system withholds the touch of a frame beyond every validation
+        #: render of the sensor families (`withholds`, `WITHHOLD_LIMIT`). On (docs/premise.md,
+        #: "Touch withheld only beyond every validation render": no world test frame is
+        #: withheld, +0.42 over the baseline where touch tells nothing). Off: the gate alone
+        #: weighs it.
+        self.withhold_unfamiliar = True
         if retrieval not in RETRIEVAL_SYSTEMS:
             raise ConfigError(f"unknown retrieval system {retrieval!r}; one of "
                               f"{', '.join(RETRIEVAL_SYSTEMS)}")
@@ -346,7 +348,7 @@ class RATouchPipeline(RetrievalSide):
             clock.lap("encode_tactile")
             for r, j in enumerate(touch):
                 encoded[j].T = T[r:r + 1]
-                if self.withhold_unfamiliar:  # read only where the rule may use it
+                if self._may_withhold(requests[j]):  # read only where the rule may use it
                     frame = requests[j].frame
                     assert frame is not None  # `touch` holds the requests with a frame
                     encoded[j].look = guess_family(frame)
@@ -403,11 +405,16 @@ class RATouchPipeline(RetrievalSide):
 
     def withholds(self, request: QueryRequest, encoded: Encoded) -> bool:
         """Whether `request`'s touch is withheld from its answer (docs/premise.md, "An
-        unfamiliar sensor's touch withheld"): the `gated` system, a frame that looks like
-        none of the sensor families' units (`Encoded.unfamiliar`), `withhold_unfamiliar`
+        unfamiliar sensor's touch withheld"): the `gated` system, a frame beyond every
+        validation render of the sensor families (`Encoded.unfamiliar`), `withhold_unfamiliar`
         on, and a neutral touch to read instead (a trust calibration)."""
+        return self._may_withhold(request) and encoded.unfamiliar
+
+    def _may_withhold(self, request: QueryRequest) -> bool:
+        """Whether `withholds` may hold for `request` once its frame's look is read (the
+        look is read only then)."""
         return ((request.retrieval or self.retrieval) == "gated" and self.withhold_unfamiliar
-                and encoded.unfamiliar and self.trust is not None)
+                and self.trust is not None)
 
     def neutral_touch(self) -> np.ndarray:
         """(1, D) the touch read where touch is withheld: the trust calibration's mean
@@ -483,8 +490,11 @@ class RATouchPipeline(RetrievalSide):
             assert encoded.look is not None  # withheld: the frame was read
             out.update(kind="withheld", touch_weight=0.0,
                        why=[f"the tactile frame looks like none of the sensors the models "
-                            f"learnt (distance {encoded.look[1]:.2f} > {LOOK_LIMIT}): touch is "
-                            "withheld, and the answer reads the image query's neighbours",
+                            f"learnt (distance {encoded.look[1]:.2f}, beyond every rendered unit's "
+                            f"{WITHHOLD_LIMIT}): touch is "
+                            "withheld, and the answer reads the image query's neighbours "
+                            "(its known cost: where such a sensor's touch is still readable, "
+                            "0.24 below the paper's system on recoloured renders)",
                             f"the {out['generator']}'s generator answers with a neutral touch"
                             + (", as in its reading episodes" if out["generator"] == "reader"
                                else "")])
@@ -648,7 +658,7 @@ class RATouchPipeline(RetrievalSide):
         clock.lap("encode")
         J = self.joint_query(V, T)
         e = Encoded(V, T, {RA_TOUCH_MODE: J},
-                    look=guess_family(request.frame) if self.withhold_unfamiliar else None)
+                    look=guess_family(request.frame) if self._may_withhold(request) else None)
         reads = self.reads(request, e)
         q = (J if reads == RA_TOUCH_MODE else V if reads == IMAGE_MODE
              else self._gated(V, T, J)[0])[0]
