@@ -491,7 +491,7 @@ class RATouchPipeline(RetrievalSide):
             out.update(kind="withheld", touch_weight=0.0,
                        why=[f"the tactile frame looks like none of the sensors the models "
                             f"learnt (distance {encoded.look[1]:.2f}, beyond every rendered unit's "
-                            f"{WITHHOLD_LIMIT}): touch is "
+                            f"{WITHHOLD_LIMIT:.2f}): touch is "
                             "withheld, and the answer reads the image query's neighbours "
                             "(its known cost: where such a sensor's touch is still readable, "
                             "0.24 below the paper's system on recoloured renders)",
