@@ -126,6 +126,38 @@ def test_withhold_check_reads_its_three_measures(real_pipeline, monkeypatch, cap
     assert script.recoloured(frame)[0, 0].tolist() == [220, 11, 110]
 
 
+@pytest.mark.slow
+def test_read_below_check_routes_as_the_gated_system_does(real_pipeline, monkeypatch, capsys):
+    """scripts/why_read_below.py on 12 validation renders: every threshold of the grid, clean
+    and mismatched touch; its row at the shipped `READ_BELOW` is the gated system's own answer
+    (`TrustRouted` on the gated query's neighbours), and the rule picks the largest threshold
+    within the allowance."""
+    from ratouch.eval.answer import RA_TOUCH, answer_split, retrieve
+    from ratouch.eval.judge import OfflineJudge
+    from ratouch.model.gate import READ_BELOW
+    from ratouch.world.splits import encode_test_split
+
+    if real_pipeline.gate is None or real_pipeline.generator_reader is None:
+        pytest.skip("no touch gate or reader in the shipped weights")
+    script, out = _run_on_shipped("why_read_below", ["--n", "12"], real_pipeline, monkeypatch,
+                                  capsys)
+    assert set(out["touch"]) == {"clean", "mismatched"}
+    for block in out["touch"].values():
+        assert list(block["by_threshold"]) == [str(t) for t in script.GRID]
+        counts = [r["reader_answers"] for r in block["by_threshold"].values()]
+        assert counts == sorted(counts) and 0 <= counts[-1] <= 12
+    split = encode_test_split(real_pipeline.encoders, indices=range(1_100_000, 1_100_012),
+                              split="train")
+    routed = answer_split(real_pipeline, split, RA_TOUCH,
+                          ids=retrieve(real_pipeline, split.V, split.T, 5, "gated"),
+                          generator=real_pipeline.system_generator("gated"),
+                          judge=OfflineJudge()).scores
+    assert out["touch"]["clean"]["by_threshold"][str(READ_BELOW)]["gated"] == \
+        pytest.approx(routed.mean(), abs=1e-3)
+    assert script.choose((0.1, 0.2, 0.3), {0.1: 0.0, 0.2: 0.04, 0.3: 0.06}, 0.05) == 0.2
+    assert script.choose((0.1,), {0.1: 0.2}, 0.05) is None
+
+
 def _run_on_shipped(name: str, argv: list[str], pipeline, monkeypatch, capsys):
     """Run script `name` with `argv` on the tests' real pipeline: (the script's module, the
     JSON object it printed last)."""
