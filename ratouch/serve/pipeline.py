@@ -494,7 +494,7 @@ class RATouchPipeline(RetrievalSide):
                             f"{WITHHOLD_LIMIT:.2f}): touch is "
                             "withheld, and the answer reads the image query's neighbours "
                             "(its known cost: where such a sensor's touch is still readable, "
-                            "0.24 below the paper's system on recoloured renders)",
+                            "0.22 below the paper's system on recoloured renders)",
                             f"the {out['generator']}'s generator answers with a neutral touch"
                             + (", as in its reading episodes" if out["generator"] == "reader"
                                else "")])
