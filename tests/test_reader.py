@@ -79,7 +79,7 @@ def test_episodes_need_the_gate():
 
 
 def test_trust_routed_answers_each_row_with_the_reader_only_where_touch_is_untrusted():
-    w = np.array([0.1, 0.9, 0.49, 0.5])
+    w = np.array([0.1, 0.9, READ_BELOW - 0.01, READ_BELOW])
     side = SimpleNamespace(gate=SimpleNamespace(weights=lambda V, T, J: w),
                            joint_query=lambda V, T: V)
 
