@@ -30,6 +30,7 @@ from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split
 from ratouch.eval.experiments import Lab
 from ratouch.eval.judge import mean_ci, score_stats
 from ratouch.eval.retrieval import entry_materials, material_precision
+from ratouch.model.gate import READ_BELOW
 from ratouch.paths import cascade_calibration
 from ratouch.search.index import BENCH_KINDS, KINDS, IndexConfig, VectorIndex
 from ratouch.serve.cascade import CascadeCalibration, joint_confidence
@@ -197,12 +198,13 @@ def _system_point(lab, pairs: tuple[list, list], points: list[dict], scores: lis
                   system: str) -> dict | None:
     """A retrieval system beside the paper's on the flat index over the whole corpus, K=5,
     judged and timed like the other points: `gated`, the trust-gated query's neighbours read
-    by the reader (the pipeline's `generator_reader`; the paper's RA-Touch generator where
-    none is loaded; None without a touch gate); `text`, the joint query's neighbours read as
-    text by the text arm (`generator_text`; None without one)."""
+    as the served system reads them (`system_generator`: the reader where the gate gives
+    touch less than `READ_BELOW` of the say, the paper's RA-Touch generator elsewhere or
+    where no reader is loaded; None without a touch gate); `text`, the joint query's
+    neighbours read as text by the text arm (`generator_text`; None without one)."""
     p = lab.pipeline
     gated = system == "gated"
-    gen = (p.generator_reader or p.generator_ra) if gated else p.generator_text
+    gen = p.system_generator("gated") if gated else p.generator_text
     if (gated and p.gate is None) or gen is None:
         return None
     test = lab.test
@@ -212,7 +214,8 @@ def _system_point(lab, pairs: tuple[list, list], points: list[dict], scores: lis
     per_sample["precision_at_5"] = prec
     ref = next((sc for q, sc in zip(points, scores) if q["index"] == "flat"
                 and q["corpus"] == len(p.corpus) and q["k"] == 5), None)
-    name = ("RA-Touch, gated" + (" (reader)" if p.generator_reader is not None else "")
+    name = ("RA-Touch, gated" + (f" (reader below touch weight {READ_BELOW})"
+                                  if p.generator_reader is not None else "")
             if gated else "RA-Touch, text (captions in the prompt)")
     return {"encoder": lab.cfg.encoder, "index": "flat", "corpus": len(p.corpus), "k": 5,
             **_latency(p, pairs, lambda q: p.corpus.search("text", q, 5)[1], gated=gated,
