@@ -353,7 +353,8 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
             progress(0.9, desc="thumbnails…")
         trace = trace_retrieval(result)
         attended = [a.rank for a in trace.attended] if trace else []
-        galleries = {m: view.neighbour_strip(result, m, thumbnail, attended) for m in view.MODES}
+        galleries = {m: view.neighbour_strip(result, m, thumbnail, attended,
+                                             view.read_mode(result)) for m in view.MODES}
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         files = {"visual image": getattr(visual, "source", None), "tactile image": tactile,
                  "background image": background}
@@ -387,12 +388,15 @@ def regenerate(pipe, visual: boxes.Visual | None, tactile: Any, x0, y0, x1, y1,
     answered with; the tactile frame is read against `background` as the query read it."""
     tactile, background = upload_path(tactile), upload_path(background)
     try:
-        if visual is None or not result or not result.get("neighbours", {}).get(view.RA_TOUCH_MODE):
+        if visual is None or not result or not result.get("neighbours", {}).get(
+                view.read_mode(result)):
             raise DataError("run a query with a tactile image first")
         kept = [int(i) for i in (kept or [])]
         box = boxes.fields_to_box(x0, y0, x1, y1)
+        # the system the answer came from reads the kept neighbours again (its generator)
         request = QueryRequest.decode(visual.source, tactile, box=box, background=background,
-                                      model=encoder or None)
+                                      model=encoder or None,
+                                      retrieval=(result.get("retrieval") or {}).get("system"))
         again = pipe.model(encoder or None).regenerate(request, kept)
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         return view.error_md(_fail(e, {"visual image": getattr(visual, "source", None),

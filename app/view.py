@@ -108,11 +108,13 @@ def data_uri(image: np.ndarray | str, png: bool = False) -> str:
 
 
 def neighbour_strip(result: dict, mode: str, thumbnail: Callable[[int], np.ndarray | str],
-                    attended: Sequence[int] = ()) -> str:
+                    attended: Sequence[int] = (), reads: str = RA_TOUCH_MODE) -> str:
     """One mode's neighbours as a row of fixed-size tiles (HTML), one per distinct tactile
     caption, best first: a rank/similarity badge and a ×n badge for folded duplicates on the
     image, the caption under it (two lines; all of it, the class and which modes share it on
-    hover). `attended`: ranks of joint neighbours the integrator attended to most, outlined."""
+    hover). `attended`: ranks, among the neighbours of `reads` (the mode the answer read: the
+    joint query's for the paper's system, the gated or the image query's for `gated`), of those
+    the integrator attended to most; outlined in that mode's row only."""
     title = (f"<div class='ra-mode-title'><span style='color:{MODE_COLOUR[mode]}'>●</span> "
              f"{escape(MODE_TITLE[mode])}</div>")
     rows = result.get("neighbours", {}).get(mode)
@@ -130,7 +132,7 @@ def neighbour_strip(result: dict, mode: str, thumbnail: Callable[[int], np.ndarr
         hover = (f"#{rank} of {len(rows)} · similarity {n['score']:.3f}"
                  + (f" · {count} of the top {len(rows)} share this caption" if count > 1 else "")
                  + f" · {n['class_name']} (corpus id {n['id']}){held}\n{n['caption']}")
-        cls = "ra-tile ra-attended" if mode == RA_TOUCH_MODE and n["caption"] in read else "ra-tile"
+        cls = "ra-tile ra-attended" if mode == reads and n["caption"] in read else "ra-tile"
         badges = f"<span class='ra-badge'>{rank} · {n['score']:.2f}</span>"
         if count > 1:
             badges += f"<span class='ra-count'>×{count}</span>"
@@ -657,14 +659,21 @@ def report_md(docs: Path, figures: Sequence[Path] = ()) -> str:
 
 # ------------------------------------------------------------------------- taking retrieval apart
 
+def read_mode(result: Mapping) -> str:
+    """The query mode whose neighbours the answer read (`"reads"` in its retrieval block): the
+    joint query's for the paper's system, the gated or the image query's for `gated`."""
+    return (result.get("retrieval") or {}).get("reads") or RA_TOUCH_MODE
+
+
 def neighbour_choices(result: dict | None) -> list[tuple[str, int]]:
-    """(label, id) of each joint neighbour RA-Touch read, with the integrator's attention on
-    its image and its text: the choices of the "take retrieval apart" checkboxes."""
+    """(label, id) of each neighbour RA-Touch read (`read_mode`), with the integrator's
+    attention on its image and its text: the choices of the "take retrieval apart"
+    checkboxes."""
     if not result:
         return []
     att = result.get("attention") or {}
     out = []
-    for j, n in enumerate(result.get("neighbours", {}).get(RA_TOUCH_MODE, [])):
+    for j, n in enumerate(result.get("neighbours", {}).get(read_mode(result), [])):
         a_img, a_txt = ((att.get("image") or [None] * (j + 1))[j],
                         (att.get("text") or [None] * (j + 1))[j])
         share = (f" · attention image {a_img:.2f} / text {a_txt:.2f}"
@@ -677,7 +686,7 @@ def neighbour_choices(result: dict | None) -> list[tuple[str, int]]:
 def regenerated_md(original: dict, regenerated: dict, kept: Sequence[int],
                    score: float | None, original_score: float | None) -> str:
     """RA-Touch's description read with the kept neighbours, beside the original."""
-    ids = [n["id"] for n in original["neighbours"][RA_TOUCH_MODE]]
+    ids = [n["id"] for n in original["neighbours"][read_mode(original)]]
     dropped = [i for i in ids if i not in set(kept)]
     added = [i for i in kept if i not in set(ids)]
     what = (f"{len(kept)} of the {len(ids)} neighbours"

@@ -369,7 +369,8 @@ class FakePipeline:
     def regenerate(self, request, neighbours) -> dict:
         if request.frame is None:
             raise DataError("regenerating the RA-Touch description needs a tactile image")
-        self.calls.append({"regenerate": list(neighbours), "box": list(request.box)})
+        self.calls.append({"regenerate": list(neighbours), "box": list(request.box),
+                           "retrieval": request.retrieval})
         return {"description": {"ra_touch": f"read {len(neighbours)} neighbours"},
                 "neighbours": [self._neighbour(i, 0.5) for i in neighbours],
                 "attention": {"image": [0.1] * len(neighbours), "text": [0.1] * len(neighbours)},

@@ -1089,6 +1089,38 @@ def test_query_api_k_error_names_k(served, pair_files):
                        api_name="/query")
 
 
+def test_an_answer_that_read_another_query_is_shown_and_taken_apart_on_that_query(fake, world):
+    """A gated answer that read the image query's neighbours (touch withheld): the most
+    attended are outlined in the image row, not the joint one; "take retrieval apart" offers
+    the image neighbours and regenerates with the gated system, as it answered."""
+    import dataclasses
+
+    from app import handlers
+
+    class Gated(type(fake)):
+        def _answer(self, req):
+            r = super()._answer(req)
+            k = len(r.neighbours["image"])
+            return dataclasses.replace(
+                r, attention={"image": [0.6] + [0.1] * (k - 1), "text": [0.6] + [0.1] * (k - 1)},
+                retrieval={"system": "gated", "reads": "image", "kind": "withheld",
+                           "touch_weight": 0.0, "why": ["touch is withheld"],
+                           "generator": "reader"})
+
+    pipe = Gated()
+    visual, _, tactile, bg, *fields, _ = handlers.load_example(world, 7)
+    v = handlers.run_query(pipe, _thumb, visual, tactile, *fields, 5)
+    assert v.raw["retrieval"]["reads"] == "image"
+    assert v.galleries["image"].count("ra-attended") >= 1
+    assert "ra-attended" not in v.galleries["joint"]
+    image_ids = [n["id"] for n in v.raw["neighbours"]["image"]]
+    assert [i for _, i in handlers.neighbour_picker(v.raw).choices] == image_ids
+    out = handlers.regenerate(pipe, visual, tactile, *fields, image_ids[:2], v.raw)
+    assert pipe.calls[-1]["regenerate"] == image_ids[:2]
+    assert pipe.calls[-1]["retrieval"] == "gated"
+    assert "2 of the 5 neighbours" in out
+
+
 def test_taking_retrieval_apart_regenerates_with_the_ticked_neighbours(fake, world):
     from app import handlers
     from ratouch.eval.judge import OfflineJudge
