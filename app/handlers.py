@@ -31,7 +31,7 @@ from ratouch.images import QUERY_MAX_SIDE, check_background_size, to_rgb_array
 from ratouch.paths import cascade_calibration
 from ratouch.serve.cascade import CASCADE, CascadeCalibration
 from ratouch.serve.request import MAX_K, QueryRequest, answer_one, check_k, split_model_name
-from ratouch.serve.trace import trace_retrieval
+from ratouch.serve.trace import read_mode, trace_retrieval
 
 log = logging.getLogger(__name__)
 
@@ -354,7 +354,7 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
         trace = trace_retrieval(result)
         attended = [a.rank for a in trace.attended] if trace else []
         galleries = {m: view.neighbour_strip(result, m, thumbnail, attended,
-                                             view.read_mode(result)) for m in view.MODES}
+                                             read_mode(result)) for m in view.MODES}
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         files = {"visual image": getattr(visual, "source", None), "tactile image": tactile,
                  "background image": background}
@@ -389,7 +389,7 @@ def regenerate(pipe, visual: boxes.Visual | None, tactile: Any, x0, y0, x1, y1,
     tactile, background = upload_path(tactile), upload_path(background)
     try:
         if visual is None or not result or not result.get("neighbours", {}).get(
-                view.read_mode(result)):
+                read_mode(result)):
             raise DataError("run a query with a tactile image first")
         kept = [int(i) for i in (kept or [])]
         box = boxes.fields_to_box(x0, y0, x1, y1)

@@ -18,7 +18,7 @@ from PIL import Image
 
 from ratouch.search.modes import QUERY_MODES, RA_TOUCH_MODE
 from ratouch.serve.request import split_model_name
-from ratouch.serve.trace import RetrievalTrace, marked_segments
+from ratouch.serve.trace import RetrievalTrace, marked_segments, read_mode
 
 MODES = QUERY_MODES
 MODE_TITLE = QUERY_MODES.field("title")  # live views of the registry's rows
@@ -658,12 +658,6 @@ def report_md(docs: Path, figures: Sequence[Path] = ()) -> str:
 
 
 # ------------------------------------------------------------------------- taking retrieval apart
-
-def read_mode(result: Mapping) -> str:
-    """The query mode whose neighbours the answer read (`"reads"` in its retrieval block): the
-    joint query's for the paper's system, the gated or the image query's for `gated`."""
-    return (result.get("retrieval") or {}).get("reads") or RA_TOUCH_MODE
-
 
 def neighbour_choices(result: dict | None) -> list[tuple[str, int]]:
     """(label, id) of each neighbour RA-Touch read (`read_mode`), with the integrator's

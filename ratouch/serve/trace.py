@@ -93,6 +93,13 @@ class RetrievalTrace:
         return not self.attended or self.attended[0].weight < 1.25 * self.even_share
 
 
+def read_mode(result: Mapping[str, Any]) -> str:
+    """The query mode whose neighbours an answer's RA-Touch read (`"reads"` in its retrieval
+    block, `QueryResult.to_dict()`): the joint query's for the paper's system, the gated or
+    the image query's for `gated`; the joint query's where the block says nothing."""
+    return (result.get("retrieval") or {}).get("reads") or RA_TOUCH_MODE
+
+
 def trace_retrieval(result: QueryResult | Mapping[str, Any], top: int = 3
                     ) -> RetrievalTrace | None:
     """The trace of one answer, or None when RA-Touch gave no description (no tactile image,
@@ -110,7 +117,7 @@ def trace_retrieval(result: QueryResult | Mapping[str, Any], top: int = 3
     res = result.to_dict() if isinstance(result, QueryResult) else result
     description = res.get("description") or {}
     block = res.get("retrieval") or {}
-    reads = block.get("reads", RA_TOUCH_MODE)
+    reads = read_mode(res)
     joint = (res.get("neighbours") or {}).get(reads) or []
     ra_text = description.get("ra_touch") or ""
     if not ra_text or not joint:
@@ -137,7 +144,7 @@ def trace_retrieval(result: QueryResult | Mapping[str, Any], top: int = 3
         tuple(w for w in base if w not in ra_set), attended, 1.0 / len(joint), carried,
         tuple(w for w in ra if w in anywhere), block.get("system", "paper"), reads,
         # the joint query (the paper's and the text system's) lets touch steer fully
-        (1.0 if block.get("reads", RA_TOUCH_MODE) == RA_TOUCH_MODE else block.get("touch_weight"))
+        (1.0 if reads == RA_TOUCH_MODE else block.get("touch_weight"))
         if block else None, tuple(block.get("why") or ()), str(block.get("generator") or ""))
 
 
