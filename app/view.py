@@ -383,7 +383,8 @@ def trust_lines(result: dict) -> list[str]:
             state = t.get("state") or ("no contact" if t["no_contact"] else "contact")
             mark = {"no contact": "✖ no contact", "uncertain": "? contact uncertain"}.get(
                 state, "✓ contact")
-            against = ", vs background" if t.get("background") else ""
+            against = ", vs background" if t.get("background") else (
+                ", read blind to colour" if t.get("contact_model") == "colour-blind" else "")
             score = "n/a" if t["contact"] is None else f"{t['contact']:.2f}"
             cells.append(f"contact {score} (flag < {t['contact_threshold']:.2f}"
                          f"{against}) {mark}")

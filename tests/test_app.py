@@ -1066,6 +1066,11 @@ def test_trust_is_shown_above_the_descriptions():
     status = view.status_md("x", [*result["warnings"], "no contact box given: used TVL's"],
                             None, result)
     assert "no contact detected" not in status and "⚠ 1 note: no contact box given" in status
+    # a frame alone read by the colour-blind model (a sensor unlike every rendered unit)
+    blind = {**result["trust"]["tactile"], "contact_model": "colour-blind"}
+    line = view.trust_lines({**result, "trust": {**result["trust"], "tactile": blind}})[0]
+    assert "(flag < 2.30, read blind to colour) ✖ no contact" in line
+    assert "blind to colour" not in view.trust_lines(result)[0]
 
 
 def test_header_says_what_the_corpus_is(fake):

@@ -389,8 +389,11 @@ def test_calibration_is_reproducible(tmp_path):
 
     enc = create_model("default-s")
     cfg = TrustConfig(n_reference=120, n_validation=100, n_everyday=8, n_alone_blanks=20,
-                      n_alone_presses=12, n_alone_check=6)
+                      n_alone_presses=12, n_alone_check=6, n_unfamiliar=30)
     a, b = calibrate(enc, cfg, progress=False), calibrate(enc, cfg, progress=False)
+    assert a.contact_unfamiliar[1] == b.contact_unfamiliar[1]  # opt-in: fitted when asked
+    assert "train[0:30]" in a.meta["unfamiliar_contact"]["fit"]
+    assert calibrate.__defaults__[0].n_unfamiliar == 0  # and not by default (not shipped)
     assert a.contact_threshold == b.contact_threshold
     assert a.uncertain_alone == b.uncertain_alone and a.uncertain_alone  # on 20 blanks
     assert a.meta["alone_band"] == b.meta["alone_band"]
@@ -415,3 +418,112 @@ def test_huge_visual_crop_matches_the_full_resolution_crop(tmp_path):
     assert np.abs(fast.astype(int) - slow.astype(int)).mean() < 8
     with pytest.raises(DataError, match="outside the 4000x3000"):
         crop_box(tmp_path / "big.jpg", (5000, 5000, 5100, 5100), max_side=QUERY_MAX_SIDE)
+
+
+# ------------------------------------------------- a sensor unlike every rendered unit, alone
+
+def _small_unfamiliar(cal: TrustCalibration) -> TrustCalibration:
+    """`with_unfamiliar_contact` on the shipped calibration at small sizes."""
+    from ratouch.train.trust import validation_blanks, validation_presses, with_unfamiliar_contact
+
+    return with_unfamiliar_contact(cal, n=40, seed=6, val_presses=validation_presses(6, n=60),
+                                   val_blanks=validation_blanks(6, n=60), n_validation=60)
+
+
+@pytest.fixture(scope="module")
+def unfamiliar_cal() -> TrustCalibration:
+    return _small_unfamiliar(TrustCalibration.load(trust_calibration("default-s")))
+
+
+def test_unfamiliar_view_changes_the_sensors_look_and_keeps_the_press():
+    """A view keeps the frame's size and where things are; its colours lie beyond every
+    rendered unit for most frames; the same stream gives the same view."""
+    from ratouch.world.sensors import WITHHOLD_LIMIT, guess_family, unfamiliar_view
+
+    world = World(WorldConfig(seed=0))
+    frames = [world.sample("test", i).tactile for i in range(6)]
+    views = [unfamiliar_view(f, np.random.default_rng(i)) for i, f in enumerate(frames)]
+    assert all(v.shape == f.shape and v.dtype == np.uint8 for v, f in zip(views, frames))
+    assert sum(guess_family(v)[1] > WITHHOLD_LIMIT for v in views) >= 4
+    assert all(guess_family(f)[1] <= WITHHOLD_LIMIT for f in frames)
+    again = unfamiliar_view(frames[0], np.random.default_rng(0))
+    assert np.array_equal(again, views[0])
+
+
+def test_colour_blind_features_ignore_channel_order_and_brightness():
+    """`contact_features_free`: a frame with its channels reordered reads the same, and one
+    made darker reads nearly the same where the colour-aware features shift by the gain."""
+    from ratouch.model.trust import contact_features_free
+
+    frame = World(WorldConfig(seed=0)).sample("test", 3).tactile
+    free = contact_features_free(frame)
+    assert free.shape == (13,) and np.isfinite(free).all()
+    assert np.allclose(contact_features_free(frame[..., [2, 0, 1]]), free, atol=1e-5)
+    dark = (frame.astype(np.float64) * 0.6).round().astype(np.uint8)
+    plain, plain_dark = contact_features(frame), contact_features(dark)
+    assert abs((plain_dark[0] - plain[0]) - np.log(0.6)) < 0.1  # the band level moves by the gain
+    assert np.max(np.abs(contact_features_free(dark) - free)[[0, 1, 4, 5, 8, 9]]) < 0.1
+
+
+def test_colour_blind_contact_reads_only_frames_beyond_every_rendered_unit(unfamiliar_cal,
+                                                                           tmp_path):
+    """Fitted small: the model and its threshold are kept through save and load; a frame
+    beyond the limit alone is decided by it, a frame within the limit and any frame with a
+    background are read as before; the trust block names the model and says it is a guess."""
+    from ratouch.world.sensors import WITHHOLD_LIMIT, guess_family, unfamiliar_view
+
+    cal = unfamiliar_cal
+    shipped = TrustCalibration.load(trust_calibration("default-s"))
+    assert shipped.contact_unfamiliar is None  # measured, not shipped (docs/geometry.md)
+    model, thr = cal.contact_unfamiliar
+    assert thr == cal.meta["unfamiliar_contact"]["threshold"]
+    back = TrustCalibration.load(cal.save(tmp_path / "t.json"))
+    assert back.contact_unfamiliar[1] == thr
+    assert np.allclose(back.contact_unfamiliar[0].coef, model.coef)
+    world = World(WorldConfig(seed=0))
+    s = world.sample("test", 5)
+    rng = np.random.default_rng(2)
+    view = next(v for v in (unfamiliar_view(s.tactile, rng) for _ in range(20))
+                if guess_family(v)[1] > WITHHOLD_LIMIT)
+    state, score = cal.contact_state(view)
+    assert score == pytest.approx(cal.unfamiliar_score(view))
+    assert state == ("contact" if score >= thr else "no contact")
+    assert shipped.contact_state(view)[1] == pytest.approx(shipped.contact_score(view))
+    # within the limit, and with a background, nothing changes
+    assert cal.contact_state(s.tactile) == shipped.contact_state(s.tactile)
+    bg = world.background_image(s.sensor)
+    assert cal.contact_state(view, bg) == shipped.contact_state(view, bg)
+    V = np.zeros((1, cal.visual.mean.shape[0]))
+    T = np.zeros((1, cal.tactile.mean.shape[0]))
+    block = cal.assess(V, T, view)
+    assert block["tactile"]["contact_model"] == "colour-blind"
+    assert block["tactile"]["contact_threshold"] == thr
+    assert any("blind to its colours" in w for w in block["warnings"])
+    assert shipped.assess(V, T, view)["tactile"]["contact_model"] == "disc-press"
+    assert cal.assess(V, T, view, bg)["tactile"]["contact_model"] is None
+    from ratouch.errors import ConfigError
+    with pytest.raises(ConfigError, match="--unfamiliar"):
+        shipped.unfamiliar_score(view)
+
+
+def test_train_trust_unfamiliar_writes_only_that_model(tmp_path, capsys, monkeypatch):
+    """`ratouch train trust --unfamiliar --out F` (at small sizes) adds the model and its
+    record and changes nothing else; asked for with --alone-band it is a usage error."""
+    from ratouch.cli import main
+    from ratouch.cli import train as cli_train
+
+    shipped = TrustCalibration.load(trust_calibration("default-s"))
+    monkeypatch.setattr(cli_train, "with_unfamiliar_contact",
+                        lambda cal, seed, false_alarm: _small_unfamiliar(cal))
+    out = tmp_path / "t.json"
+    assert main(["train", "trust", "--unfamiliar", "--out", str(out)]) == 0
+    written = TrustCalibration.load(out)
+    printed = json.loads(capsys.readouterr().out)
+    assert written.contact_unfamiliar is not None
+    assert printed["unfamiliar_contact"] == written.meta["unfamiliar_contact"]
+    assert written.contact_threshold == shipped.contact_threshold
+    assert written.uncertain_alone == shipped.uncertain_alone
+    assert {k: v for k, v in written.meta.items() if k != "unfamiliar_contact"} == shipped.meta
+    assert main(["train", "trust", "--unfamiliar", "--alone-band", "--out",
+                 str(tmp_path / "u.json")]) == 2
+    assert not (tmp_path / "u.json").exists()

@@ -172,3 +172,40 @@ def _last_json(capsys) -> dict:
     """The JSON object a script prints last (after its progress lines)."""
     text = capsys.readouterr().out
     return json.loads(text[text.rindex("\n{") + 1:] if "\n{" in text else text)
+
+
+def test_unfamiliar_contact_check_reads_every_measure(tmp_path, capsys):
+    """scripts/why_unfamiliar_contact.py, small, on a calibration with a small colour-blind
+    model: per family before and after on fresh views beyond the limit, no frame within the
+    limit changed (the model never reads one), and Taxim's real frames' views; without the
+    model it says so and exits."""
+    from ratouch.model.trust import TrustCalibration
+    from ratouch.paths import trust_calibration
+    from ratouch.train.trust import validation_blanks, validation_presses, with_unfamiliar_contact
+
+    shipped = TrustCalibration.load(trust_calibration("default-s"))
+    cal = with_unfamiliar_contact(shipped, n=30, seed=8, val_presses=validation_presses(8, n=40),
+                                  val_blanks=validation_blanks(8, n=40), n_validation=40)
+    path = cal.save(tmp_path / "cal.json")
+    script = _script("why_unfamiliar_contact")
+    out_file = tmp_path / "out.json"
+    script.main(["--after", str(path), "--n", "8", "--per-kind", "1", "--blanks", "4",
+                 "--views", "1", "--test", "5", "--out", str(out_file)])
+    out = json.loads(capsys.readouterr().out)
+    assert json.loads(out_file.read_text()) == out
+    assert out["threshold"] == cal.contact_unfamiliar[1]
+    for side in ("before", "after"):
+        assert set(out["fresh"][side]) == {"digit", "gelsight", "mini"}
+        for r in out["fresh"][side].values():
+            assert r["everyday_answered_minus_blanks_contact"] == pytest.approx(
+                r["everyday_answered"] - r["drifted_blanks_contact"], abs=1e-3) or np.isnan(
+                r["everyday_answered"])
+    assert sum(out["fresh"]["counts"].values()) > 0
+    for group in out["within_limit"].values():
+        assert group["changed"] == 0
+    assert out["within_limit"]["world test presses"]["frames"] == 5
+    real = out["real_beyond"]
+    for side in ("before", "after"):
+        assert " of " in real[side]["taxim_press_views_refused"]
+    with pytest.raises(SystemExit, match="no colour-blind contact model"):
+        script.main(["--n", "2"])

@@ -246,6 +246,10 @@ def _add_train(sub) -> None:
                     help="only (re)set the no-background 'uncertain' band per sensor family "
                          "on fresh blank renders, in the stored calibration (its other "
                          "figures unchanged)")
+    tr.add_argument("--unfamiliar", action="store_true",
+                    help="only (re)fit the colour-blind contact model that reads a frame "
+                         "alone from a sensor unlike every rendered unit, in the stored "
+                         "calibration (its other figures unchanged)")
     gt = tsub.add_parser("gate", help="fit the touch gate (how far touch steers the gated "
                                       "query) on probe renders with clean, mismatched, blank "
                                       "and noisy touch")

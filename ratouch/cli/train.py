@@ -30,7 +30,7 @@ from ratouch.train.gate import format_gate_report, gate_recipe
 from ratouch.train.geometry import calibrate as calibrate_geometry
 from ratouch.train.geometry import with_firmness
 from ratouch.train.press_map import PressMapConfig, press_map_recipe
-from ratouch.train.trust import TrustConfig, calibrate, with_alone_band
+from ratouch.train.trust import TrustConfig, calibrate, with_alone_band, with_unfamiliar_contact
 
 
 def run(args: argparse.Namespace) -> int:
@@ -138,6 +138,17 @@ def _train_geometry(args: argparse.Namespace) -> int:
 
 
 def _train_trust(args: argparse.Namespace) -> int:
+    if args.alone_band and args.unfamiliar:
+        raise usage("--alone-band and --unfamiliar each refit one part of the stored "
+                    "calibration: give one of them")
+    if args.unfamiliar:
+        path = trust_calibration(args.encoder)
+        cal = with_unfamiliar_contact(TrustCalibration.load(path), seed=args.seed,
+                                      false_alarm=args.false_alarm)
+        out = cal.save(args.out or path)
+        print(json.dumps({"written": str(out),
+                          "unfamiliar_contact": cal.meta["unfamiliar_contact"]}, indent=1))
+        return 0
     if args.alone_band:
         path = trust_calibration(args.encoder)
         cal = with_alone_band(TrustCalibration.load(path), seed=args.seed)

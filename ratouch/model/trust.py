@@ -40,7 +40,7 @@ from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
 from ratouch.images import check_background_size, resize_array
 from ratouch.model.geometry import GeometryCalibration, HeightMap, band_stats, read_height
-from ratouch.world.sensors import guess_family, unfamiliar_look
+from ratouch.world.sensors import WITHHOLD_LIMIT, guess_family, unfamiliar_look
 
 log = logging.getLogger(__name__)
 
@@ -200,6 +200,24 @@ def contact_features(frame: np.ndarray, background: np.ndarray | None = None) ->
     return np.asarray(feats, np.float64)
 
 
+#: Indices in :func:`contact_features` (no background) of the terms that scale with the
+#: frame's brightness: each band's log RMS and log 99th percentile, and the finest detail's log
+#: RMS. The block-concentration terms are ratios already; the last three are the mean colour.
+_LEVEL_TERMS = (0, 1, 4, 5, 8, 9, 12)
+#: How many of :func:`contact_features`' numbers (no background) come before the mean colour.
+_BEFORE_COLOUR = 13
+
+
+def contact_features_free(frame: np.ndarray) -> np.ndarray:
+    """The contact model's input for a frame alone, blind to the sensor's colours:
+    :func:`contact_features` without the frame's mean colour, its level terms (band RMS and
+    percentiles, the noise level) relative to the log of the frame's mean level, so that a
+    sensor with other LEDs or gains reads as a rendered one does. (13,) float64."""
+    x = contact_features(frame)[:_BEFORE_COLOUR].copy()
+    x[list(_LEVEL_TERMS)] -= float(np.log(_working(frame).mean() + 1e-3))
+    return x
+
+
 def background_change(frame: np.ndarray, background: np.ndarray) -> float:
     """How much a frame differs from its sensor's no-contact frame beyond a global brightness
     drift: the 99th percentile of the lightly blurred |difference| (mean over channels, per
@@ -303,6 +321,9 @@ class TrustCalibration:
             is "uncertain" too (`ratouch.train.trust.with_alone_band`): the band widened by
             a second reading, for a family where the disc-press model's logit leaves many
             presses below its edge. None: none.
+        contact_unfamiliar: without a background, for a frame that lies beyond every
+            rendered unit (`guess_family` beyond `WITHHOLD_LIMIT`), the contact model blind
+            to colour and its threshold that decide instead of `contact`. None: none.
     """
 
     encoder: str
@@ -321,6 +342,11 @@ class TrustCalibration:
     #: the sensor families' geometry lookups and structured-change floors (shipped beside,
     #: not inside, this file: `ratouch.paths.geometry_calibration`); None: not loaded
     geometry: GeometryCalibration | None = None
+    #: without a background, for a frame beyond every rendered unit (`unfamiliar_look` at
+    #: `WITHHOLD_LIMIT`): a contact model on `contact_features_free` (blind to the sensor's
+    #: colours) and its threshold (`ratouch.train.trust.with_unfamiliar_contact`); None: such
+    #: a frame is read by `contact` like any other
+    contact_unfamiliar: tuple[ContactModel, float] | None = None
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the calibration as JSON (atomically; the vectors one per line)."""
@@ -333,6 +359,9 @@ class TrustCalibration:
                 "press_alone": None if self.press_alone is None else {
                     k: {"model": m.to_dict(), "edge": e}
                     for k, (m, e) in self.press_alone.items()},
+                "contact_unfamiliar": None if self.contact_unfamiliar is None else {
+                    "model": self.contact_unfamiliar[0].to_dict(),
+                    "threshold": self.contact_unfamiliar[1]},
                 "contact": self.contact.to_dict(), "contact_bg": self.contact_bg.to_dict()}
         lines = [json.dumps(head, indent=1)[:-2] + ","]
         models = [("visual", self.visual), ("tactile", self.tactile)]
@@ -366,6 +395,10 @@ class TrustCalibration:
             if alone is not None and not isinstance(alone, dict):
                 raise ValueError(f"uncertain_alone must map sensor families to logits, got "
                                  f"{type(alone).__name__}")
+            foreign = d.get("contact_unfamiliar")
+            if foreign is not None and not isinstance(foreign, dict):
+                raise ValueError(f"contact_unfamiliar must be a model and its threshold, got "
+                                 f"{type(foreign).__name__}")
             pressed = d.get("press_alone")
             if pressed is not None and not isinstance(pressed, dict):
                 raise ValueError(f"press_alone must map sensor families to models, got "
@@ -380,7 +413,10 @@ class TrustCalibration:
                        None if alone is None else {str(k): float(v) for k, v in alone.items()},
                        None if pressed is None else {
                            str(k): (ContactModel.from_dict(v["model"]), float(v["edge"]))
-                           for k, v in pressed.items()})
+                           for k, v in pressed.items()},
+                       contact_unfamiliar=None if foreign is None else (
+                           ContactModel.from_dict(foreign["model"]),
+                           float(foreign["threshold"])))
         except (ValueError, KeyError, TypeError) as e:
             raise DataError(f"{path} is not a trust calibration: {e}") from e
 
@@ -388,6 +424,23 @@ class TrustCalibration:
         """The contact logit of one frame (with its background's model where one is given)."""
         model = self.contact if background is None else self.contact_bg
         return float(model.score(contact_features(frame, background))[0])
+
+    def reads_unfamiliar(self, look: tuple[str, float]) -> bool:
+        """Whether a frame read without a background, whose `guess_family` answer is `look`,
+        is decided by the colour-blind `contact_unfamiliar` (it lies beyond every rendered
+        unit, `WITHHOLD_LIMIT`, and the calibration has that model)."""
+        return self.contact_unfamiliar is not None and unfamiliar_look(look, WITHHOLD_LIMIT)
+
+    def unfamiliar_score(self, frame: np.ndarray) -> float:
+        """The colour-blind contact logit of a frame alone (`contact_unfamiliar`).
+
+        Raises:
+            ConfigError: the calibration has no such model.
+        """
+        if self.contact_unfamiliar is None:
+            raise ConfigError("this trust calibration has no colour-blind contact model "
+                              "(`ratouch train trust --unfamiliar`)")
+        return float(self.contact_unfamiliar[0].score(contact_features_free(frame))[0])
 
     def structured_contact(self, frame: np.ndarray, background: np.ndarray,
                            family: str | None = None) -> dict | None:
@@ -444,7 +497,9 @@ class TrustCalibration:
         below its threshold but above what the frame's family's blank frames score alone
         (`uncertain_alone`), or above what they score on the family's `press_alone` model
         (for a frame that looks like that family's units) too (a frame that looks like none of the
-        rendered sensors is flagged by `assess`, not here). A score that is not a finite
+        rendered sensors is flagged by `assess`, not here); a frame beyond every rendered unit
+        is decided by the colour-blind model instead (`reads_unfamiliar`), without a band, and
+        the score returned is its logit. A score that is not a finite
         number is never "contact": it is "uncertain".
         `structured`: the `structured_contact` block where the caller already has it;
         `look`: `guess_family(frame)` where the caller already has it.
@@ -456,6 +511,16 @@ class TrustCalibration:
                 return "contact", float(self.contact_score(frame, background))
             if background_change(frame, background) < self.noise_floor:
                 return "no contact", float(self.contact_score(frame, background))
+        if background is None:
+            look = guess_family(frame) if look is None else look
+            if self.reads_unfamiliar(look):
+                # a sensor unlike every rendered unit: its colours say nothing the disc-press
+                # model was fitted on, so contact is read blind to them
+                assert self.contact_unfamiliar is not None  # reads_unfamiliar checked it
+                score = self.unfamiliar_score(frame)
+                if not np.isfinite(score):
+                    return "uncertain", score
+                return ("contact" if score >= self.contact_unfamiliar[1] else "no contact"), score
         score = self.contact_score(frame, background)
         if not np.isfinite(score):
             return "uncertain", score
@@ -540,9 +605,13 @@ class TrustCalibration:
                 f"{out['visual']['novelty']} > {out['visual']['threshold']})")
         if T is not None and frame is not None:
             tac = _novelty_block(self.tactile, T)
-            thr = self.contact_threshold if background is None else self.contact_threshold_bg
             # the family the frame was read as, guessed once from its colours
             name, distance = guess_family(frame)
+            blind = background is None and self.reads_unfamiliar((name, distance))
+            thr = (self.contact_threshold if background is None else self.contact_threshold_bg)
+            if blind:
+                assert self.contact_unfamiliar is not None  # reads_unfamiliar checked it
+                thr = self.contact_unfamiliar[1]
             read = (None if background is None else
                     self.read_geometry(frame, background, name))
             state, score = self.contact_state(
@@ -551,7 +620,11 @@ class TrustCalibration:
             tac.update({"contact": round(score, 4) if np.isfinite(score) else None,
                         "contact_threshold": round(thr, 4), "state": state,
                         "no_contact": state == "no contact", "uncertain": state == "uncertain",
-                        "background": background is not None})
+                        "background": background is not None,
+                        # which contact model read the frame alone: blind to colour beyond
+                        # every rendered unit, else the disc-press model
+                        "contact_model": None if background is not None else (
+                            "colour-blind" if blind else "disc-press")})
             if background is not None and self.geometry is not None:
                 tac["structure"] = None if read is None else read["structure"]
                 tac["geometry"] = None if read is None else read["height"].to_dict()
@@ -590,7 +663,15 @@ class TrustCalibration:
                 warnings.append(
                     "contact uncertain: give the sensor's no-contact frame (background); "
                     f"the description below is a guess{why}")
-            if foreign and not tac["uncertain"] and background is None:
+            if blind and not tac["uncertain"]:
+                warnings.append(
+                    f"the tactile frame looks like none of the sensors rendered (distance "
+                    f"{distance:.2f}, beyond every rendered unit's {WITHHOLD_LIMIT:.2f}): "
+                    f"contact was read blind to its colours, '{state}', a guess; give the "
+                    "sensor's no-contact frame (background)" + (
+                        "" if tac["no_contact"] else ", and read the description below as a "
+                                                     "guess"))
+            elif foreign and not tac["uncertain"] and background is None:
                 warnings.append(
                     f"the tactile frame looks like none of the sensors the contact check was "
                     f"fitted on: '{state}' is a guess; give the sensor's no-contact frame "

@@ -217,7 +217,10 @@ class QueryResult:
             like a real photo: "classes", "coverage", "note").
         trust: {"visual": {"novelty", "threshold", "novel", "space", "uniform"}, "tactile":
             {"novelty", "threshold", "novel", "contact", "contact_threshold", "no_contact",
-            "background"} or None}, or None (no calibration). A uniform visual crop (a blank
+            "background", "contact_model" (without a background, which model read the frame
+            alone: "colour-blind" for a sensor unlike every rendered unit where the calibration
+            has that model, else "disc-press"; None with one)} or None}, or None (no
+            calibration). A uniform visual crop (a blank
             or flat photo) is novel whatever its distance (`model.trust.UNIFORM_SPREAD`).
             With a background, "tactile" also holds "structure" (the structured-contact
             reading: "score", "threshold", "family", "contact") and "geometry" (the height

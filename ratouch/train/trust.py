@@ -24,13 +24,14 @@ from ratouch.model.trust import (
     TrustCalibration,
     background_change,
     contact_features,
+    contact_features_free,
     threshold_for,
 )
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.presses import render_blank_pair, render_press
 from ratouch.world.sampler import TEST_SIZE, World
-from ratouch.world.sensors import guess_family, unfamiliar_look
+from ratouch.world.sensors import WITHHOLD_LIMIT, guess_family, unfamiliar_look, unfamiliar_view
 from ratouch.world.tactile import family_names, sensor_family
 
 log = logging.getLogger(__name__)
@@ -49,6 +50,11 @@ ALONE_BLANKS = 600
 #: family's press model on, and presses of a third stream it compares the two bands on.
 ALONE_PRESSES = 300
 ALONE_CHECK = 200
+#: The world's renders with and without contact (each plain and under one unfamiliar view)
+#: that `with_unfamiliar_contact` fits the colour-blind contact model on, and validation
+#: presses (their views) it sets the threshold on.
+UNFAMILIAR_FIT = 500
+UNFAMILIAR_VALIDATION = 500
 
 
 @dataclass(frozen=True)
@@ -71,6 +77,10 @@ class TrustConfig:
         n_alone_presses, n_alone_check: per sensor family, everyday presses the band's
             press model is fitted on (0: the band stays on the contact logit) and presses
             the two bands are compared on (`with_alone_band`).
+        n_unfamiliar: the world's reference renders with and without contact the
+            colour-blind contact model for frames beyond every rendered unit is fitted on
+            (`with_unfamiliar_contact`; 0, the default: none. Measured and not shipped:
+            docs/geometry.md, "A sensor unlike every rendered unit, read alone").
     """
 
     seed: int = 0
@@ -82,6 +92,7 @@ class TrustConfig:
     n_alone_blanks: int = ALONE_BLANKS
     n_alone_presses: int = ALONE_PRESSES
     n_alone_check: int = ALONE_CHECK
+    n_unfamiliar: int = 0
 
     def __post_init__(self) -> None:
         for name in ("n_reference", "n_validation"):
@@ -91,7 +102,8 @@ class TrustConfig:
             raise ConfigError(f"false_alarm={self.false_alarm} must lie in (0, 0.5)")
         if not 1 <= self.rank < self.n_reference:
             raise ConfigError(f"rank={self.rank} must lie in [1, n_reference)")
-        for name in ("n_everyday", "n_alone_blanks", "n_alone_presses", "n_alone_check"):
+        for name in ("n_everyday", "n_alone_blanks", "n_alone_presses", "n_alone_check",
+                     "n_unfamiliar"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 0")
 
@@ -267,10 +279,66 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
     log.info("trust calibration for %s: %s", encoders.name, measured)
     cal = TrustCalibration(encoders.name, visual, tactile, models[0], models[1], thresholds[0],
                            thresholds[1], prior, meta, noise_floor, band)
-    if not cfg.n_alone_blanks:
-        return cal
-    return with_alone_band(cal, cfg.n_alone_blanks, cfg.seed, nc_val, cfg.n_alone_presses,
-                           cfg.n_alone_check, val)
+    if cfg.n_alone_blanks:
+        cal = with_alone_band(cal, cfg.n_alone_blanks, cfg.seed, nc_val, cfg.n_alone_presses,
+                              cfg.n_alone_check, val)
+    if cfg.n_unfamiliar:
+        n = min(cfg.n_unfamiliar, cfg.n_reference)
+        cal = with_unfamiliar_contact(
+            cal, n, cfg.seed, fa,
+            {"frames": ref["frames"][:n]}, {"frames": nc_ref["frames"][:n]}, val, nc_val)
+    return cal
+
+
+def with_unfamiliar_contact(trust: TrustCalibration, n: int = UNFAMILIAR_FIT, seed: int = 0,
+                            false_alarm: float = TrustConfig.false_alarm,
+                            presses: dict | None = None, blanks: dict | None = None,
+                            val_presses: dict | None = None, val_blanks: dict | None = None,
+                            n_validation: int = UNFAMILIAR_VALIDATION) -> TrustCalibration:
+    """`trust` with its colour-blind contact model for frames alone that lie beyond every
+    rendered unit (`contact_unfamiliar`, read where `guess_family` is beyond
+    `WITHHOLD_LIMIT`).
+
+    Fitted (`ContactModel` on `contact_features_free`) on `n` of the world's reference
+    renders with contact (`presses`; None: train[0:n] rendered here) against `n` without
+    (`blanks`), each plain and under one `unfamiliar_view`; thresholded so that `false_alarm`
+    of the validation presses' views (`val_presses`; None: `validation_presses(seed)`, its
+    first `n_validation`) that lie beyond the limit are missed. The share of the validation
+    blanks' views beyond the limit called contact is recorded in `meta["unfamiliar_contact"]`.
+    Every number is from renders.
+    """
+    if presses is None or blanks is None:
+        world = World(WorldConfig(seed=seed)).warm()
+        nc_world = World(WorldConfig(seed=seed).with_stress(no_contact=1.0)).warm()
+        presses = render_samples(world, "train", range(n))
+        blanks = render_samples(nc_world, "train", range(n))
+    val_presses = validation_presses(seed) if val_presses is None else val_presses
+    val_blanks = validation_blanks(seed) if val_blanks is None else val_blanks
+    fit_rng = np.random.default_rng([seed, 3313])
+    val_rng = np.random.default_rng([seed, 3317])
+
+    def both(frames: list) -> np.ndarray:  # each frame plain and under one view
+        return np.stack([contact_features_free(f) for f in frames]
+                        + [contact_features_free(unfamiliar_view(f, fit_rng)) for f in frames])
+
+    model = ContactModel.fit(both(presses["frames"][:n]), both(blanks["frames"][:n]))
+
+    def beyond(frames: list) -> np.ndarray:  # features of the views beyond the limit
+        views = [unfamiliar_view(f, val_rng) for f in frames[:n_validation]]
+        kept = [v for v in views if unfamiliar_look(guess_family(v), WITHHOLD_LIMIT)]
+        return np.stack([contact_features_free(v) for v in kept])
+
+    vp, vb = beyond(val_presses["frames"]), beyond(val_blanks["frames"])
+    threshold = threshold_for(model.score(vp), false_alarm, above=False)
+    meta = {**trust.meta, "unfamiliar_contact": {
+        "fit": f"the world's train[0:{n}] with and without contact, each plain and under one "
+               "unfamiliar view (channels reordered, per-channel gain and offset, gamma)",
+        "validation": f"views of the first {n_validation} validation renders with and without "
+                      f"contact, those beyond WITHHOLD_LIMIT ({WITHHOLD_LIMIT}): "
+                      f"{len(vp)} presses, {len(vb)} blanks",
+        "target_miss": false_alarm, "threshold": round(threshold, 4),
+        "validation_blanks_called_contact": _rate(model.score(vb) >= threshold)}}
+    return dataclasses.replace(trust, contact_unfamiliar=(model, round(threshold, 4)), meta=meta)
 
 
 def alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 0,

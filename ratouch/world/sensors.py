@@ -405,6 +405,16 @@ def unfamiliar_look(look: tuple[str, float], limit: float = LOOK_LIMIT) -> bool:
     return look[1] > limit
 
 
+def unfamiliar_view(frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """`frame` (uint8 RGB) as a sensor with colours none of the rendered units has might show
+    it: its channels in a random order, each with a gain in 0.6-1.4 and an offset in -30..30
+    levels, after a gamma in 0.7-1.4 (the same for all three). What is pressed, and where,
+    is kept; only the sensor's look changes."""
+    f = (frame.astype(np.float64)[..., rng.permutation(3)] / 255.0) ** rng.uniform(0.7, 1.4)
+    f = f * 255.0 * rng.uniform(0.6, 1.4, 3) + rng.uniform(-30.0, 30.0, 3)
+    return np.clip(f + 0.5, 0, 255).astype(np.uint8)
+
+
 def guess_family(frame: np.ndarray) -> tuple[str, float]:
     """The sensor family a frame (uint8 RGB) most looks like, from its colours alone, and how
     far it is from that family's units (in units of their spread; large: a guess at best)."""
