@@ -176,6 +176,13 @@ def test_the_gated_system_withholds_an_unfamiliar_sensors_touch(real_pipeline, w
     r = g["retrieval"]
     assert (r["kind"], r["touch_weight"], r["reads"]) == ("withheld", 0.0, "image")
     assert "looks like none of the sensors" in r["why"][0]
+    # the gated query gives the withheld touch no say: it is the image query, and the page's
+    # gated gallery shows the neighbours the answer read
+    assert [n["id"] for n in g["neighbours"]["gated"]] == \
+        [n["id"] for n in g["neighbours"]["image"]]
+    queries = {p["role"]: (p["x"], p["y"]) for p in g["pca"]["points"]
+               if p["role"] in ("query_gated", "query_image")}
+    assert len(queries) == 2 and queries["query_gated"] == queries["query_image"]
     assert r["generator"] == ("reader" if real_pipeline.generator_reader is not None
                               else "paper")
     # the answer is the chosen generator's from the image neighbours and the neutral touch

@@ -357,6 +357,12 @@ class RATouchPipeline(RetrievalSide):
                     q = mode.vectors(V[touch], T, self.joint_query)
                     for r, j in enumerate(touch):
                         encoded[j].queries[mode.name] = q[r:r + 1]
+            gated = RETRIEVAL_SYSTEMS["gated"]
+            for j in touch:
+                # touch withheld: the gated query gives it no say (weight 0), which is the
+                # image query, so its neighbours are the ones the answer reads
+                if gated in encoded[j].queries and self.withholds(requests[j], encoded[j]):
+                    encoded[j].queries[gated] = encoded[j].queries[IMAGE_MODE]
             clock.lap("retriever")
         for e in encoded:  # the modes' order, whichever were made first
             e.queries = {m: e.queries[m] for m in QUERY_MODES if m in e.queries}
