@@ -389,72 +389,117 @@ def pareto(points: Sequence[dict], key: str) -> list[dict]:
     return front
 
 
+#: Marker symbols and colours of the named points (other encoder sets, the other retrieval
+#: systems, the cascade), one each, in the order the points come: each has its own legend
+#: entry, so no label sits on another where the points crowd.
+_NAMED_SYMBOLS = ("triangle-up", "star", "diamond-open", "square-open", "triangle-down",
+                  "hexagon", "cross-open", "pentagon")
+_NAMED_COLOURS = ("#000000", "#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd",
+                  "#8c564b", "#e377c2")
+
+
 def tradeoff_figure(result: dict):
-    """One chart: latency (log x) against the judge score, adjective F1 and material P@5 of
-    the neighbours, each with 95 % CIs; the served encoder's sweep, the other encoder sets
-    and the cascade, and the gated system."""
+    """Latency (log x) against the judge score, adjective F1 and material P@5 of the
+    neighbours, each with 95 % CIs: the served encoder's sweep, the other encoder sets, the
+    other retrieval systems and the cascade (each named in the legend), on the whole range
+    (top row) and zoomed to the served encoder's points, where they crowd (bottom row)."""
     from plotly.subplots import make_subplots
 
     panels = (("judge", "offline judge (RA-Touch, test split)"),
               ("f1", "adjective F1 of the answer"),
               ("precision_at_5", "material precision@5 of the neighbours"))
-    fig = make_subplots(rows=1, cols=3, subplot_titles=[t for _, t in panels])
-    symbols = {"flat": "circle", "hnsw": "diamond", "ivfpq": "square", "ivfflat": "cross",
+    fig = make_subplots(rows=2, cols=3, vertical_spacing=0.16,
+                        subplot_titles=[t for _, t in panels]
+                        + [f"{t}: zoomed" for _, t in panels])
+    symbols = {"flat": "circle", "hnsw": "diamond", "ivfflat": "cross", "ivfpq": "square",
                "upstream": "x"}
     pts = result["points"]
     served = result.get("settings", {}).get("encoder", "default-s")
     sweep = [q for q in pts if q["system"] == "RA-Touch" and q["encoder"] == served]
     others = [q for q in pts if q not in sweep]
-    for col, (key, _) in enumerate(panels, 1):
-        for kind in KINDS:
-            sel = [q for q in sweep if q["index"] == kind and q.get(key) is not None]
-            if sel:
+    style = {_short(q): (_NAMED_SYMBOLS[i % len(_NAMED_SYMBOLS)],
+                         _NAMED_COLOURS[i % len(_NAMED_COLOURS)])
+             for i, q in enumerate(others)}
+    for row in (1, 2):
+        for col, (key, _) in enumerate(panels, 1):
+            legend = row == 1 and col == 1
+            for kind in KINDS:
+                sel = [q for q in sweep if q["index"] == kind and q.get(key) is not None]
+                if sel:
+                    fig.add_scatter(
+                        x=[q["p50_ms"] for q in sel], y=[q[key] for q in sel], mode="markers",
+                        name=f"{served} {kind}", legendgroup=kind, showlegend=legend,
+                        marker={"symbol": symbols[kind], "size": [6 + 2 * q["k"] for q in sel],
+                                "color": [np.log10(q["corpus"]) for q in sel],
+                                "colorscale": "Viridis", "cmin": 3, "cmax": 4,
+                                "showscale": row == 1 and col == 3,
+                                "colorbar": {"title": "log10 corpus", "len": 0.4, "y": 0.8}},
+                        error_y=_error_bars(sel, key),
+                        text=[f"{q['index']} corpus {q['corpus']} K={q['k']}"
+                              + _noise_note(q, key) for q in sel],
+                        row=row, col=col)
+            front = pareto(sweep, key)
+            if front:
+                fig.add_scatter(x=[q["p50_ms"] for q in front], y=[q[key] for q in front],
+                                mode="lines", name="frontier",
+                                line={"color": "grey", "dash": "dot"}, showlegend=legend,
+                                legendgroup="frontier", row=row, col=col)
+            up = result["upstream"]
+            if up.get(key) is not None:
+                fig.add_scatter(x=[up["p50_ms"]], y=[up[key]], mode="markers",
+                                marker={"symbol": "x", "size": 12, "color": "red"},
+                                name="upstream retrieval", legendgroup="upstream",
+                                showlegend=legend, row=row, col=col)
+            for q in others:
+                if q.get(key) is None:
+                    continue
+                label = _short(q)
+                symbol, colour = style[label]
                 fig.add_scatter(
-                    x=[q["p50_ms"] for q in sel], y=[q[key] for q in sel], mode="markers",
-                    name=f"{served} {kind}", legendgroup=kind, showlegend=col == 1,
-                    marker={"symbol": symbols[kind], "size": [6 + 2 * q["k"] for q in sel],
-                            "color": [np.log10(q["corpus"]) for q in sel],
-                            "colorscale": "Viridis", "cmin": 3, "cmax": 4,
-                            "showscale": col == 3,
-                            "colorbar": {"title": "log10 corpus"}},
-                    error_y=_error_bars(sel, key),
-                    text=[f"{q['index']} corpus {q['corpus']} K={q['k']}" + _noise_note(q, key)
-                          for q in sel],
-                    row=1, col=col)
-        front = pareto(sweep, key)
-        if front:
-            fig.add_scatter(x=[q["p50_ms"] for q in front], y=[q[key] for q in front],
-                            mode="lines", name="frontier", line={"color": "grey", "dash": "dot"},
-                            showlegend=col == 1, legendgroup="frontier", row=1, col=col)
-        up = result["upstream"]
-        if up.get(key) is not None:
-            fig.add_scatter(x=[up["p50_ms"]], y=[up[key]], mode="markers+text",
-                            text=["upstream"], textposition="bottom left",
-                            marker={"symbol": "x", "size": 12, "color": "red"},
-                            name="upstream retrieval", showlegend=col == 1, row=1, col=col)
-        sel = [q for q in others if q.get(key) is not None]
-        if sel:
-            fig.add_scatter(
-                x=[q["p50_ms"] for q in sel], y=[q[key] for q in sel], mode="markers+text",
-                text=[_short(q) for q in sel],
-                textposition=["top left" if q["system"].endswith("cascade") else "bottom center"
-                              for q in sel],
-                name="other encoder sets and the cascade", legendgroup="others",
-                showlegend=col == 1, error_y=_error_bars(sel, key),
-                hovertext=[q["system"] + _noise_note(q, key) for q in sel],
-                marker={"symbol": ["star" if q["system"].endswith("cascade") else
-                                   "triangle-up" for q in sel], "size": 12, "color": "black"},
-                row=1, col=col)
-        if key == "judge":
-            fig.add_hline(y=result["baseline_judge"], line_dash="dash", line_color="black",
-                          annotation_text="baseline (no retrieval)",
-                          annotation_position="bottom left", row=1, col=col)
+                    x=[q["p50_ms"]], y=[q[key]], mode="markers", name=label,
+                    legendgroup=label, showlegend=row == 1 and label not in {
+                        t.name for t in fig.data if t.showlegend},
+                    error_y=_error_bars([q], key), hovertext=[q["system"] + _noise_note(q, key)],
+                    marker={"symbol": symbol, "size": 12, "color": colour,
+                            "line": {"width": 1.5, "color": colour}},
+                    row=row, col=col)
+            if key == "judge":
+                fig.add_hline(y=result["baseline_judge"], line_dash="dash", line_color="black",
+                              annotation_text="baseline (no retrieval)",
+                              annotation_position="bottom left", row=row, col=col)
     fig.update_xaxes(type="log", title="p50 latency per query, ms (warm, 1 thread)")
+    lo, hi = _zoom(sweep + others, sweep)
+    fig.update_xaxes(range=[np.log10(lo), np.log10(hi)], row=2)
+    for col, (key, _) in enumerate(panels, 1):
+        span = _zoom_y([q for q in sweep + others if lo <= q["p50_ms"] <= hi], key)
+        if span is not None:
+            fig.update_yaxes(range=span, row=2, col=col)
     fig.update_layout(title="Speed against accuracy (marker size = K, colour = corpus size; "
                             "bars: 95 % CIs)",
-                      template="plotly_white", height=500, width=1500,
-                      legend={"orientation": "h", "y": -0.22})
+                      template="plotly_white", height=950, width=1500,
+                      legend={"orientation": "h", "y": -0.1})
     return fig
+
+
+def _zoom(near: Sequence[dict], sweep: Sequence[dict]) -> tuple[float, float]:
+    """The zoomed row's latency range: the served sweep's, widened to the points within
+    twice its slowest (the systems beside it), with a margin."""
+    times = [q["p50_ms"] for q in sweep] or [q["p50_ms"] for q in near]
+    lo, hi = min(times), max(times)
+    hi = max([hi] + [q["p50_ms"] for q in near if q["p50_ms"] <= 2 * hi])
+    lo = min([lo] + [q["p50_ms"] for q in near if q["p50_ms"] >= lo / 2])
+    return lo / 1.08, hi * 1.08
+
+
+def _zoom_y(points: Sequence[dict], key: str) -> list[float] | None:
+    """A zoomed panel's value range: its points' values and CIs, with a margin."""
+    vals = [v for q in points if q.get(key) is not None
+            for v in [q[key], *(q.get(f"{key}_ci") or [])]]
+    if not vals:
+        return None
+    lo, hi = min(vals), max(vals)
+    pad = max(hi - lo, 1e-3) * 0.08
+    return [lo - pad, hi + pad]
 
 
 def _short(q: dict) -> str:
