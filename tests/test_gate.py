@@ -176,6 +176,8 @@ def test_the_gated_system_withholds_an_unfamiliar_sensors_touch(real_pipeline, w
     r = g["retrieval"]
     assert (r["kind"], r["touch_weight"], r["reads"]) == ("withheld", 0.0, "image")
     assert "looks like none of the sensors" in r["why"][0]
+    from ratouch.model.gate import WITHHOLD_COST
+    assert f"{WITHHOLD_COST:.2f} below the paper's system" in r["why"][0]
     # the gated query gives the withheld touch no say: it is the image query, and the page's
     # gated gallery shows the neighbours the answer read
     assert [n["id"] for n in g["neighbours"]["gated"]] == \
@@ -223,3 +225,15 @@ def test_fit_gate_on_a_few_probe_pairs(real_pipeline):
     row = gate.report["by_variant"]["clean"]["all"]
     assert row["n"] == 20 and all(0 <= row[m] <= 1 for m in ("paper", "image", "rule", "learnt"))
     assert "mismatched" in format_gate_report(gate.report)
+
+
+def test_the_withholding_cost_quoted_is_the_measured_one():
+    """"What retrieval did" quotes `WITHHOLD_COST` where touch is withheld: it is the cost
+    measured last by scripts/why_withhold.py (docs/premise-result-withhold.json)."""
+    import json
+
+    from ratouch.model.gate import WITHHOLD_COST
+    from ratouch.paths import REPO
+
+    measured = json.loads((REPO / "docs" / "premise-result-withhold.json").read_text())
+    assert WITHHOLD_COST == round(-measured["recoloured"]["rule_vs_paper"]["diff"], 2)

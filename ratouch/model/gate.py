@@ -64,6 +64,13 @@ def gate_features(V: np.ndarray, T: np.ndarray, J: np.ndarray, tactile_novelty, 
 #: clean touch); it was 0.5, the gate's own decision boundary, at which the reader answered
 #: 46 % of clean pairs (docs/premise.md, "The reader only where touch is clearly wrong").
 READ_BELOW = 0.25
+#: The withholding rule's measured cost, in judge points, where a withheld sensor's touch was
+#: still readable: `gated` with the rule against the paper's system on the world's test pairs
+#: with every frame recoloured (`python scripts/why_withhold.py`, the "recoloured" block of
+#: docs/premise-result-withhold.json: -0.2195 [-0.395, -0.050]). Quoted by "What retrieval
+#: did" wherever touch is withheld; a test holds it to that file, so a re-measured cost that
+#: moves it cannot go unsaid.
+WITHHOLD_COST = 0.22
 
 
 def mix(V: np.ndarray, J: np.ndarray, w: np.ndarray) -> np.ndarray:

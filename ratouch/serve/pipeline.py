@@ -25,7 +25,7 @@ import torch
 
 from ratouch.errors import ConfigError, DataNotFoundError
 from ratouch.model.fastpath import StackCache
-from ratouch.model.gate import READ_BELOW, TouchGate
+from ratouch.model.gate import READ_BELOW, WITHHOLD_COST, TouchGate
 from ratouch.model.generator import RATouchGenerator, describe_together, load_generator
 from ratouch.model.geometry import GeometryCalibration
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
@@ -500,7 +500,8 @@ class RATouchPipeline(RetrievalSide):
                             f"{WITHHOLD_LIMIT:.2f}): touch is "
                             "withheld, and the answer reads the image query's neighbours "
                             "(its known cost: where such a sensor's touch is still readable, "
-                            "0.22 below the paper's system on recoloured renders)",
+                            f"{WITHHOLD_COST:.2f} below the paper's system on recoloured "
+                            "renders)",
                             f"the {out['generator']}'s generator answers with a neutral touch"
                             + (", as in its reading episodes" if out["generator"] == "reader"
                                else "")])
