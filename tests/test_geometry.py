@@ -341,3 +341,19 @@ def test_eval_presses_readings_cli(monkeypatch, capsys):
                  "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["readings"]["gelsight"]["with_background"]["refused"] == 0
+
+
+def test_a_lookup_reads_any_working_size_the_same_as_a_fresh_one(shipped):
+    """The perceptron's output at zero change is kept per working size: a lookup that has
+    read one size reads another (and the first again) exactly as a fresh copy of it does."""
+    from ratouch.model.geometry import GradientLookup
+
+    lookup = shipped.lookup("gelsight")
+    rng = np.random.default_rng(3)
+    changes = [rng.normal(0, 0.02, (120, 160, 3)), rng.normal(0, 0.02, (160, 120, 3))]
+    for c in changes + changes[:1]:
+        fresh = GradientLookup.from_dict(lookup.to_dict())
+        for mine, theirs in zip(lookup.gradients(c), fresh.gradients(c)):
+            assert np.array_equal(mine, theirs)
+    assert set(lookup._at_rest) >= {(120, 160), (160, 120)}
+    assert not lookup.with_floors((1.0,) * 6, 2.0)._at_rest  # a new lookup starts empty

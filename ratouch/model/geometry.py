@@ -83,6 +83,9 @@ class GradientLookup:
     structure_floors: tuple[float, ...] = ()
     structure_threshold: float = float("inf")
     meta: dict = field(default_factory=dict)
+    #: per working size (h, w): the pixel positions the perceptron reads and its output at
+    #: zero change there, which depend on nothing else (computed once, not per frame)
+    _at_rest: dict = field(default_factory=dict, init=False, compare=False, repr=False)
 
     @property
     def work_size(self) -> tuple[int, int]:
@@ -94,12 +97,21 @@ class GradientLookup:
         """(gx, gy) of a drift-free colour change (h, w, 3) at the working size; no change is
         no gradient (the perceptron's output at zero change, per position, is subtracted)."""
         h, w = change.shape[:2]
-        yy, xx = np.meshgrid(np.linspace(-1, 1, h), np.linspace(-1, 1, w), indexing="ij")
-        pos = np.concatenate([xx.reshape(-1, 1), yy.reshape(-1, 1)], 1)
+        pos, rest = self._rest(h, w)
         x = np.concatenate([change.reshape(-1, 3) * CHANGE_SCALE, pos], 1)
-        rest = np.concatenate([np.zeros((h * w, 3)), pos], 1)
-        g = (self._forward(x) - self._forward(rest)).reshape(h, w, 2)
+        g = (self._forward(x) - rest).reshape(h, w, 2)
         return g[..., 0], g[..., 1]
+
+    def _rest(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+        """(h * w, 2) pixel positions in [-1, 1] and the perceptron's (h * w, 2) output at
+        zero change there."""
+        got = self._at_rest.get((h, w))
+        if got is None:
+            yy, xx = np.meshgrid(np.linspace(-1, 1, h), np.linspace(-1, 1, w), indexing="ij")
+            pos = np.concatenate([xx.reshape(-1, 1), yy.reshape(-1, 1)], 1)
+            rest = self._forward(np.concatenate([np.zeros((h * w, 3)), pos], 1))
+            got = self._at_rest[(h, w)] = (pos, rest)
+        return got
 
     def _forward(self, x: np.ndarray) -> np.ndarray:
         for n, (wt, b) in enumerate(zip(self.weights, self.biases)):
@@ -198,8 +210,9 @@ def _robust_affine(x: np.ndarray, y: np.ndarray, rounds: int = 3) -> np.ndarray:
         gain = float(np.clip(gain, 0.8, 1.25))
         offset = float(ys.mean() - gain * xs.mean())
         r = yv - (gain * xv + offset)
-        mad = np.median(np.abs(r - np.median(r))) * 1.4826 + 1e-6
-        keep = np.abs(r - np.median(r)) < 2.5 * mad
+        spread = np.abs(r - np.median(r))
+        mad = np.median(spread) * 1.4826 + 1e-6
+        keep = spread < 2.5 * mad
         if keep.sum() < 0.3 * keep.size:  # never fit on fewer than a third of the gel
             keep = np.abs(r) <= np.quantile(np.abs(r), 0.3)
     return gain * x + offset
@@ -298,9 +311,11 @@ def band_stats(c: np.ndarray) -> np.ndarray:
     """Structured local change of a drift-free change (`GradientLookup.change`): per band of
     :data:`STRUCTURE_BANDS`, the 99.5th percentile and the RMS of |band-pass| (mean over
     channels). (6,) float64, [0, 1] units."""
+    blurred = {s: gaussian_filter(c, (s, s, 0)) for s in sorted({x for b in STRUCTURE_BANDS
+                                                                 for x in b})}
     out = []
     for lo, hi in STRUCTURE_BANDS:
-        d = np.abs(gaussian_filter(c, (lo, lo, 0)) - gaussian_filter(c, (hi, hi, 0))).mean(2)
+        d = np.abs(blurred[lo] - blurred[hi]).mean(2)
         out += [float(np.percentile(d, 99.5)), float(np.sqrt(np.mean(d * d)))]
     return np.asarray(out, np.float64)
 
