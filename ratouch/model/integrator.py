@@ -100,9 +100,11 @@ class TextureAwareIntegrator(nn.Module):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
 
-    def _attend(self, ca: nn.MultiheadAttention, t: Tensor, r: Tensor | None, name: str,
-                padding: Tensor | None) -> Tensor:
-        """CA(T, R, R) for one path: (B, 1, D) query over (B, K, D) neighbours -> (B, D)."""
+    def _check(self, t: Tensor, r: Tensor | None, name: str, padding: Tensor | None) -> Tensor:
+        """`r`, one path's (B, K, D) neighbours for the (B, 1, D) query `t`, checked.
+
+        Raises:
+            DataError: a shape does not match."""
         b, d = t.shape[0], self.cfg.dim
         if r is None or r.dim() != 3 or r.shape[0] != b or r.shape[2] != d or r.shape[1] == 0:
             shape = None if r is None else tuple(r.shape)
@@ -110,6 +112,12 @@ class TextureAwareIntegrator(nn.Module):
         if padding is not None and padding.shape != r.shape[:2]:
             raise DataError(f"mask must have shape {tuple(r.shape[:2])} to match {name}, "
                             f"got {tuple(padding.shape)}")
+        return r
+
+    def _attend(self, ca: nn.MultiheadAttention, t: Tensor, r: Tensor | None, name: str,
+                padding: Tensor | None) -> Tensor:
+        """CA(T, R, R) for one path: (B, 1, D) query over (B, K, D) neighbours -> (B, D)."""
+        r = self._check(t, r, name, padding)
         return ca(t, r, r, key_padding_mask=padding, need_weights=False)[0].squeeze(1)  # (B, D)
 
     def _query(self, T: Tensor, mask: Tensor | None
@@ -172,7 +180,7 @@ class TextureAwareIntegrator(nn.Module):
         for name, ca, r in (("image", self.image_ca, Rv), ("text", self.text_ca, Rl)):
             if ca is None:
                 continue
-            self._attend(ca, t, r, "Rv" if name == "image" else "Rl", padding)  # shape checks
+            r = self._check(t, r, "Rv" if name == "image" else "Rl", padding)
             w = ca(t, r, r, key_padding_mask=padding, need_weights=True,
                    average_attn_weights=True)[1].squeeze(1)  # (B, K)
             out[name] = w if empty is None else w.masked_fill(empty.unsqueeze(1), 0.0)
