@@ -47,6 +47,7 @@ import tempfile
 import threading
 import time
 import urllib.request
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -236,12 +237,17 @@ class ApiClient:
     Args:
         inputs: the endpoint's parameter names, in order (`endpoint_inputs`).
         model: the model every query names.
+        session: keep one Gradio session for all this client's queries (its own session
+            hash, as gradio_client and a browser tab keep one); False: send none, so that the
+            app opens a new session for every query.
     """
 
     def __init__(self, port: int, timeout: float = 120.0,
-                 inputs: tuple[str, ...] = tuple(n for n, _ in INPUTS), model: str = ""):
+                 inputs: tuple[str, ...] = tuple(n for n, _ in INPUTS), model: str = "",
+                 session: bool = True):
         self.conn = http.client.HTTPConnection("127.0.0.1", port, timeout=timeout)
         self.inputs, self.model = tuple(inputs), model
+        self.session_hash = uuid.uuid4().hex[:12] if session else None
 
     def _request(self, method: str, path: str, body: bytes | None = None,
                  headers: dict | None = None) -> http.client.HTTPResponse:
@@ -294,8 +300,10 @@ class ApiClient:
         files = [{"path": p, "orig_name": n, "meta": {"_type": "gradio.FileData"}}
                  for p, (n, _) in zip(paths, uploads, strict=True)]
         data = self.values(files[0], files[1], box, k, files[2] if background else None)
-        event = self._json("POST", f"/gradio_api/call/{ENDPOINT}",
-                           json.dumps({"data": data}).encode(),
+        body: dict = {"data": data}
+        if self.session_hash is not None:
+            body["session_hash"] = self.session_hash
+        event = self._json("POST", f"/gradio_api/call/{ENDPOINT}", json.dumps(body).encode(),
                            {"Content-Type": "application/json"})["event_id"]
         r = self._request("GET", f"/gradio_api/call/{ENDPOINT}/{event}")
         kind = None
@@ -343,7 +351,8 @@ def percentiles(xs: list[float]) -> dict:
 
 def run(clients: int = 16, queries: int = 10, single: int = 8, k: int = 5,
         deadline_s: float = 120.0, app_args: tuple[str, ...] = (), env: dict | None = None,
-        log=print, model: str | None = None, timeout_s: float = 900.0) -> dict:
+        log=print, model: str | None = None, timeout_s: float = 900.0,
+        sessions: str = "client") -> dict:
     """Launch the app, measure, stop it. Returns the report (a JSON-ready dict).
 
     Args:
@@ -352,6 +361,9 @@ def run(clients: int = 16, queries: int = 10, single: int = 8, k: int = 5,
         env: the app's environment (default: this process's).
         model: the model every query names (default: the app's default one).
         timeout_s: longest whole run, launch to report (a query still waiting then fails).
+        sessions: "client": each client keeps one Gradio session for its queries (as a
+            browser tab or gradio_client does); "query": every query opens a new one (the app
+            then builds a session's state per query).
 
     Raises:
         LoadTestError: the app did not come up, its `/query` endpoint takes other inputs than
@@ -364,7 +376,10 @@ def run(clients: int = 16, queries: int = 10, single: int = 8, k: int = 5,
     t_end = t_start + timeout_s
     port = free_port()
     url = f"http://127.0.0.1:{port}/"
+    if sessions not in ("client", "query"):
+        raise LoadTestError(f"sessions={sessions!r}: 'client' or 'query'")
     report: dict = {"clients": clients, "queries_per_client": queries, "k": k,
+                    "sessions": f"one per {sessions}",
                     "app_args": list(app_args),
                     "cpus": os.cpu_count(), "loadavg_before": [round(x, 2) for x in
                                                                  os.getloadavg()]}
@@ -403,7 +418,7 @@ def run(clients: int = 16, queries: int = 10, single: int = 8, k: int = 5,
 
             def connect() -> ApiClient:
                 return ApiClient(port, timeout=left(120), inputs=report["endpoint_inputs"],
-                                 model=report["model"])
+                                 model=report["model"], session=sessions == "client")
 
             def ask(c: ApiClient, j: int) -> float:
                 v, t, box, bg = pairs[j % len(pairs)]
@@ -551,7 +566,8 @@ def format_report(r: dict) -> str:
         "after launch",
         f"single user: p50 {s.get('p50_s')} s, p95 {s.get('p95_s')} s ({s.get('n')} queries; "
         f"the pipeline itself {s.get('pipeline_mean_s')} s on average)",
-        f"{r['clients']} clients x {r['queries_per_client']} queries: p50 {u.get('p50_s')} s, "
+        f"{r['clients']} clients x {r['queries_per_client']} queries "
+        f"({r.get('sessions', 'one per client')}): p50 {u.get('p50_s')} s, "
         f"p95 {u.get('p95_s')} s, max {u.get('max_s')} s, {u.get('n')} answered, "
         f"{r.get('failures')} failed, {r.get('not_run')} not run, "
         f"{r.get('throughput_qps')} queries/s over {r.get('load_wall_s')} s (model "
@@ -587,6 +603,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="passed to the app: a built corpus folder (default: the world's 10k)")
     p.add_argument("--model", default=None,
                    help="the model every query names (default: the app's default)")
+    p.add_argument("--sessions", choices=("client", "query"), default="client",
+                   help="one Gradio session per client (default, as a browser tab or "
+                        "gradio_client keeps one) or a new one per query")
     p.add_argument("--json", default=None, help="also write the report here")
     p.add_argument("--check", action="store_true", help="exit 1 when a target is not met")
     args = p.parse_args(argv)
@@ -595,7 +614,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         r = run(args.clients, args.queries, args.single, deadline_s=args.deadline,
                 app_args=app_args, log=lambda m: print(m, flush=True), model=args.model,
-                timeout_s=args.timeout)
+                timeout_s=args.timeout, sessions=args.sessions)
     except LoadTestError as e:
         print(f"load test FAILED: {e}", file=sys.stderr)
         tail = getattr(e, "server_log", None)

@@ -16,6 +16,7 @@ from conftest import HAVE_ASSETS, FakePipeline, free_port
 
 REPO = Path(__file__).resolve().parents[1]
 BOUND_S = 480  # the bounded real run: launch, models, 2 + 2 x 2 queries, report
+_DEMOS: dict = {}  # the apps the fixtures launched, by fixture
 
 
 @pytest.fixture(scope="module")
@@ -38,6 +39,7 @@ def choice_app():
                       models=["small", "large"])
     port = free_port()
     launch(demo, "127.0.0.1", port, block=False)
+    _DEMOS["choice"] = demo  # the sessions test reads the app's sessions
     yield port, pipes
     demo.close()
 
@@ -147,3 +149,23 @@ def test_the_load_test_runs_against_the_real_app(load_test, app_corpus, tmp_path
     assert report["targets"]["no failures"]
     assert seconds < BOUND_S + 30
     print(f"\nbounded load test: {seconds:.0f} s in all\n" + load_test.format_report(report))
+
+
+def test_a_client_keeps_one_session_and_can_open_one_per_query(load_test, choice_app, pairs):
+    """A client keeps one Gradio session for its queries (as a browser tab or gradio_client
+    does); with `session=False` the app opens a new one for every query."""
+    port, _ = choice_app
+    sessions = _DEMOS["choice"].server_app.state_holder.session_data
+    names = [n for n, _ in load_test.INPUTS]
+    visual, tactile, box, _ = pairs[0]
+    one = load_test.ApiClient(port, inputs=names, model="small")
+    before = set(sessions)
+    for _ in range(2):
+        one.query(visual, tactile, box, 4)
+    assert set(sessions) - before == {one.session_hash}
+    fresh = load_test.ApiClient(port, inputs=names, model="small", session=False)
+    assert fresh.session_hash is None
+    before = set(sessions)
+    for _ in range(2):
+        fresh.query(visual, tactile, box, 4)
+    assert len(set(sessions) - before) == 2
