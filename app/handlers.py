@@ -353,8 +353,7 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
             progress(0.9, desc="thumbnails…")
         trace = trace_retrieval(result)
         attended = [a.rank for a in trace.attended] if trace else []
-        galleries = {m: view.neighbour_strip(result, m, thumbnail, attended,
-                                             read_mode(result)) for m in view.MODES}
+        galleries = {m: view.neighbour_strip(result, m, thumbnail, attended) for m in view.MODES}
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         files = {"visual image": getattr(visual, "source", None), "tactile image": tactile,
                  "background image": background}

@@ -108,13 +108,13 @@ def data_uri(image: np.ndarray | str, png: bool = False) -> str:
 
 
 def neighbour_strip(result: dict, mode: str, thumbnail: Callable[[int], np.ndarray | str],
-                    attended: Sequence[int] = (), reads: str = RA_TOUCH_MODE) -> str:
+                    attended: Sequence[int] = ()) -> str:
     """One mode's neighbours as a row of fixed-size tiles (HTML), one per distinct tactile
     caption, best first: a rank/similarity badge and a ×n badge for folded duplicates on the
     image, the caption under it (two lines; all of it, the class and which modes share it on
-    hover). `attended`: ranks, among the neighbours of `reads` (the mode the answer read: the
-    joint query's for the paper's system, the gated or the image query's for `gated`), of those
-    the integrator attended to most; outlined in that mode's row only."""
+    hover). `attended`: ranks, among the neighbours of the mode the answer read (`read_mode`:
+    the joint query's for the paper's system, the gated or the image query's for `gated`), of
+    those the integrator attended to most; outlined in that mode's row only."""
     title = (f"<div class='ra-mode-title'><span style='color:{MODE_COLOUR[mode]}'>●</span> "
              f"{escape(MODE_TITLE[mode])}</div>")
     rows = result.get("neighbours", {}).get(mode)
@@ -123,6 +123,7 @@ def neighbour_strip(result: dict, mode: str, thumbnail: Callable[[int], np.ndarr
                 "not available for this query (needs a tactile image)</div></div>")
     shared = shared_modes(result["neighbours"])
     # a folded tile is outlined when any neighbour it holds was among the most attended
+    reads = read_mode(result)
     read = {rows[r - 1]["caption"] for r in attended if 0 < r <= len(rows)}
     tiles = []
     for rank, n, count in group_by_caption(rows):

@@ -37,10 +37,11 @@ from ratouch.world.presses import render_blank_pair, render_presses
 from ratouch.world.sampler import TEST_SIZE, World
 from ratouch.world.sensors import (
     WITHHOLD_LIMIT,
+    beyond_every_unit,
     family_names,
     guess_family,
     unfamiliar_look,
-    unfamiliar_view,
+    unfamiliar_views,
 )
 
 #: First training-split index of the fresh renders: no fit or threshold reads them.
@@ -56,9 +57,8 @@ def _states(cal: TrustCalibration, frames: list[np.ndarray]) -> list[str]:
 def _beyond(frames: list[np.ndarray], families: list[str], rng: np.random.Generator
             ) -> tuple[list[np.ndarray], list[str]]:
     """Each frame under one unfamiliar view; the views beyond the limit and their families."""
-    views = [(unfamiliar_view(f, rng), fam) for f, fam in zip(frames, families)]
-    kept = [(v, fam) for v, fam in views if unfamiliar_look(guess_family(v), WITHHOLD_LIMIT)]
-    return [v for v, _ in kept], [fam for _, fam in kept]
+    views, kept = unfamiliar_views(frames, rng)
+    return views, [families[i] for i in kept]
 
 
 def _share(states: list[str], families: list[str], fam: str, what: tuple[str, ...]) -> float:
@@ -119,7 +119,7 @@ def within_limit_changes(before: TrustCalibration, after: TrustCalibration,
               "world test blanks": render_samples(nc_world, "test", range(n_test))["frames"],
               "real frames within the limit": [
                   f.frame for f in real if f.background is None
-                  and not unfamiliar_look(guess_family(f.frame), WITHHOLD_LIMIT)]}
+                  and not beyond_every_unit(f.frame)]}
     out = {}
     for name, frames in groups.items():
         a, b = _states(before, frames), _states(after, frames)
@@ -133,17 +133,16 @@ def real_beyond(before: TrustCalibration, after: TrustCalibration, real: list, v
     rng = np.random.default_rng([seed, 1])
     out: dict = {"frames": {}}
     for f in real:
-        if f.background is None and unfamiliar_look(guess_family(f.frame), WITHHOLD_LIMIT):
-            out["frames"][f.name] = {"distance": round(guess_family(f.frame)[1], 3),
-                                     "before": before.contact_state(f.frame)[0],
-                                     "after": after.contact_state(f.frame)[0]}
+        look = guess_family(f.frame)
+        if f.background is None and unfamiliar_look(look, WITHHOLD_LIMIT):
+            out["frames"][f.name] = {"distance": round(look[1], 3),
+                                     "before": before.contact_state(f.frame, look=look)[0],
+                                     "after": after.contact_state(f.frame, look=look)[0]}
     taxim = [f for f in real if f.background is None and "digit" not in f.name]
     kept: dict[str, list[np.ndarray]] = {"presses": [], "blanks": []}
     for f in taxim:
-        for _ in range(views):
-            v = unfamiliar_view(f.frame, rng)
-            if unfamiliar_look(guess_family(v), WITHHOLD_LIMIT):
-                kept["blanks" if "background" in f.name else "presses"].append(v)
+        kept["blanks" if "background" in f.name else "presses"] += unfamiliar_views(
+            [f.frame] * views, rng)[0]
     for name, cal in (("before", before), ("after", after)):
         p, b = _states(cal, kept["presses"]), _states(cal, kept["blanks"])
         out[name] = {"taxim_press_views_refused": f"{p.count('no contact')} of {len(p)}",

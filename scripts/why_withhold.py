@@ -36,7 +36,7 @@ from ratouch.eval.judge.stats import mean_ci
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.world.config import WorldConfig
 from ratouch.world.sampler import TEST_SIZE, World
-from ratouch.world.sensors import LOOK_LIMIT, WITHHOLD_LIMIT, guess_family, unfamiliar_look
+from ratouch.world.sensors import LOOK_LIMIT, WITHHOLD_LIMIT, beyond_every_unit
 from ratouch.world.splits import encode_test_split, world_for
 
 
@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> None:
                      name="withheld")
 
     def flags(fs) -> np.ndarray:
-        return np.array([unfamiliar_look(guess_family(f), WITHHOLD_LIMIT) for f in fs])
+        return np.array([beyond_every_unit(f) for f in fs])
 
     out: dict = {"config": {**vars(args), "n": len(test.T), "look_limit": LOOK_LIMIT,
                             "withhold_limit": WITHHOLD_LIMIT,
@@ -123,7 +123,7 @@ def fresh_renders(n: int, start: int = 3_000_000) -> dict:
         for w in worlds:
             s = w.sample("train", i)
             total += 1
-            if unfamiliar_look(guess_family(s.tactile), WITHHOLD_LIMIT):
+            if beyond_every_unit(s.tactile):
                 beyond[s.family] = beyond.get(s.family, 0) + 1
     return {"renders": total, "beyond": sum(beyond.values()), "by_family": beyond,
             "share": round(sum(beyond.values()) / max(total, 1), 4)}

@@ -420,6 +420,7 @@ def tradeoff_figure(result: dict):
     style = {_short(q): (_NAMED_SYMBOLS[i % len(_NAMED_SYMBOLS)],
                          _NAMED_COLOURS[i % len(_NAMED_COLOURS)])
              for i, q in enumerate(others)}
+    named: set[str] = set()  # the named points already in the legend
     for row in (1, 2):
         for col, (key, _) in enumerate(panels, 1):
             legend = row == 1 and col == 1
@@ -457,12 +458,12 @@ def tradeoff_figure(result: dict):
                 symbol, colour = style[label]
                 fig.add_scatter(
                     x=[q["p50_ms"]], y=[q[key]], mode="markers", name=label,
-                    legendgroup=label, showlegend=row == 1 and label not in {
-                        t.name for t in fig.data if t.showlegend},
+                    legendgroup=label, showlegend=label not in named,
                     error_y=_error_bars([q], key), hovertext=[q["system"] + _noise_note(q, key)],
                     marker={"symbol": symbol, "size": 12, "color": colour,
                             "line": {"width": 1.5, "color": colour}},
                     row=row, col=col)
+                named.add(label)
             if key == "judge":
                 fig.add_hline(y=result["baseline_judge"], line_dash="dash", line_color="black",
                               annotation_text="baseline (no retrieval)",

@@ -511,8 +511,8 @@ class TrustCalibration:
                 return "contact", float(self.contact_score(frame, background))
             if background_change(frame, background) < self.noise_floor:
                 return "no contact", float(self.contact_score(frame, background))
-        if background is None:
-            look = guess_family(frame) if look is None else look
+        if background is None and self.contact_unfamiliar is not None:
+            look = guess_family(frame) if look is None else look  # read only where it decides
             if self.reads_unfamiliar(look):
                 # a sensor unlike every rendered unit: its colours say nothing the disc-press
                 # model was fitted on, so contact is read blind to them

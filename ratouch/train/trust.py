@@ -31,7 +31,13 @@ from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.presses import render_blank_pair, render_press
 from ratouch.world.sampler import TEST_SIZE, World
-from ratouch.world.sensors import WITHHOLD_LIMIT, guess_family, unfamiliar_look, unfamiliar_view
+from ratouch.world.sensors import (
+    WITHHOLD_LIMIT,
+    guess_family,
+    unfamiliar_look,
+    unfamiliar_view,
+    unfamiliar_views,
+)
 from ratouch.world.tactile import family_names, sensor_family
 
 log = logging.getLogger(__name__)
@@ -324,9 +330,8 @@ def with_unfamiliar_contact(trust: TrustCalibration, n: int = UNFAMILIAR_FIT, se
     model = ContactModel.fit(both(presses["frames"][:n]), both(blanks["frames"][:n]))
 
     def beyond(frames: list) -> np.ndarray:  # features of the views beyond the limit
-        views = [unfamiliar_view(f, val_rng) for f in frames[:n_validation]]
-        kept = [v for v in views if unfamiliar_look(guess_family(v), WITHHOLD_LIMIT)]
-        return np.stack([contact_features_free(v) for v in kept])
+        views, _ = unfamiliar_views(frames[:n_validation], val_rng)
+        return np.stack([contact_features_free(v) for v in views])
 
     vp, vb = beyond(val_presses["frames"]), beyond(val_blanks["frames"])
     threshold = threshold_for(model.score(vp), false_alarm, above=False)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from functools import lru_cache
 from typing import Callable
@@ -413,6 +414,22 @@ def unfamiliar_view(frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     f = (frame.astype(np.float64)[..., rng.permutation(3)] / 255.0) ** rng.uniform(0.7, 1.4)
     f = f * 255.0 * rng.uniform(0.6, 1.4, 3) + rng.uniform(-30.0, 30.0, 3)
     return np.clip(f + 0.5, 0, 255).astype(np.uint8)
+
+
+def beyond_every_unit(frame: np.ndarray) -> bool:
+    """Whether a frame (uint8 RGB) lies beyond every rendered unit of the sensor families
+    (`guess_family` beyond :data:`WITHHOLD_LIMIT`): the frames whose touch the gated system
+    withholds, and that a colour-blind contact model reads alone."""
+    return unfamiliar_look(guess_family(frame), WITHHOLD_LIMIT)
+
+
+def unfamiliar_views(frames: Sequence[np.ndarray], rng: np.random.Generator
+                     ) -> tuple[list[np.ndarray], list[int]]:
+    """Each frame under one `unfamiliar_view` (drawn in order from `rng`); the views that lie
+    beyond every rendered unit (`beyond_every_unit`) and the indices of their frames."""
+    views = [unfamiliar_view(f, rng) for f in frames]
+    kept = [i for i, v in enumerate(views) if beyond_every_unit(v)]
+    return [views[i] for i in kept], kept
 
 
 def guess_family(frame: np.ndarray) -> tuple[str, float]:
