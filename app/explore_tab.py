@@ -18,7 +18,7 @@ import gradio as gr
 
 from app import handlers, record, view
 from app.page import Outputs, Page
-from ratouch.search.modes import QUERY_MODES, RETRIEVAL_SYSTEMS
+from ratouch.search.modes import RETRIEVAL_SYSTEMS
 from ratouch.serve.pipeline import DEFAULT_RETRIEVAL
 
 # A few structured close-ups (indices < 46), then wild scenes, spread over the test split.
@@ -84,10 +84,11 @@ def _inputs(ui: SimpleNamespace, page: Page, n_corpus: int) -> None:
                      for n in ("x0", "y0", "x1", "y1")}
         with gr.Column(min_width=100, scale=1):
             ui.reset = gr.Button("Default box", size="sm", min_width=60)
-            # the neighbours RA-Touch reads: the paper's joint query or the trust-gated one
+            # the retrieval system RA-Touch answers with (`RETRIEVAL_SYSTEMS`); which
+            # gallery it read is said under "What retrieval did" (a system may read another
+            # mode's neighbours than its own, where touch is withheld)
             ui.retrieval = gr.Dropdown(
-                [(f"{name} ({QUERY_MODES[mode].letter})", name)
-                 for name, mode in RETRIEVAL_SYSTEMS.items()],
+                [(name, name) for name in RETRIEVAL_SYSTEMS],
                 value=DEFAULT_RETRIEVAL, show_label=False, container=False,
                 elem_id="retrieval", min_width=100)
     ui.box_note = gr.Markdown(elem_id="box-note")

@@ -330,8 +330,8 @@ def run_query(pipe, thumbnail: Callable[[int], np.ndarray], visual: boxes.Visual
     `tactile` and `background` may be the components' raw values; `judge` scores the
     descriptions of labelled examples; `encoder` names the model where `pipe` offers a
     choice (`ModelChoice`); `wait_note` says, while the query waits, that its model is still
-    being prepared; `retrieval` names the retrieval system RA-Touch answers with ("paper",
-    "gated"; None: the answerer's default)."""
+    being prepared; `retrieval` names the retrieval system RA-Touch answers with (a key of
+    `RETRIEVAL_SYSTEMS`; None: the answerer's default)."""
     tactile, background = upload_path(tactile), upload_path(background)
     t_run = time.perf_counter()
     try:

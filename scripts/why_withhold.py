@@ -8,17 +8,23 @@ answers with when `RATouchPipeline.withhold_unfamiliar` is on: in the `gated` sy
 beyond every validation render of the sensor families (`unfamiliar_look` at
 `WITHHOLD_LIMIT`) is answered from the image query's neighbours by the reader (the paper's
 generator without one) with the pipeline's neutral touch (`RATouchPipeline.neutral_touch`);
-every other frame as `gated` answers.
+every other frame as `gated` answers. With `--system fallback` (docs/premise.md, "The paper's
+system, falling back to vision"), every other frame as `paper` answers instead, and a fifth
+measure is reported.
 
 1. the natural split: the flagged rows, and `gated` with the rule against without it;
 2. every pair read with the neutral touch: the rule's answer against the baseline's;
 3. every frame recoloured (channels turned, 10 % brighter), read without its background:
    the rule against the paper's system (its cost where such touch is still readable);
-4. fresh renders (2 x `--fresh`, with and without contact): how many lie beyond the limit.
+4. fresh renders (2 x `--fresh`, with and without contact): how many lie beyond the limit;
+5. (`--system fallback`) every frame recoloured and taken from another pair (the degraded-
+   touch probe's derangement): an unfamiliar sensor whose touch also tells nothing of the
+   photo, the regime of the issue's real pairs: the system, `paper`, `gated` and the baseline.
 
 95 % CIs: bootstrap over pairs (the project's `mean_ci`).
 
-    python scripts/why_withhold.py [--n N] [--k K] [--encoder E] [--seed S] [--fresh N]
+    python scripts/why_withhold.py [--system gated|fallback] [--n N] [--k K] [--encoder E]
+        [--seed S] [--fresh N]
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ import sys
 import numpy as np
 
 from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split, retrieve
+from ratouch.eval.controls import derangement
 from ratouch.eval.judge import OfflineJudge
 from ratouch.eval.judge.stats import mean_ci
 from ratouch.serve.pipeline import RATouchPipeline
@@ -56,6 +63,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--n", type=int, default=TEST_SIZE, help="test pairs (default all 402)")
     ap.add_argument("--k", type=int, default=5)
     ap.add_argument("--encoder", default="default-s")
+    ap.add_argument("--system", choices=("gated", "fallback"), default="gated",
+                    help="the system the rule answers in (every other frame answers as it does)")
     ap.add_argument("--seed", type=int, default=0, help="bootstrap seed")
     ap.add_argument("--fresh", type=int, default=1000,
                     help="fresh renders for criterion 4, each with and without contact")
@@ -76,6 +85,12 @@ def main(argv: list[str] | None = None) -> None:
         return score(split, RA_TOUCH, ids=retrieve(p, split.V, split.T, args.k, "gated"),
                      generator=p.system_generator("gated"), name="gated")
 
+    def paper(split) -> np.ndarray:
+        return score(split, RA_TOUCH, k=args.k, name="paper")
+
+    # where the frame looks familiar, the system answers as it does without the rule
+    system = gated if args.system == "gated" else paper
+
     # the rule's answer for every row: the image query's neighbours (they do not depend on
     # touch), the reader with the neutral touch
     withheld = score(dataclasses.replace(test, T=neutral), RA_TOUCH,
@@ -89,12 +104,13 @@ def main(argv: list[str] | None = None) -> None:
                             "withhold_limit": WITHHOLD_LIMIT,
                             "reader": p.generator_reader is not None}}
     flagged = flags(frames)
-    g = gated(test)
+    g = system(test)
     rule = np.where(flagged, withheld, g)
+    name = args.system
     out["natural"] = {"flagged": int(flagged.sum()),
                       "flagged_indices": [int(i) for i in np.asarray(test.indices)[flagged]],
-                      "gated": round(float(g.mean()), 4), "gated_rule": round(float(rule.mean()), 4),
-                      "rule_vs_gated": _diff(rule, g, args.seed)}
+                      name: round(float(g.mean()), 4), f"{name}_rule": round(float(rule.mean()), 4),
+                      f"rule_vs_{name}": _diff(rule, g, args.seed)}
     base_neutral = score(dataclasses.replace(test, T=neutral), BASELINE, name="baseline")
     out["neutral_touch"] = {"baseline": round(float(base_neutral.mean()), 4),
                             "rule": round(float(withheld.mean()), 4),
@@ -102,15 +118,68 @@ def main(argv: list[str] | None = None) -> None:
     odd = [recoloured(f) for f in frames]
     s_odd = dataclasses.replace(test, T=p.encoders.encode_tactile(odd, None))
     f_odd = flags(odd)
-    rule_odd = np.where(f_odd, withheld, gated(s_odd))
-    paper_odd = score(s_odd, RA_TOUCH, k=args.k, name="paper")
+    paper_odd = paper(s_odd)
+    rule_odd = np.where(f_odd, withheld, gated(s_odd) if name == "gated" else paper_odd)
     out["recoloured"] = {"flagged": int(f_odd.sum()),
                          "baseline": round(float(score(s_odd, BASELINE, name="baseline").mean()), 4),
                          "paper": round(float(paper_odd.mean()), 4),
-                         "gated_rule": round(float(rule_odd.mean()), 4),
+                         f"{name}_rule": round(float(rule_odd.mean()), 4),
                          "rule_vs_paper": _diff(rule_odd, paper_odd, args.seed + 2)}
+    if name == "fallback":
+        out["serving"] = serving_identity(p, args.k, args.n)
+        out["recoloured_other"] = unfamiliar_and_wrong(
+            p, test, odd, f_odd, withheld, score, paper, gated, args.seed)
     out["fresh_renders"] = fresh_renders(args.fresh)
     print(json.dumps(out, indent=1))
+
+
+def unfamiliar_and_wrong(p, test, odd, f_odd, withheld, score, paper, gated, seed: int
+                         ) -> dict:
+    """Measure 5: each pair read with another pair's recoloured frame (the degraded-touch
+    probe's derangement): where that frame lies beyond the limit, the rule's answer (the
+    image query's neighbours do not depend on touch, so `withheld` holds for it); elsewhere the
+    paper's (for `gated`, its own). The fallback system, the paper's, the gated one (with the
+    rule) and the baseline."""
+    order = derangement(len(test.T), seed + 101)
+    s_bad = dataclasses.replace(test, T=p.encoders.encode_tactile([odd[i] for i in order],
+                                                                  None))
+    flagged = f_odd[order]
+    paper_bad = paper(s_bad)
+    fallback = np.where(flagged, withheld, paper_bad)
+    base = score(s_bad, BASELINE, name="baseline")
+    return {"flagged": int(flagged.sum()), "baseline": round(float(base.mean()), 4),
+            "paper": round(float(paper_bad.mean()), 4),
+            "gated_rule": round(float(np.where(flagged, withheld, gated(s_bad)).mean()), 4),
+            "fallback": round(float(fallback.mean()), 4),
+            "fallback_vs_baseline": _diff(fallback, base, seed + 3),
+            "fallback_vs_paper": _diff(fallback, paper_bad, seed + 4)}
+
+
+def serving_identity(p: RATouchPipeline, k: int, n: int) -> dict:
+    """Criterion 1 through the serving path (`answer_one`): the world's first `n` test pairs,
+    each with and without its sensor's background, answered by `paper` and by `fallback`;
+    the pairs whose descriptions or neighbours differ, and the frames the rule withholds."""
+    from ratouch.serve.request import QueryRequest, answer_one
+
+    world = World(WorldConfig())
+    out = {"queries": 0, "withheld": 0, "differ": [], "differ_where_not_withheld": 0}
+    for i in range(min(n, TEST_SIZE)):
+        s = world.sample("test", i)
+        for bg in (None, world.background_image(s.sensor)):
+            got = {}
+            for system in ("paper", "fallback"):
+                r = answer_one(p, QueryRequest.decode(s.visual, s.tactile, box=s.box, k=k,
+                                                      background=bg, retrieval=system))
+                got[system] = (r.description, {m: [e["id"] for e in v]
+                                               for m, v in r.neighbours.items()},
+                               (r.retrieval or {}).get("kind") == "withheld")
+            out["queries"] += 1
+            held = got["fallback"][2]
+            out["withheld"] += int(held)
+            if got["paper"][:2] != got["fallback"][:2]:
+                out["differ"].append([i, bg is not None])
+                out["differ_where_not_withheld"] += int(not held)
+    return out
 
 
 def fresh_renders(n: int, start: int = 3_000_000) -> dict:

@@ -13,7 +13,7 @@ from ratouch.cli import main
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.model.gate import FEATURES, TouchGate, fit_logistic, gate_features, mix
 from ratouch.model.trust import Novelty
-from ratouch.search.modes import QUERY_MODES, RETRIEVAL_SYSTEMS
+from ratouch.search.modes import QUERY_MODES, RETRIEVAL_SYSTEMS, WITHHOLDING_SYSTEMS
 from ratouch.serve.request import QueryRequest
 
 
@@ -96,8 +96,10 @@ def test_gate_file_round_trip_and_bad_files(tmp_path):
 
 def test_the_gated_mode_and_the_retrieval_systems():
     assert "gated" in QUERY_MODES and QUERY_MODES["gated"].needs_touch
-    assert set(RETRIEVAL_SYSTEMS) == {"paper", "gated", "text"}
-    assert RETRIEVAL_SYSTEMS["text"] == RETRIEVAL_SYSTEMS["paper"] == "joint"
+    assert set(RETRIEVAL_SYSTEMS) == {"paper", "gated", "text", "fallback"}
+    assert RETRIEVAL_SYSTEMS["text"] == RETRIEVAL_SYSTEMS["paper"] == \
+        RETRIEVAL_SYSTEMS["fallback"] == "joint"
+    assert WITHHOLDING_SYSTEMS == {"gated", "fallback"}
     calls = []
 
     def joint(V, T, gated=False):
@@ -177,7 +179,7 @@ def test_the_gated_system_withholds_an_unfamiliar_sensors_touch(real_pipeline, w
     assert (r["kind"], r["touch_weight"], r["reads"]) == ("withheld", 0.0, "image")
     assert "looks like none of the sensors" in r["why"][0]
     from ratouch.model.gate import WITHHOLD_COST
-    assert f"{WITHHOLD_COST:.2f} below the paper's system" in r["why"][0]
+    assert f"{WITHHOLD_COST['gated']:.2f} below the paper's system" in r["why"][0]
     # the gated query gives the withheld touch no say: it is the image query, and the page's
     # gated gallery shows the neighbours the answer read
     assert [n["id"] for n in g["neighbours"]["gated"]] == \
@@ -191,6 +193,52 @@ def test_the_gated_system_withholds_an_unfamiliar_sensors_touch(real_pipeline, w
     assert again["description"]["ra_touch"] == g["description"]["ra_touch"]
     assert g["description"]["baseline"]  # the baseline still reads the frame
     assert paper["reads"] == "joint" and paper["kind"] != "withheld"
+
+
+@pytest.mark.slow
+def test_the_fallback_system_is_the_papers_unless_the_sensor_is_unlike_every_unit(
+        real_pipeline, world):
+    """docs/premise.md, "The paper's system, falling back to vision": for a frame that looks
+    like a rendered unit (with and without its background) `fallback` answers exactly as
+    `paper` does and says why touch was not withheld; for a frame beyond every rendered unit
+    it answers as the withholding rule does in `gated` (the image query's neighbours, the
+    same generator and neutral touch, so the same words), while `paper` reads its touch; with
+    the rule off it is `paper` again."""
+    from ratouch.world.sensors import WITHHOLD_LIMIT
+
+    s = world.sample("test", 40)
+    for bg in (None, world.background_image(s.sensor)):
+        got = {system: real_pipeline.answer([QueryRequest.decode(
+            s.visual, s.tactile, s.box, 5, background=bg, retrieval=system)])[0].to_dict()
+            for system in ("paper", "fallback")}
+        assert got["fallback"]["description"] == got["paper"]["description"]
+        assert got["fallback"]["neighbours"] == got["paper"]["neighbours"]
+        r = got["fallback"]["retrieval"]
+        assert (r["system"], r["reads"], r["generator"]) == ("fallback", "joint", "paper")
+        assert r["kind"] != "withheld" and "touch is not withheld" in " ".join(r["why"])
+        assert f"{WITHHOLD_LIMIT:.2f}" in " ".join(r["why"])
+    odd = 255 - s.tactile  # beyond every rendered unit (the test above checks it)
+
+    def ask(system):
+        return real_pipeline.answer([QueryRequest.decode(s.visual, odd, s.box, 5,
+                                                         retrieval=system)])[0].to_dict()
+
+    shipped = real_pipeline.withhold_unfamiliar
+    try:
+        real_pipeline.withhold_unfamiliar = True
+        fb, g, paper = ask("fallback"), ask("gated"), ask("paper")
+        real_pipeline.withhold_unfamiliar = False
+        off = ask("fallback")
+    finally:
+        real_pipeline.withhold_unfamiliar = shipped
+    r = fb["retrieval"]
+    assert (r["kind"], r["touch_weight"], r["reads"]) == ("withheld", 0.0, "image")
+    from ratouch.model.gate import WITHHOLD_COST
+    assert f"{WITHHOLD_COST['fallback']:.2f} below the paper's system" in r["why"][0]
+    assert r["generator"] == g["retrieval"]["generator"]
+    assert fb["description"]["ra_touch"] == g["description"]["ra_touch"]
+    assert paper["retrieval"]["reads"] == "joint" and paper["retrieval"]["kind"] != "withheld"
+    assert off["retrieval"]["reads"] == "joint" and off["description"] == paper["description"]
 
 
 @pytest.mark.slow
@@ -228,12 +276,17 @@ def test_fit_gate_on_a_few_probe_pairs(real_pipeline):
 
 
 def test_the_withholding_cost_quoted_is_the_measured_one():
-    """"What retrieval did" quotes `WITHHOLD_COST` where touch is withheld: it is the cost
-    measured last by scripts/why_withhold.py (docs/premise-result-withhold.json)."""
+    """"What retrieval did" quotes `WITHHOLD_COST` where touch is withheld: per withholding
+    system, the cost measured last by scripts/why_withhold.py (`gated`:
+    docs/premise-result-withhold.json, `fallback`: docs/premise-result-fallback.json)."""
     import json
 
     from ratouch.model.gate import WITHHOLD_COST
     from ratouch.paths import REPO
 
-    measured = json.loads((REPO / "docs" / "premise-result-withhold.json").read_text())
-    assert WITHHOLD_COST == round(-measured["recoloured"]["rule_vs_paper"]["diff"], 2)
+    assert set(WITHHOLD_COST) == WITHHOLDING_SYSTEMS
+    for system, name in (("gated", "withhold"), ("fallback", "fallback")):
+        measured = json.loads((REPO / "docs" / f"premise-result-{name}.json").read_text())
+        assert measured["config"].get("system", "gated") == system
+        assert WITHHOLD_COST[system] == \
+            round(-measured["recoloured"]["rule_vs_paper"]["diff"], 2)

@@ -127,6 +127,27 @@ def test_withhold_check_reads_its_three_measures(real_pipeline, monkeypatch, cap
 
 
 @pytest.mark.slow
+def test_withhold_check_of_the_fallback_system(real_pipeline, monkeypatch, capsys):
+    """scripts/why_withhold.py --system fallback on the first 6 test pairs: the rule against
+    `paper` on the natural split (nothing withheld, no difference), the serving path's answers
+    identical to `paper`'s with and without the background, and the fifth measure (recoloured
+    frames of another pair) with the fallback system between its parts."""
+    _, out = _run_on_shipped("why_withhold", ["--system", "fallback", "--n", "6", "--fresh", "2"],
+                             real_pipeline, monkeypatch, capsys)
+    assert out["config"]["system"] == "fallback"
+    assert out["natural"]["rule_vs_fallback"]["diff"] == 0
+    assert out["natural"]["fallback"] == out["natural"]["fallback_rule"]
+    assert out["serving"] == {"queries": 12, "withheld": 0, "differ": [],
+                              "differ_where_not_withheld": 0}
+    bad = out["recoloured_other"]
+    assert bad["flagged"] == out["recoloured"]["flagged"]  # the same frames, another order
+    assert "fallback_rule" in out["recoloured"]
+    for key in ("fallback_vs_baseline", "fallback_vs_paper"):
+        assert bad[key]["ci95"][0] <= bad[key]["diff"] <= bad[key]["ci95"][1]
+    assert all(1 <= bad[k] <= 10 for k in ("baseline", "paper", "gated_rule", "fallback"))
+
+
+@pytest.mark.slow
 def test_read_below_check_routes_as_the_gated_system_does(real_pipeline, monkeypatch, capsys):
     """scripts/why_read_below.py on 12 validation renders: every threshold of the grid, clean
     and mismatched touch; its row at the shipped `READ_BELOW` is the gated system's own answer

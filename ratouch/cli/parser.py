@@ -335,7 +335,8 @@ def _add_eval(sub) -> None:
     t.add_argument("--encoder", default=DEFAULT_ENCODER)
     t.add_argument("--k", type=_pos_int, default=5, help="neighbours RA-Touch reads")
     t.add_argument("--retrieval", choices=tuple(RETRIEVAL_SYSTEMS), default="paper",
-                   help="RA-Touch's retrieval: the paper's joint query or the trust-gated one")
+                   help="RA-Touch's retrieval system (the test split's frames all look like "
+                        "rendered units, so 'fallback' answers there as 'paper' does)")
     _add_lm(t)
     t.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
     _add_stress(t)
@@ -543,9 +544,11 @@ def _add_query(sub) -> None:
                         "serve.request.MAX_K)")
     q.add_argument("--label", default=None, help="ground-truth caption, if known (for the PCA)")
     q.add_argument("--retrieval", choices=tuple(RETRIEVAL_SYSTEMS), default=None,
-                   help="the neighbours RA-Touch reads: 'paper' (the joint query) or 'gated' "
-                        "(touch weighed by how far it can be trusted); default: the shipped "
-                        "choice")
+                   help="RA-Touch's retrieval system: 'paper' (the joint query), 'gated' "
+                        "(touch weighed by how far it can be trusted), 'text' (the neighbours' "
+                        "captions in the prompt) or 'fallback' (the paper's, answering from "
+                        "vision for a sensor unlike every rendered unit); default: the shipped "
+                        "choice, 'fallback'")
     q.add_argument("--encoder", default=DEFAULT_ENCODER,
                    help="encoder set (default-tiny, default-s, default-b where trained), or "
                         "'cascade': the smallest confident one answers")

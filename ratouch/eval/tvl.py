@@ -44,8 +44,9 @@ def run_tvl(pipeline, system: str, k: int = 5, judge=None, world: WorldConfig | 
             ) -> tuple[list[dict], dict]:
     """Generate, judge and summarise one system on the world's test split (the summary also
     holds the judge's mean per sensor family, "families"); `retrieval`: the retrieval system
-    RA-Touch reads with (`RETRIEVAL_SYSTEMS`: "paper" or "gated", each with its own generator,
-    `RATouchPipeline.system_generator`)."""
+    RA-Touch reads with (`RETRIEVAL_SYSTEMS`, each with its own generator,
+    `RATouchPipeline.system_generator`; the test split's frames all look like rendered units,
+    so `fallback` answers there as `paper` does)."""
     if retrieval not in RETRIEVAL_SYSTEMS:
         raise ConfigError(f"unknown retrieval system {retrieval!r}; one of "
                           f"{', '.join(RETRIEVAL_SYSTEMS)}")

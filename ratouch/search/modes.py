@@ -220,8 +220,16 @@ RA_TOUCH_MODE = "joint"
 #: "paper", the paper's joint query; "gated", the joint query moved towards the image query as
 #: far as touch cannot be trusted (`ratouch.model.gate`); "text", the paper's joint query with
 #: its neighbours' captions written into the prompt (plain retrieval-augmented generation,
-#: `ratouch.model.neighbour_text`) instead of the Texture-Aware Integrator.
-RETRIEVAL_SYSTEMS = {"paper": RA_TOUCH_MODE, "gated": "gated", "text": RA_TOUCH_MODE}
+#: `ratouch.model.neighbour_text`) instead of the Texture-Aware Integrator; "fallback", the
+#: paper's system wherever the tactile frame looks like a rendered sensor's, and vision's
+#: answer where it lies beyond every one (`WITHHOLDING_SYSTEMS`).
+RETRIEVAL_SYSTEMS = {"paper": RA_TOUCH_MODE, "gated": "gated", "text": RA_TOUCH_MODE,
+                     "fallback": RA_TOUCH_MODE}
+#: The systems that withhold the touch of a frame beyond every validation render of the sensor
+#: families: its answer reads the image query's neighbours with a neutral touch
+#: (`ratouch.serve.pipeline.RATouchPipeline.withholds`, docs/premise.md).
+WITHHOLDING_SYSTEMS = frozenset({"gated", "fallback"})
 #: The mode every query has, whose neighbours stand in for a missing frame's modes.
 IMAGE_MODE = "image"
 assert {RA_TOUCH_MODE, IMAGE_MODE, *RETRIEVAL_SYSTEMS.values()} <= _BUILTIN_NAMES and not QUERY_MODES[IMAGE_MODE].needs_touch
+assert WITHHOLDING_SYSTEMS <= set(RETRIEVAL_SYSTEMS)

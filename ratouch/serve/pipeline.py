@@ -36,7 +36,13 @@ from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfi
 from ratouch.model.press_map import PressMap
 from ratouch.model.trust import TrustCalibration
 from ratouch.paths import generator_weights, geometry_calibration, trust_calibration
-from ratouch.search.modes import IMAGE_MODE, QUERY_MODES, RA_TOUCH_MODE, RETRIEVAL_SYSTEMS
+from ratouch.search.modes import (
+    IMAGE_MODE,
+    QUERY_MODES,
+    RA_TOUCH_MODE,
+    RETRIEVAL_SYSTEMS,
+    WITHHOLDING_SYSTEMS,
+)
 from ratouch.search.pca import PCA2D
 from ratouch.search.retrieval import CorpusSearch
 from ratouch.search.retrieval_side import (
@@ -63,7 +69,7 @@ log = logging.getLogger(__name__)
 
 #: The retrieval system a request that names none is answered with (a key of
 #: `RETRIEVAL_SYSTEMS`), chosen by the measurements in docs/premise.md.
-DEFAULT_RETRIEVAL = "paper"
+DEFAULT_RETRIEVAL = "fallback"
 
 
 def integrator_factory(cfg: dict):
@@ -207,11 +213,12 @@ class RATouchPipeline(RetrievalSide):
         self.lm = lm
         self.trust = trust  # None: queries say that nothing flags unfamiliar inputs
         self.gate = gate
-        #: whether the `gated` system withholds the touch of a frame beyond every validation
-        #: render of the sensor families (`withholds`, `WITHHOLD_LIMIT`). On (docs/premise.md,
-        #: "Touch withheld only beyond every validation render": no world test frame is
-        #: withheld, +0.42 over the baseline where touch tells nothing). Off: the gate alone
-        #: weighs it.
+        #: whether the withholding systems (`WITHHOLDING_SYSTEMS`: `gated`, `fallback`)
+        #: withhold the touch of a frame beyond every validation render of the sensor families
+        #: (`withholds`, `WITHHOLD_LIMIT`). On (docs/premise.md, "Touch withheld only beyond
+        #: every validation render": no world test frame is withheld, +0.42 over the baseline
+        #: where touch tells nothing). Off: `gated`'s gate alone weighs touch, and `fallback`
+        #: answers as `paper`.
         self.withhold_unfamiliar = True
         if retrieval not in RETRIEVAL_SYSTEMS:
             raise ConfigError(f"unknown retrieval system {retrieval!r}; one of "
@@ -259,8 +266,8 @@ class RATouchPipeline(RetrievalSide):
         """Load everything for an encoder; the default corpus is built on first use.
         `generators=False` loads no generators (for evaluating retrieval): `answer` then
         needs them set first. `retrieval`: the retrieval system of requests that name none
-        ("paper" or "gated"). `lm`: the generators adapted from that pretrained language
-        model ("smollm2-135m"; `generator_weights(encoder, kind, lm)`) instead of the small
+        (a key of `RETRIEVAL_SYSTEMS`). `lm`: the generators adapted from that pretrained
+        language model ("smollm2-135m"; `generator_weights(encoder, kind, lm)`) instead of the small
         decoder's; they have no reader of their own (the gated system reads with RA-Touch)."""
         corpus = corpus or default_corpus(encoder, progress=progress)
         retriever = open_retriever(corpus, encoder, index)
@@ -411,7 +418,8 @@ class RATouchPipeline(RetrievalSide):
 
     def withholds(self, request: QueryRequest, encoded: Encoded) -> bool:
         """Whether `request`'s touch is withheld from its answer (docs/premise.md, "An
-        unfamiliar sensor's touch withheld"): the `gated` system, a frame beyond every
+        unfamiliar sensor's touch withheld"): a withholding system (`WITHHOLDING_SYSTEMS`:
+        `gated` or `fallback`), a frame beyond every
         validation render of the sensor families (`Encoded.unfamiliar`), `withhold_unfamiliar`
         on, and a neutral touch to read instead (a trust calibration)."""
         return self._may_withhold(request) and encoded.unfamiliar
@@ -419,8 +427,8 @@ class RATouchPipeline(RetrievalSide):
     def _may_withhold(self, request: QueryRequest) -> bool:
         """Whether `withholds` may hold for `request` once its frame's look is read (the
         look is read only then)."""
-        return ((request.retrieval or self.retrieval) == "gated" and self.withhold_unfamiliar
-                and self.trust is not None)
+        return ((request.retrieval or self.retrieval) in WITHHOLDING_SYSTEMS
+                and self.withhold_unfamiliar and self.trust is not None)
 
     def neutral_touch(self) -> np.ndarray:
         """(1, D) the touch read where touch is withheld: the trust calibration's mean
@@ -433,8 +441,9 @@ class RATouchPipeline(RetrievalSide):
 
     def generator_for(self, request: QueryRequest, encoded: Encoded):
         """The RA-Touch generator that answers `request`: for `text`, the text arm (where one
-        fits the corpus); for `gated`, the reader where the gate gives touch less than
-        `READ_BELOW` of the say (and a reader is loaded); else the paper's."""
+        fits the corpus); where touch is withheld (`withholds`), the reader (where one is
+        loaded); for `gated`, the reader where the gate gives touch less than `READ_BELOW` of
+        the say (and a reader is loaded); else the paper's."""
         system = request.retrieval or self.retrieval
         if system == "text":
             return self.generator_text or self.generator_ra
@@ -450,7 +459,9 @@ class RATouchPipeline(RetrievalSide):
         """A generator-like object (``describe(V, T, Rv, Rl)``) answering as a retrieval
         system (`RETRIEVAL_SYSTEMS`) does, row by row: the paper's RA-Touch generator, or for
         `gated` the trust-routed pair (`TrustRouted`) where a reader and a gate are loaded,
-        for `text` the text arm where one fits the corpus."""
+        for `text` the text arm where one fits the corpus. Rows are embeddings, not frames:
+        the withholding rule, which reads a frame's look, is not applied here (`fallback` is
+        the paper's generator; `scripts/why_withhold.py` applies the rule per row)."""
         if system == "text":
             return self.generator_text or self.generator_ra
         if system == "gated" and self.generator_reader is not None and self.gate is not None:
@@ -484,8 +495,11 @@ class RATouchPipeline(RetrievalSide):
                        why=["no touch gate for this model: the gated query is the paper's"])
         else:
             out.update(self.gate.explain(encoded.V, encoded.T, encoded.queries[RA_TOUCH_MODE]))
-        if system == "paper":
-            out["why"] = ["the paper's joint query: touch steers the search fully"] + \
+        if system == "paper" or (system == "fallback" and not self.withholds(request, encoded)):
+            out["why"] = ["the paper's joint query: touch steers the search fully"] + (
+                [f"the tactile frame looks like the sensors the models learnt (distance "
+                 f"{encoded.look[1]:.2f}, within every rendered unit's {WITHHOLD_LIMIT:.2f}): "
+                 "touch is not withheld"] if system == "fallback" and encoded.look else []) + \
                 [f"(the gate would have weighed touch {out['touch_weight']:.2f})"]
         elif system == "text":
             out["why"] = ["the paper's joint query: touch steers the search fully"] + (
@@ -496,12 +510,12 @@ class RATouchPipeline(RetrievalSide):
             assert encoded.look is not None  # withheld: the frame was read
             out.update(kind="withheld", touch_weight=0.0,
                        why=[f"the tactile frame looks like none of the sensors the models "
-                            f"learnt (distance {encoded.look[1]:.2f}, beyond every rendered unit's "
-                            f"{WITHHOLD_LIMIT:.2f}): touch is "
-                            "withheld, and the answer reads the image query's neighbours "
-                            "(its known cost: where such a sensor's touch is still readable, "
-                            f"{WITHHOLD_COST:.2f} below the paper's system on recoloured "
-                            "renders)",
+                            f"learnt (distance {encoded.look[1]:.2f}, beyond every rendered "
+                            f"unit's {WITHHOLD_LIMIT:.2f}): touch is withheld, and the answer "
+                            "reads the image query's neighbours (its known cost: where such a "
+                            "sensor's touch is still readable, "
+                            f"{WITHHOLD_COST[system]:.2f} below the paper's system on "
+                            "recoloured renders)",
                             f"the {out['generator']}'s generator answers with a neutral touch"
                             + (", as in its reading episodes" if out["generator"] == "reader"
                                else "")])

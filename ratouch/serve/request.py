@@ -86,8 +86,8 @@ class QueryRequest:
         model: the model that should answer (an encoder set or "cascade"), for a server that
             offers a choice (`ratouch.serve.models.ModelChoice`); None: its default.
         retrieval: the retrieval system RA-Touch answers with (a key of
-            `ratouch.search.modes.RETRIEVAL_SYSTEMS`: "paper" or "gated"); None: the
-            answerer's default.
+            `ratouch.search.modes.RETRIEVAL_SYSTEMS`: "paper", "gated", "text", "fallback");
+            None: the answerer's default.
         warnings: what decoding had to assume (no box, no tactile image, ...).
         decode_ms: what decoding took.
     """
@@ -124,7 +124,8 @@ class QueryRequest:
                 None: used by the no-contact check (and by encoders trained on
                 background-subtracted frames).
             model: the model that should answer, where there is a choice.
-            retrieval: the retrieval system ("paper" or "gated"), or None: the default.
+            retrieval: the retrieval system (a key of `RETRIEVAL_SYSTEMS`), or None: the
+                default.
 
         Raises:
             ConfigError: k is not a whole number from 1 to `MAX_K`; an unknown retrieval
@@ -227,7 +228,7 @@ class QueryResult:
             map's "depth", "spread", "relief", "units", "family"), each None where no
             geometry lookup reads the sensor.
         retrieval: which neighbours RA-Touch read and how far touch steered them:
-            {"system" ("paper" or "gated"), "reads" (the query mode), "touch_weight",
+            {"system" (a key of `RETRIEVAL_SYSTEMS`), "reads" (the query mode), "touch_weight",
             "kind", "features", "why"}; None without a tactile frame.
         cascade: where a cascade answered, {"answered_by", "stage", "escalated",
             "confidence": [per stage tried], "thresholds", "measure"}; else None.

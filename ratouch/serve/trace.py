@@ -62,7 +62,7 @@ class RetrievalTrace:
         carried: each RA-Touch word that an attended neighbour's caption carries -> the ranks
             of those neighbours.
         in_neighbours: RA-Touch's words found in any joint neighbour's caption.
-        system: the retrieval system that answered ("paper" or "gated").
+        system: the retrieval system that answered (a key of `RETRIEVAL_SYSTEMS`: "paper", "gated", "text" or "fallback").
         reads: the query mode whose neighbours RA-Touch read.
         touch_weight: how far touch steered that query (1: fully, the paper's joint query;
             None: not said).
