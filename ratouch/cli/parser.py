@@ -415,8 +415,8 @@ def _add_eval(sub) -> None:
     ph.add_argument("--k", type=_pos_int, default=5, help="neighbours per photo")
     ph.add_argument("--pairs", action="store_true",
                     help="instead: each photo with a real press (Taxim's, the DIGIT's) against "
-                         "its background: RA-Touch with the paper's and the gated retrieval, "
-                         "the baseline, and a copy of each mode's top-1 caption")
+                         "its background: RA-Touch with every retrieval system, the baseline, "
+                         "and a copy of each mode's top-1 caption")
     ph.add_argument("--json", action="store_true")
     fa = esub.add_parser("families", help="per tactile sensor family, on validation renders: "
                                           "material probe, joint P@5 and contact miss / false "

@@ -294,12 +294,12 @@ REAL_PAIRS = (("brick", "gelsight", 0), ("gravel", "gelsight_mini", 0), ("grass"
 
 def evaluate_real_pairs(pipeline, k: int = 5) -> list[dict]:
     """Per visible real pair (`REAL_PAIRS`): RA-Touch as each retrieval system answers
-    (`RETRIEVAL_SYSTEMS`: the paper's, the gated one, the text one), the baseline, a copy of
-    each query mode's top-1 caption, and how far the gate let touch steer (the photo's
-    centred box; the press against its background).
+    (`RETRIEVAL_SYSTEMS`: the paper's, the gated one, the text one, the fallback), the
+    baseline, a copy of each query mode's top-1 caption, and how far the gate let touch steer
+    (the photo's centred box; the press against its background).
 
     Returns:
-        [{"photo", "touch", "paper", "gated", "text", "baseline", "copy": {mode: caption},
+        [{"photo", "touch", *RETRIEVAL_SYSTEMS, "baseline", "copy": {mode: caption},
         "touch_weight", "why", "tactile_novel", "unfamiliar_sensor"}]; pairs whose frames
         are missing are left out.
     """
