@@ -107,6 +107,27 @@ def data_uri(image: np.ndarray | str, png: bool = False) -> str:
     return f"data:image/{kind};base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
+#: What a mode that reads touch shows for a frame with no contact, instead of its neighbours.
+NO_CONTACT_NEIGHBOURS = ("not shown: no contact detected, so this query's nearest captions "
+                         "match an empty gel, not a material (they stay in the JSON)")
+
+
+def touch_unread(result: dict, mode: str) -> bool:
+    """Whether `mode` reads touch and the result's frame showed no contact: its neighbours
+    are then the nearest captions to an empty gel, which the page does not show as a
+    material's."""
+    tactile = (result.get("trust") or {}).get("tactile") or {}
+    return (bool(tactile.get("no_contact")) and mode in QUERY_MODES
+            and QUERY_MODES[mode].needs_touch)
+
+
+def shown_neighbours(result: dict) -> dict[str, list[dict]]:
+    """The result's neighbours the page shows as a material's: every mode's but those
+    `touch_unread` (so that no badge says an image neighbour was also found by them)."""
+    return {m: rows for m, rows in result.get("neighbours", {}).items()
+            if not touch_unread(result, m)}
+
+
 def neighbour_strip(result: dict, mode: str, thumbnail: Callable[[int], np.ndarray | str],
                     attended: Sequence[int] = ()) -> str:
     """One mode's neighbours as a row of fixed-size tiles (HTML), one per distinct tactile
@@ -118,10 +139,13 @@ def neighbour_strip(result: dict, mode: str, thumbnail: Callable[[int], np.ndarr
     title = (f"<div class='ra-mode-title'><span style='color:{MODE_COLOUR[mode]}'>●</span> "
              f"{escape(MODE_TITLE[mode])}</div>")
     rows = result.get("neighbours", {}).get(mode)
+    if rows and touch_unread(result, mode):
+        return (f"<div class='ra-mode' id='strip-{mode}'>{title}<div class='ra-strip ra-muted'>"
+                f"{NO_CONTACT_NEIGHBOURS}</div></div>")
     if not rows:
         return (f"<div class='ra-mode' id='strip-{mode}'>{title}<div class='ra-strip ra-muted'>"
                 "not available for this query (needs a tactile image)</div></div>")
-    shared = shared_modes(result["neighbours"])
+    shared = shared_modes(shown_neighbours(result))
     # a folded tile is outlined when any neighbour it holds was among the most attended
     reads = read_mode(result)
     read = {rows[r - 1]["caption"] for r in attended if 0 < r <= len(rows)}
@@ -163,9 +187,11 @@ def neighbour_table(result: dict, mode: str) -> str:
     """An HTML table of one mode's neighbours: rank, class, tactile caption, similarity,
     and the other modes that retrieved the same entry."""
     rows = result["neighbours"].get(mode)
+    if rows and touch_unread(result, mode):
+        return f"<p class='ra-muted'>{NO_CONTACT_NEIGHBOURS}</p>"
     if not rows:
         return "<p class='ra-muted'>not available for this query</p>"
-    shared = shared_modes(result["neighbours"])
+    shared = shared_modes(shown_neighbours(result))
     out = ["<table class='ra-table'><tr><th>#</th><th>class</th><th>tactile caption</th>"
            "<th>sim.</th><th>shared</th></tr>"]
     for rank, n in enumerate(rows, 1):
@@ -387,7 +413,10 @@ def trust_lines(result: dict) -> list[str]:
             against = ", vs background" if t.get("background") else (
                 ", read blind to colour" if t.get("contact_model") == "colour-blind" else "")
             score = "n/a" if t["contact"] is None else f"{t['contact']:.2f}"
-            cells.append(f"contact {score} (flag < {t['contact_threshold']:.2f}"
+            noise = t.get("within_noise")
+            cells.append(f"change vs background {noise['change']:.3f} (within noise < "
+                         f"{noise['floor']:.3f}) {mark}" if noise else
+                         f"contact {score} (flag < {t['contact_threshold']:.2f}"
                          f"{against}) {mark}")
             sensor = t.get("sensor")
             if sensor:  # an unfamiliar one is said whether or not a background is given

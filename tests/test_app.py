@@ -1073,6 +1073,39 @@ def test_trust_is_shown_above_the_descriptions():
     assert "blind to colour" not in view.trust_lines(result)[0]
 
 
+def test_a_blank_frames_touch_modes_show_no_material():
+    """Issue 36: with no contact detected, the modes that read touch do not show the nearest
+    captions to an empty gel as a material's (strip and table say why; the JSON keeps them),
+    the image query's neighbours stay, and no badge says they were also found by a touch
+    mode; a frame called its background within the sensor's noise says so, not a false
+    inequality of contact scores."""
+    from app import view
+    from ratouch.search.modes import QUERY_MODES
+
+    ns = [{"id": i, "score": 0.5, "class_name": "c", "caption": "soft, plush", "source": "w"}
+          for i in range(3)]
+    tactile = {"novelty": 1.0, "threshold": 1.5, "novel": False, "contact": 7.66,
+               "contact_threshold": 0.07, "no_contact": True, "background": True,
+               "within_noise": {"change": 0.004, "floor": 0.011}}
+    result = {"neighbours": {m: ns for m in QUERY_MODES},
+              "trust": {"visual": None, "tactile": tactile}}
+    for mode in QUERY_MODES:
+        strip, table = view.neighbour_strip(result, mode, _thumb), view.neighbour_table(result, mode)
+        if QUERY_MODES[mode].needs_touch:
+            assert "<figure" not in strip and view.NO_CONTACT_NEIGHBOURS in strip
+            assert "<tr" not in table and view.NO_CONTACT_NEIGHBOURS in table
+        else:
+            assert strip.count("<figure") == 1 and "ra-shared-badge" not in strip
+            assert table.count("<tr") == 4 and "◆" not in table
+    line = view.trust_lines(result)[0]
+    assert "change vs background 0.004 (within noise < 0.011) ✖ no contact" in line
+    assert "contact 7.66" not in line
+    # with contact, every mode shows its neighbours and their shared badges
+    pressed = {**result, "trust": {"tactile": {**tactile, "no_contact": False}}}
+    assert all("<figure" in view.neighbour_strip(pressed, m, _thumb) for m in QUERY_MODES)
+    assert "ra-shared-badge" in view.neighbour_strip(pressed, "image", _thumb)
+
+
 def test_header_says_what_the_corpus_is(fake):
     from types import SimpleNamespace
 

@@ -527,3 +527,31 @@ def test_train_trust_unfamiliar_writes_only_that_model(tmp_path, capsys, monkeyp
     assert main(["train", "trust", "--unfamiliar", "--alone-band", "--out",
                  str(tmp_path / "u.json")]) == 2
     assert not (tmp_path / "u.json").exists()
+
+
+def test_a_frame_called_its_background_within_noise_says_so(pipeline, world):
+    """A frame equal to its background is "no contact" by the noise floor although the
+    contact model, never fitted on a zero change, scores it above its threshold: the block
+    says which rule decided ("within_noise": the change and the floor) and the warning does
+    not claim the score was below the threshold."""
+    enc = pipeline.encoders
+    for i in range(3):
+        s = world.sample("test", i)
+        bg = world.background_image(s.sensor)
+        out = pipeline.trust.assess(enc.encode_image([s.crop]), enc.encode_tactile([bg], [bg]),
+                                    bg, bg)
+        t = out["tactile"]
+        assert t["state"] == "no contact"
+        warning = next(w for w in out["warnings"] if w.startswith("no contact detected"))
+        if t["contact"] >= t["contact_threshold"]:
+            noise = t["within_noise"]
+            assert noise["change"] < noise["floor"] == round(pipeline.trust.noise_floor, 4)
+            assert "within the sensor's noise" in warning
+            assert f"contact {t['contact']} <" not in warning
+        else:
+            assert "within_noise" not in t
+    pressed = world.sample("test", 0)
+    bg = world.background_image(pressed.sensor)
+    out = pipeline.trust.assess(enc.encode_image([pressed.crop]),
+                                enc.encode_tactile([pressed.tactile], [bg]), pressed.tactile, bg)
+    assert out["tactile"]["state"] == "contact" and "within_noise" not in out["tactile"]

@@ -582,7 +582,10 @@ class TrustCalibration:
             "contact" (None when not a number), "contact_threshold", "state",
             "no_contact", "uncertain", "background", "sensor" (the family read, guessed from the
             frame's colours), "unfamiliar_sensor", and with a background "structure",
-            "geometry" and "firmness" (read from shape; None for no contact)} or None,
+            "geometry" and "firmness" (read from shape; None for no contact), and
+            "within_noise" ({"change", "floor"}) where the frame was called no contact for
+            being its background within the sensor's noise, though the contact model would
+            have said contact} or None,
             "warnings": [...],
             "height_map": the frame's `HeightMap` against the background (an object, not
             JSON: its numbers are "geometry"), or None}
@@ -632,6 +635,13 @@ class TrustCalibration:
                 # firmness from shape: a reading of a press, none of a blank
                 tac["firmness"] = (None if read is None or state == "no contact"
                                    else read["firmness"])
+            if (background is not None and state == "no contact" and np.isfinite(score)
+                    and score >= thr):
+                # the model would say contact: the frame was called its background because it
+                # is that background within the sensor's noise (`contact_state`'s noise floor)
+                tac["within_noise"] = {
+                    "change": round(background_change(frame, background), 4),
+                    "floor": round(self.noise_floor, 4)}
             unlike = unfamiliar_look((name, distance))
             tac["sensor"] = {"family": name, "distance": round(distance, 3), "source": (
                 "the nearest guess: the frame looks like none of the families' units"
@@ -644,7 +654,10 @@ class TrustCalibration:
             out["tactile"] = tac
             against = ", against the background frame" if background is not None else ""
             if tac["no_contact"]:
+                noise = tac.get("within_noise")
                 shown = "" if tac["contact"] is None else (
+                    f" (it differs from the background frame by {noise['change']}, within "
+                    f"the sensor's noise: < {noise['floor']})" if noise else
                     f" (contact {tac['contact']} < {tac['contact_threshold']}{against})")
                 if tac.get("structure"):
                     shown += (f"; structured change {tac['structure']['score']} <= "
