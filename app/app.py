@@ -150,12 +150,13 @@ def _api_layout() -> SimpleNamespace:
 
 def _api_wire(page: Page, api: SimpleNamespace, explore: SimpleNamespace) -> None:
     """Only `/query` is an API; the UI's events are private."""
-    def api_query(visual, tactile, a, b, c, d, k, model=None, background=None):
+    def api_query(visual, tactile, a, b, c, d, k, model=None, background=None, retrieval=None):
         return handlers.api_query(page.pipeline, visual, tactile, a, b, c, d, k,
-                                  background=background, encoder=page.encoder(model))
+                                  background=background, encoder=page.encoder(model),
+                                  retrieval=retrieval)
 
     api.button.click(api_query, [api.visual, api.tactile, *explore.fields.values(), explore.k,
-                                 explore.model, api.background],
+                                 explore.model, api.background, explore.retrieval],
                      api.out, api_name="query", concurrency_id="query",
                      concurrency_limit=page.max_batch)
 

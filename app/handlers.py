@@ -412,9 +412,11 @@ def regenerate(pipe, visual: boxes.Visual | None, tactile: Any, x0, y0, x1, y1,
 
 
 def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k,
-              encoder: str | None = None, background: str | None = None) -> dict:
-    """The `/query` API: image files, box, K, the model and the tactile sensor's background
-    (optional: the frame is read against it) in, the answer's JSON out
+              encoder: str | None = None, background: str | None = None,
+              retrieval: str | None = None) -> dict:
+    """The `/query` API: image files, box, K, the model, the tactile sensor's background
+    (optional: the frame is read against it) and the retrieval system (optional: a key of
+    `RETRIEVAL_SYSTEMS`; the answerer's default) in, the answer's JSON out
     (`QueryResult.to_dict`).
 
     Raises:
@@ -426,7 +428,7 @@ def api_query(pipe, visual: str | None, tactile: str | None, x0, y0, x1, y1, k,
         box = boxes.fields_to_box(x0, y0, x1, y1)
         request = QueryRequest.decode(visual, tactile, box=box,
                                       k=check_k(5 if k is None else k, MAX_K), background=background,
-                                      model=encoder or None)
+                                      model=encoder or None, retrieval=retrieval or None)
         return answer_one(pipe, request).to_dict()
     except Exception as e:  # noqa: BLE001 - user_message logs anything not caused by the user
         files = {"visual image": visual, "tactile image": tactile,

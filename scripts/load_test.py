@@ -64,7 +64,7 @@ ENDPOINT = "query"
 # component). `ApiClient.values` fills them; the app's inputs must be exactly these.
 INPUTS = (("visual", "File"), ("tactile", "File"), ("a", "Textbox"), ("b", "Textbox"),
           ("c", "Textbox"), ("d", "Textbox"), ("k", "Slider"), ("model", "Dropdown"),
-          ("background", "File"))
+          ("background", "File"), ("retrieval", "Dropdown"))
 RESULT_KEYS = ("neighbours", "description", "timings_ms", "warnings", "box")  # of every answer
 NO_MESSAGE = ("the server answered with an error event without a message (the app hides "
               "error details: show_error=False); the server log says why")
@@ -281,9 +281,11 @@ class ApiClient:
     def values(self, visual: dict, tactile: dict, box, k: int,
                background: dict | None = None) -> list:
         """The endpoint's inputs, in its order: the uploaded files, the box as the four text
-        fields (x0, y0, x1, y1), K, the model and the sensor's background (or None)."""
+        fields (x0, y0, x1, y1), K, the model, the sensor's background (or None) and the
+        retrieval system (None: the app's default)."""
         by_name = {"visual": visual, "tactile": tactile, "k": k, "model": self.model,
-                   "background": background, **{n: str(int(v)) for n, v in zip("abcd", box)}}
+                   "background": background, "retrieval": None,
+                   **{n: str(int(v)) for n, v in zip("abcd", box)}}
         unknown = [n for n in self.inputs if n not in by_name]
         if unknown:
             raise LoadTestError(f"this script does not know how to fill the /{ENDPOINT} "

@@ -341,7 +341,8 @@ class FakePipeline:
         frame = req.frame
         self.calls.append({"crop": req.crop.shape, "box": list(req.box), "k": req.k,
                            "label": req.label, "tactile": frame is not None,
-                           "background": req.background is not None, "model": req.model})
+                           "background": req.background is not None, "model": req.model,
+                           "retrieval": req.retrieval})
         time.sleep(self.delay_s)
         k = req.k
         # the built-in modes at fixed offsets; a mode registered by a test follows them

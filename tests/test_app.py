@@ -618,6 +618,28 @@ def test_the_model_is_a_choice_in_the_page_and_the_api(pair_files):
         demo.close()
 
 
+def test_the_retrieval_system_is_a_choice_in_the_api(served, pair_files):
+    """The `/query` API's last input names the retrieval system (every one of the registry's;
+    left out: the page's default, the shipped one); one the registry lacks is refused before
+    any answer."""
+    from gradio_client import Client, handle_file
+
+    from ratouch.search.modes import RETRIEVAL_SYSTEMS
+    from ratouch.serve.pipeline import DEFAULT_RETRIEVAL
+
+    url, pipe, _ = served
+    client = Client(url, verbose=False)
+    files = handle_file(str(pair_files[0])), handle_file(str(pair_files[1]))
+    before = len(pipe.calls)
+    for system in RETRIEVAL_SYSTEMS:
+        client.predict(*files, None, None, None, None, 5, None, None, system, api_name="/query")
+    client.predict(*files, None, None, None, None, 5, api_name="/query")
+    assert [c["retrieval"] for c in pipe.calls[before:]] == [*RETRIEVAL_SYSTEMS, DEFAULT_RETRIEVAL]
+    with pytest.raises(Exception, match="best|retrieval"):
+        client.predict(*files, None, None, None, None, 5, None, None, "best", api_name="/query")
+    assert len(pipe.calls) == before + len(RETRIEVAL_SYSTEMS) + 1
+
+
 def test_query_api_bad_input_is_a_clear_error_and_the_server_keeps_serving(served, pair_files,
                                                                             tmp_path):
     from gradio_client import Client, handle_file

@@ -67,19 +67,20 @@ def test_the_client_sends_every_input_the_endpoint_takes(load_test, choice_app, 
         assert out["description"]["ra_touch"] == "soft and grainy"
     client.query(visual, tactile, box, 4)  # the background is optional
     assert not pipes["large"].calls[-1]["background"]
+    assert pipes["large"].calls[-1]["retrieval"] is None  # the system: the app's default
     assert len(pipes["small"].calls) == 1 and len(pipes["large"].calls) == 2
 
 
 def test_a_changed_endpoint_stops_the_test_with_a_clear_message(load_test, choice_app):
     port, _ = choice_app
     params = load_test.endpoint_inputs(port)
-    # the endpoint before it took the model (the bug): 7 inputs where the script sends 9
-    with pytest.raises(load_test.LoadTestError, match=r"takes 7 inputs .* sends 9 .*model"):
-        load_test.check_inputs(params[:-2])
+    # the endpoint before it took the model (the bug): 7 inputs where the script sends 10
+    with pytest.raises(load_test.LoadTestError, match=r"takes 7 inputs .* sends 10 .*model"):
+        load_test.check_inputs(params[:-3])
     added = params + [{"parameter_name": "label", "component": "Textbox",
                        "label": "ground-truth caption"}]
     with pytest.raises(load_test.LoadTestError,
-                       match=r"takes 10 inputs .*label \(Textbox\).* update INPUTS"):
+                       match=r"takes 11 inputs .*label \(Textbox\).* update INPUTS"):
         load_test.check_inputs(added)
     with pytest.raises(load_test.LoadTestError, match=r"'huge' is not offered .*small"):
         load_test.choose_model(params, "huge")
