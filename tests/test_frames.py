@@ -16,6 +16,7 @@ from ratouch.errors import DataNotFoundError
 from ratouch.eval.frames import (
     contact_region,
     firmness,
+    format_frames,
     frames_in,
     overlaps,
     read_frames,
@@ -65,6 +66,11 @@ def test_a_blank_sensor_read_against_itself_is_no_contact_by_construction(mini_r
     assert row["state"] == "no contact"
     assert row["contact"] is None or np.isfinite(row["contact"])
     assert row["ra_touch"] == ""  # nothing to describe
+    # the noise floor decided (the contact model scores a zero change above its threshold),
+    # and the table says so instead of printing that score
+    assert row["within_noise"]["change"] < row["within_noise"]["floor"]
+    line = next(x for x in format_frames(mini_rows).splitlines() if "against itself" in x)
+    assert " noise " in line
 
 
 def test_real_presses_are_detected_on_their_touch(mini_rows):

@@ -97,6 +97,8 @@ def read_frame(pipeline, item: Frame, k: int = 5) -> dict:
     row = {"frame": item.name, "sensor": (tac.get("sensor") or {}).get("family"),
            "background": item.background is not None,
            "state": tac.get("state"), "contact": tac.get("contact"),
+           # called its background within the sensor's noise (the contact model not asked)
+           "within_noise": tac.get("within_noise"),
            "reading": reading, "firmness": firmness(reading),
            # the adapted tactile query's top caption (the press map's reading)
            "reading_adapted": adapted[0]["caption"] if adapted else "",
@@ -211,7 +213,8 @@ def format_frames(rows: list[dict]) -> str:
     lines = [f"{'frame':<44} {'sensor':<9} {'state':<11} {'contact':>8} {'depth':>14} "
              f"{'spread':>6} {'shape':>10}  reading -> RA-Touch"]
     for r in rows:
-        score = "-" if r["contact"] is None else f"{r['contact']:.2f}"
+        score = ("noise" if r.get("within_noise") else
+                 "-" if r["contact"] is None else f"{r['contact']:.2f}")
         geo = r.get("geometry") or {}
         depth = (f"{geo['depth']:.3g} {'mm' if geo['units'] == 'mm' else 'r.u.'}"
                  if geo else "-")
