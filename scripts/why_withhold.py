@@ -19,7 +19,9 @@ measure is reported.
 4. fresh renders (2 x `--fresh`, with and without contact): how many lie beyond the limit;
 5. (`--system fallback`) every frame recoloured and taken from another pair (the degraded-
    touch probe's derangement): an unfamiliar sensor whose touch also tells nothing of the
-   photo, the regime of the issue's real pairs: the system, `paper`, `gated` and the baseline.
+   photo, the regime of the issue's real pairs: the system, `paper`, `gated` and the baseline;
+   and the premise groups' frames (`--premise` of each group) beyond the limit: where none
+   is, the system's premise figures are the paper's.
 
 95 % CIs: bootstrap over pairs (the project's `mean_ci`).
 
@@ -68,6 +70,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=0, help="bootstrap seed")
     ap.add_argument("--fresh", type=int, default=1000,
                     help="fresh renders for criterion 4, each with and without contact")
+    ap.add_argument("--premise", type=int, default=500,
+                    help="(fallback) frames of each premise group checked against the limit")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
 
     p = RATouchPipeline.load(args.encoder)
@@ -129,6 +133,7 @@ def main(argv: list[str] | None = None) -> None:
         out["serving"] = serving_identity(p, args.k, args.n)
         out["recoloured_other"] = unfamiliar_and_wrong(
             p, test, odd, f_odd, withheld, score, paper, gated, args.seed)
+        out["premise_groups"] = premise_frames(args.premise)
     out["fresh_renders"] = fresh_renders(args.fresh)
     print(json.dumps(out, indent=1))
 
@@ -179,6 +184,22 @@ def serving_identity(p: RATouchPipeline, k: int, n: int) -> dict:
             if got["paper"][:2] != got["fallback"][:2]:
                 out["differ"].append([i, bg is not None])
                 out["differ_where_not_withheld"] += int(not held)
+    return out
+
+
+def premise_frames(n: int) -> dict:
+    """Of the premise groups' first `n` frames each (the groups `ratouch eval premise`
+    reads, the same in every draw), those beyond `WITHHOLD_LIMIT`: the rows on which a
+    withholding system's premise answers could differ from its touch-reading system's."""
+    from ratouch.world.scarcity import ScarceRegime, premise_indices
+
+    regime = ScarceRegime()
+    world = world_for(WorldConfig(seed=regime.seed))
+    out: dict = {}
+    for group in ("seen", "scarce"):
+        indices = premise_indices(group, n, regime)
+        out[group] = {"frames": len(indices), "beyond": [
+            i for i in indices if beyond_every_unit(world.sample("probe", i).tactile)]}
     return out
 
 

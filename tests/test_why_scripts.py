@@ -132,7 +132,8 @@ def test_withhold_check_of_the_fallback_system(real_pipeline, monkeypatch, capsy
     `paper` on the natural split (nothing withheld, no difference), the serving path's answers
     identical to `paper`'s with and without the background, and the fifth measure (recoloured
     frames of another pair) with the fallback system between its parts."""
-    _, out = _run_on_shipped("why_withhold", ["--system", "fallback", "--n", "6", "--fresh", "2"],
+    _, out = _run_on_shipped("why_withhold", ["--system", "fallback", "--n", "6", "--fresh", "2",
+                                              "--premise", "3"],
                              real_pipeline, monkeypatch, capsys)
     assert out["config"]["system"] == "fallback"
     assert out["natural"]["rule_vs_fallback"]["diff"] == 0
@@ -145,6 +146,8 @@ def test_withhold_check_of_the_fallback_system(real_pipeline, monkeypatch, capsy
     for key in ("fallback_vs_baseline", "fallback_vs_paper"):
         assert bad[key]["ci95"][0] <= bad[key]["diff"] <= bad[key]["ci95"][1]
     assert all(1 <= bad[k] <= 10 for k in ("baseline", "paper", "gated_rule", "fallback"))
+    assert {g: v["frames"] for g, v in out["premise_groups"].items()} == {"seen": 3, "scarce": 3}
+    assert all(isinstance(v["beyond"], list) for v in out["premise_groups"].values())
 
 
 @pytest.mark.slow
