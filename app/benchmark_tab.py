@@ -32,6 +32,8 @@ PREMISES = (("premise-result.json", "before the visual prior"),
 TEXT_ARMS = (("premise-result-text.json", "small decoder (shipped)"),
              ("premise-result-text-smollm2.json", "SmolLM2-135M"))
 FRAMES_GLOB = "frames-real-*.json"
+#: The fallback system's measures (`scripts/why_withhold.py --system fallback`).
+FALLBACK = "premise-result-fallback.json"
 
 
 def layout() -> SimpleNamespace:
@@ -109,6 +111,7 @@ def story_md(docs: Path, weights: tuple[str, str] | None) -> str:
         parts.append(f"<span class='ra-muted'>The shipped weights: {weights[0]} (commit "
                      f"{weights[1]}). Each result below says when it was made.</span>")
     parts.append(_premise_md(docs, weights))
+    parts.append(_fallback_md(docs, weights))
     arms = _text_arm_md(docs, weights)
     if arms:
         parts.append(arms)
@@ -152,6 +155,53 @@ def _premise_md(docs: Path, weights) -> str:
     latest = found[-1][2]
     return (f"{head}: **{latest.get('verdict', '?')}** — {latest.get('verdict_reason', '')}."
             "\n\n" + "\n".join(rows))
+
+
+def _fallback_md(docs: Path, weights) -> str:
+    """The `fallback` system's measures against its criteria (whether it is the default the
+    page answers with is read from the pipeline); what is missing is said."""
+    from ratouch.serve.pipeline import DEFAULT_RETRIEVAL
+
+    page = view.docs_url(docs, "premise.md")
+    head = ("**The `fallback` system**" + (" (the default)" if DEFAULT_RETRIEVAL == "fallback"
+                                            else f" (the default is `{DEFAULT_RETRIEVAL}`)")
+            + ": the paper's system for every frame that looks like a rendered sensor, the "
+            "image query's neighbours (read with a neutral touch) for a frame beyond every one"
+            + (f" ([criteria]({page}))" if page else ""))
+    d = _read(docs / FALLBACK)
+    if d is None:
+        return (head + ": *no result yet* (`python scripts/why_withhold.py --system fallback "
+                f"> docs/{FALLBACK}`).")
+    when = view.figure_provenance(figure_made(docs / FALLBACK), weights)
+    nan = float("nan")
+
+    def diff(block: dict, key: str) -> str:
+        m = block.get(key) or {}
+        lo, hi = m.get("ci95", (nan, nan))
+        return f"{m.get('diff', nan):+.3f} [{lo:+.3f}, {hi:+.3f}]"
+
+    serving, fresh = d.get("serving") or {}, d.get("fresh_renders") or {}
+    bad, groups = d.get("recoloured_other") or {}, d.get("premise_groups") or {}
+    rows = ["| measure | result |", "|---|---|"]
+    if serving:
+        same = serving["queries"] - len(serving.get("differ", []))
+        rows.append(f"| world test queries answered as `paper` does (with and without the "
+                    f"background) | {same} / {serving['queries']} ({serving['withheld']} "
+                    "withheld) |")
+    rows.append(f"| touch that tells nothing: gain over the baseline | "
+                f"{diff(d.get('neutral_touch') or {}, 'rule_vs_baseline')} |")
+    rows.append(f"| an unfamiliar-looking sensor whose touch is readable (recoloured "
+                f"frames): against `paper` | {diff(d.get('recoloured') or {}, 'rule_vs_paper')} |")
+    if bad:
+        rows.append(f"| recoloured frames of another pair: fallback / paper / baseline | "
+                    f"{bad['fallback']:.3f} / {bad['paper']:.3f} / {bad['baseline']:.3f} |")
+    if fresh:
+        rows.append(f"| fresh renders beyond the limit | {fresh['beyond']} / "
+                    f"{fresh['renders']} |")
+    if groups:
+        rows.append("| premise frames beyond the limit | " + " · ".join(
+            f"{g} {len(v['beyond'])} / {v['frames']}" for g, v in groups.items()) + " |")
+    return f"{head} — {when}\n\n" + "\n".join(rows)
 
 
 def _text_arm_md(docs: Path, weights) -> str:

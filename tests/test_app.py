@@ -1386,9 +1386,17 @@ def test_the_benchmarks_story_dates_the_premise_and_the_real_frames():
     assert "| | scarce | 6.622 | 6.577 | 6.162 | -0.415 [-0.585, -0.257] |" in md
     assert "SmolLM2-135M — made 2026-11-28" in md
     assert "| | world test split | 5.913 | 6.587 | 7.25" in md
+    # the default system's measures, read from its file
+    assert "**The `fallback` system** (the default)" in md
+    assert "| 804 / 804 (0 withheld) |" in md and "+0.418 [+0.210, +0.628]" in md
+    assert "-0.151 [-0.319, +0.016]" in md and "| 5.859 / 4.959 / 4.970 |" in md
+    assert "| 1 / 2000 |" in md and "seen 0 / 500 · scarce 0 / 500" in md
 
 
 def test_the_benchmarks_story_shows_no_text_arm_table_without_its_runs(tmp_path):
     from app.benchmark_tab import story_md
 
     assert "neighbours as text" not in story_md(tmp_path, None)
+    assert "`fallback` system** (the default): " in story_md(tmp_path, None)
+    assert "*no result yet* (`python scripts/why_withhold.py --system fallback" in \
+        story_md(tmp_path, None)
