@@ -235,6 +235,7 @@ def test_the_fallback_system_is_the_papers_unless_the_sensor_is_unlike_every_uni
     assert (r["kind"], r["touch_weight"], r["reads"]) == ("withheld", 0.0, "image")
     from ratouch.model.gate import WITHHOLD_COST
     assert f"{WITHHOLD_COST['fallback']:.2f} below the paper's system" in r["why"][0]
+    assert "choose the `paper` system" in r["why"][-1]
     assert r["generator"] == g["retrieval"]["generator"]
     assert fb["description"]["ra_touch"] == g["description"]["ra_touch"]
     assert paper["retrieval"]["reads"] == "joint" and paper["retrieval"]["kind"] != "withheld"

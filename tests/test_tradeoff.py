@@ -113,3 +113,28 @@ def test_system_points_on_the_real_pipeline(real_pipeline, system):
     assert q is not None and q["system"].startswith(f"RA-Touch, {system}")
     assert 1 <= q["judge"] <= 10 and 0 <= q["precision_at_5"] <= 1 and q["p50_ms"] > 0
     assert "judge_vs_reference" in q
+
+
+@pytest.mark.slow
+def test_the_fallback_point_is_the_papers_with_the_look_check_timed(real_pipeline, monkeypatch):
+    """`fallback` on 12 test pairs (none beyond every rendered unit): its quality is the
+    paper's flat K=5 point's, its time is measured with the look check; where a test frame
+    lies beyond the limit there is no point (its withheld answers are not built there)."""
+    from types import SimpleNamespace
+
+    from ratouch.bench import tradeoff
+    from ratouch.eval.judge import OfflineJudge
+    from ratouch.world.splits import encode_test_split
+
+    test = encode_test_split(real_pipeline.encoders, indices=range(12))
+    lab = SimpleNamespace(pipeline=real_pipeline, test=test, judge=OfflineJudge(),
+                          cfg=SimpleNamespace(encoder="default-s"))
+    paper = _point("flat", len(real_pipeline.corpus), 5, 7.25, 40.0)
+    pairs = tradeoff._raw_pairs(test, np.arange(3))
+    q = tradeoff._system_point(lab, pairs, [paper], [{}], "fallback")
+    assert q is not None and q["system"].startswith("RA-Touch, fallback")
+    assert all(q[key] == paper[key] for key in ("judge", "judge_ci", "f1", "precision_at_5"))
+    assert q["p50_ms"] > 0 and q["index"] == "flat" and q["k"] == 5
+    assert tradeoff._short(q) == "default-s fallback"
+    monkeypatch.setattr(tradeoff, "beyond_every_unit", lambda frame: True)
+    assert tradeoff._system_point(lab, pairs, [paper], [{}], "fallback") is None

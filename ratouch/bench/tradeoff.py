@@ -39,9 +39,12 @@ from ratouch.serve.pipeline import RATouchPipeline, default_corpus, open_retriev
 from ratouch.timing import Progress, say_to
 from ratouch.vocabulary import adjective_f1
 from ratouch.world.dataset import world_for
+from ratouch.world.sensors import beyond_every_unit
 from ratouch.world.splits import encode_test_split
 
 log = logging.getLogger(__name__)
+#: The retrieval systems with a point of their own beside the paper's (`_system_point`).
+SYSTEM_POINTS = ("gated", "text", "fallback")
 
 #: How the cascade's point names its encoder sets ("cascade: default-tiny > default-s").
 CASCADE_LABEL = "cascade: "
@@ -98,7 +101,7 @@ def bench_tradeoff(lab=None, indexes: Sequence[str] = BENCH_KINDS,
     floor, _ = _judge_stats(lab, None)  # the baseline (no retrieval) as the floor
     ref = next((sc for q, sc in zip(points, scores) if q.get("judge_vs_reference")
                 and q["index"] == "flat" and q["corpus"] == len(p.corpus) and q["k"] == 5), None)
-    for system in ("gated", "text"):
+    for system in SYSTEM_POINTS:
         point = _system_point(lab, pairs, points, scores, system)
         if point is not None:
             points.append(point)
@@ -170,15 +173,18 @@ def _vs_reference(per_sample: dict[str, np.ndarray], ref: dict[str, np.ndarray])
 
 
 def _latency(p, pairs: tuple[list, list], search, gated: bool = False,
-             generator=None) -> dict[str, float]:
+             generator=None, look: bool = False) -> dict[str, float]:
     """p50 / p95 of the RA-Touch answer path (encoders, retriever, `search`, generation) and of
     the search alone, in ms, over warm single-pair queries (the first one warms caches).
     `gated`: the trust-gated query instead of the joint one; `generator`: another RA-Touch
-    generator than the pipeline's."""
+    generator than the pipeline's; `look`: the frame's look is read first, as the serving
+    path reads it for a withholding system (`guess_family`)."""
     gen = generator or p.generator_ra
     times, search_times = [], []
     for j, (crop, frame) in enumerate(zip(*pairs)):
         t0 = time.perf_counter()
+        if look:
+            beyond_every_unit(frame)
         V = p.encoders.encode_image([crop])
         T = p.encoders.encode_tactile([frame])
         q = p.joint_query(V, T, gated=gated)
@@ -201,8 +207,13 @@ def _system_point(lab, pairs: tuple[list, list], points: list[dict], scores: lis
     as the served system reads them (`system_generator`: the reader where the gate gives
     touch less than `READ_BELOW` of the say, the paper's RA-Touch generator elsewhere or
     where no reader is loaded; None without a touch gate); `text`, the joint query's
-    neighbours read as text by the text arm (`generator_text`; None without one)."""
+    neighbours read as text by the text arm (`generator_text`; None without one);
+    `fallback`, the paper's answer path with the frame's look read first, where no test
+    frame lies beyond every rendered unit (then its answers are the paper's; None otherwise:
+    the withheld rows' answers are not built here, `scripts/why_withhold.py` measures them)."""
     p = lab.pipeline
+    if system == "fallback":
+        return _fallback_point(lab, pairs, points, scores)
     gated = system == "gated"
     gen = p.system_generator("gated") if gated else p.generator_text
     if (gated and p.gate is None) or gen is None:
@@ -223,6 +234,27 @@ def _system_point(lab, pairs: tuple[list, list], points: list[dict], scores: lis
             **judged, **_ci("precision_at_5", prec),
             **(_vs_reference(per_sample, ref) if isinstance(ref, dict) else {}),
             "system": name}
+
+
+def _fallback_point(lab, pairs: tuple[list, list], points: list[dict], scores: list
+                    ) -> dict | None:
+    """`_system_point` of `fallback` (see there)."""
+    p, test = lab.pipeline, lab.test
+    world = world_for(test.world)
+    beyond = [i for i in test.indices if beyond_every_unit(world.sample("test", i).tactile)]
+    if beyond:
+        log.info("no fallback point: %d test frames lie beyond every rendered unit", len(beyond))
+        return None
+    flat = [(q, sc) for q, sc in zip(points, scores) if q["index"] == "flat"
+            and q["corpus"] == len(p.corpus) and q["k"] == 5 and q["system"] == "RA-Touch"]
+    if not flat:
+        return None
+    paper, _ = flat[0]
+    same = ("judge", "judge_ci", "f1", "mean_length", "precision_at_5", "precision_at_5_ci")
+    return {"encoder": lab.cfg.encoder, "index": "flat", "corpus": len(p.corpus), "k": 5,
+            **_latency(p, pairs, lambda q: p.corpus.search("text", q, 5)[1], look=True),
+            **{key: paper.get(key) for key in same},
+            "system": "RA-Touch, fallback (the paper's answers: no test frame withheld)"}
 
 
 def _upstream_point(lab, pairs: tuple[list, list], points: list[dict]) -> dict:
@@ -507,10 +539,9 @@ def _short(q: dict) -> str:
     """A point's label on the chart: the encoder set, or the cascade with its escalations."""
     if q["system"].endswith("cascade"):
         return f"cascade, {q['escalated']:.0%} escalated"
-    if q["system"].startswith("RA-Touch, gated"):
-        return q["encoder"] + " gated"
-    if q["system"].startswith("RA-Touch, text"):
-        return q["encoder"] + " text"
+    for system in SYSTEM_POINTS:
+        if q["system"].startswith(f"RA-Touch, {system}"):
+            return f"{q['encoder']} {system}"
     return q["encoder"] + ("" if q["system"] == "RA-Touch" else " (retrieval only)")
 
 

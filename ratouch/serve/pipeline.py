@@ -518,7 +518,9 @@ class RATouchPipeline(RetrievalSide):
                             "recoloured renders)",
                             f"the {out['generator']}'s generator answers with a neutral touch"
                             + (", as in its reading episodes" if out["generator"] == "reader"
-                               else "")])
+                               else ""),
+                            "to have this sensor's touch read anyway, choose the `paper` "
+                            "system (the retrieval menu, `--retrieval paper`)"])
         elif out["generator"] == "reader":
             out["why"] = list(out["why"]) + [
                 f"touch has less than {READ_BELOW:.0%} of the say: the reader, trained to "
