@@ -267,8 +267,9 @@ class RATouchPipeline(RetrievalSide):
         `generators=False` loads no generators (for evaluating retrieval): `answer` then
         needs them set first. `retrieval`: the retrieval system of requests that name none
         (a key of `RETRIEVAL_SYSTEMS`). `lm`: the generators adapted from that pretrained
-        language model ("smollm2-135m"; `generator_weights(encoder, kind, lm)`) instead of the small
-        decoder's; they have no reader of their own (the gated system reads with RA-Touch)."""
+        language model ("smollm2-135m"; `generator_weights(encoder, kind, lm)`) instead of
+        the small decoder's; they have no reader of their own (the gated system reads with
+        RA-Touch)."""
         corpus = corpus or default_corpus(encoder, progress=progress)
         retriever = open_retriever(corpus, encoder, index)
         gen_ra = gen_base = gen_reader = gen_text = None
@@ -419,9 +420,9 @@ class RATouchPipeline(RetrievalSide):
     def withholds(self, request: QueryRequest, encoded: Encoded) -> bool:
         """Whether `request`'s touch is withheld from its answer (docs/premise.md, "An
         unfamiliar sensor's touch withheld"): a withholding system (`WITHHOLDING_SYSTEMS`:
-        `gated` or `fallback`), a frame beyond every
-        validation render of the sensor families (`Encoded.unfamiliar`), `withhold_unfamiliar`
-        on, and a neutral touch to read instead (a trust calibration)."""
+        `gated` or `fallback`), a frame beyond every validation render of the sensor families
+        (`Encoded.unfamiliar`), `withhold_unfamiliar` on, and a neutral touch to read instead
+        (a trust calibration)."""
         return self._may_withhold(request) and encoded.unfamiliar
 
     def _may_withhold(self, request: QueryRequest) -> bool:
