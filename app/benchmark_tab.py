@@ -21,6 +21,7 @@ from app import view
 from app.page import Outputs, Page
 from ratouch.eval.frames import summarise
 from ratouch.eval.report import last_commit, weights_commit
+from ratouch.serve.pipeline import DEFAULT_RETRIEVAL
 
 MAX_FIGURES = 12  # plot slots of the tab
 #: The premise's results, newest last: (file, what it was run on).
@@ -160,8 +161,6 @@ def _premise_md(docs: Path, weights) -> str:
 def _fallback_md(docs: Path, weights) -> str:
     """The `fallback` system's measures against its criteria (whether it is the default the
     page answers with is read from the pipeline); what is missing is said."""
-    from ratouch.serve.pipeline import DEFAULT_RETRIEVAL
-
     page = view.docs_url(docs, "premise.md")
     head = ("**The `fallback` system**" + (" (the default)" if DEFAULT_RETRIEVAL == "fallback"
                                             else f" (the default is `{DEFAULT_RETRIEVAL}`)")

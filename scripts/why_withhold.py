@@ -26,7 +26,7 @@ measure is reported.
 95 % CIs: bootstrap over pairs (the project's `mean_ci`).
 
     python scripts/why_withhold.py [--system gated|fallback] [--n N] [--k K] [--encoder E]
-        [--seed S] [--fresh N]
+        [--seed S] [--fresh N] [--premise N]
 """
 
 from __future__ import annotations

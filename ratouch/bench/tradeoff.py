@@ -213,7 +213,7 @@ def _system_point(lab, pairs: tuple[list, list], points: list[dict], scores: lis
     the withheld rows' answers are not built here, `scripts/why_withhold.py` measures them)."""
     p = lab.pipeline
     if system == "fallback":
-        return _fallback_point(lab, pairs, points, scores)
+        return _fallback_point(lab, pairs, points)
     gated = system == "gated"
     gen = p.system_generator("gated") if gated else p.generator_text
     if (gated and p.gate is None) or gen is None:
@@ -236,8 +236,19 @@ def _system_point(lab, pairs: tuple[list, list], points: list[dict], scores: lis
             "system": name}
 
 
-def _fallback_point(lab, pairs: tuple[list, list], points: list[dict], scores: list
-                    ) -> dict | None:
+#: A point's quality figures: what a point reading the paper's flat K=5 neighbours with the
+#: paper's generator shares with that point.
+_QUALITY = ("judge", "judge_ci", "f1", "mean_length", "precision_at_5", "precision_at_5_ci")
+
+
+def _paper_flat(points: list[dict], corpus: int) -> dict | None:
+    """The paper's point on the flat index over the whole corpus (`corpus` entries), K=5: the
+    served one; None when it was not measured."""
+    return next((q for q in points if q["index"] == "flat" and q["corpus"] == corpus
+                 and q["k"] == 5 and q["system"] == "RA-Touch"), None)
+
+
+def _fallback_point(lab, pairs: tuple[list, list], points: list[dict]) -> dict | None:
     """`_system_point` of `fallback` (see there)."""
     p, test = lab.pipeline, lab.test
     world = world_for(test.world)
@@ -245,15 +256,12 @@ def _fallback_point(lab, pairs: tuple[list, list], points: list[dict], scores: l
     if beyond:
         log.info("no fallback point: %d test frames lie beyond every rendered unit", len(beyond))
         return None
-    flat = [(q, sc) for q, sc in zip(points, scores) if q["index"] == "flat"
-            and q["corpus"] == len(p.corpus) and q["k"] == 5 and q["system"] == "RA-Touch"]
-    if not flat:
+    paper = _paper_flat(points, len(p.corpus))
+    if paper is None:
         return None
-    paper, _ = flat[0]
-    same = ("judge", "judge_ci", "f1", "mean_length", "precision_at_5", "precision_at_5_ci")
     return {"encoder": lab.cfg.encoder, "index": "flat", "corpus": len(p.corpus), "k": 5,
             **_latency(p, pairs, lambda q: p.corpus.search("text", q, 5)[1], look=True),
-            **{key: paper.get(key) for key in same},
+            **{key: paper.get(key) for key in _QUALITY},
             "system": "RA-Touch, fallback (the paper's answers: no test frame withheld)"}
 
 
@@ -264,11 +272,9 @@ def _upstream_point(lab, pairs: tuple[list, list], points: list[dict]) -> dict:
     corpus_t = torch.from_numpy(np.array(p.corpus_embeddings("tactile_caption"), np.float32))
     lat = _latency(p, pairs, lambda q: upstream_retrieve(corpus_t, torch.from_numpy(q), 5)
                    .numpy().reshape(1, -1))
-    flat = next((q for q in points if q["index"] == "flat" and q["corpus"] == len(p.corpus)
-                 and q["k"] == 5), None)
-    same = ("judge", "judge_ci", "f1", "mean_length", "precision_at_5", "precision_at_5_ci")
+    flat = _paper_flat(points, len(p.corpus))  # only the paper's points are made yet
     return {"encoder": lab.cfg.encoder, "index": "upstream", "corpus": len(p.corpus), "k": 5,
-            **lat, **{key: (flat or {}).get(key) for key in same},
+            **lat, **{key: (flat or {}).get(key) for key in _QUALITY},
             "system": "RA-Touch, upstream retrieval"}
 
 

@@ -486,6 +486,7 @@ class RATouchPipeline(RetrievalSide):
         if encoded.T is None:
             return None
         system = request.retrieval or self.retrieval
+        held = self.withholds(request, encoded)
         out: dict = {"system": system, "reads": self.reads(request, encoded),
                      "generator": ("reader" if self.generator_reader is not None
                                    and generator is self.generator_reader else
@@ -496,7 +497,7 @@ class RATouchPipeline(RetrievalSide):
                        why=["no touch gate for this model: the gated query is the paper's"])
         else:
             out.update(self.gate.explain(encoded.V, encoded.T, encoded.queries[RA_TOUCH_MODE]))
-        if system == "paper" or (system == "fallback" and not self.withholds(request, encoded)):
+        if system == "paper" or (system == "fallback" and not held):
             out["why"] = ["the paper's joint query: touch steers the search fully"] + (
                 [f"the tactile frame looks like the sensors the models learnt (distance "
                  f"{encoded.look[1]:.2f}, within every rendered unit's {WITHHOLD_LIMIT:.2f}): "
@@ -507,7 +508,7 @@ class RATouchPipeline(RetrievalSide):
                 ["its neighbours' captions are written into the prompt, word by word (no "
                  "Texture-Aware Integrator)"] if out["generator"] == "text" else
                 [f"{self.text_missing}: the paper's generator answers"])
-        elif self.withholds(request, encoded):
+        elif held:
             assert encoded.look is not None  # withheld: the frame was read
             out.update(kind="withheld", touch_weight=0.0,
                        why=[f"the tactile frame looks like none of the sensors the models "

@@ -418,8 +418,8 @@ def unfamiliar_view(frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 def beyond_every_unit(frame: np.ndarray) -> bool:
     """Whether a frame (uint8 RGB) lies beyond every rendered unit of the sensor families
-    (`guess_family` beyond :data:`WITHHOLD_LIMIT`): the frames whose touch the gated system
-    withholds, and that a colour-blind contact model reads alone."""
+    (`guess_family` beyond :data:`WITHHOLD_LIMIT`): the frames whose touch the withholding
+    systems (`gated`, `fallback`) withhold, and that a colour-blind contact model reads alone."""
     return unfamiliar_look(guess_family(frame), WITHHOLD_LIMIT)
 
 
