@@ -233,3 +233,59 @@ def test_unfamiliar_contact_check_reads_every_measure(tmp_path, capsys):
         assert " of " in real[side]["taxim_press_views_refused"]
     with pytest.raises(SystemExit, match="no colour-blind contact model"):
         script.main(["--n", "2"])
+
+
+@pytest.mark.slow
+def test_geometry_encoder_check_trains_both_arms_and_reads_every_measure(real_pipeline,
+                                                                         monkeypatch, capsys):
+    """scripts/why_geometry_encoder.py, tiny: both towers trained a few steps on the same
+    data, each read on fresh presses, world validation renders and Taxim's real presses; the
+    geometry arm's paired gain with its CI, and the criteria as booleans."""
+    script, out = _run_on_shipped(
+        "why_geometry_encoder", ["--world", "16", "--fit", "1", "--eval", "1", "--world-eval",
+                                 "8", "--steps", "3", "--batch", "16", "--seeds", "0",
+                                 "--workers", "1"], real_pipeline, monkeypatch, capsys)
+    families = {"digit", "gelsight", "mini"}
+    assert set(out["arms"]) == {"difference_seed0", "geometry_seed0"}
+    for row in out["arms"].values():
+        for key in ("everyday_bg", "everyday_alone", "world_bg", "world_alone"):
+            assert set(row[key]) == families | {"all"}
+            assert all(v is None or 0 <= v <= 1 for v in row[key].values())
+        assert set(row["distinct_top1_bg"]) == families
+        assert row["real_presses"] == 72 and 0 <= row["real_read_hard"] <= 72
+    for key, g in out["geometry_minus_difference"].items():
+        assert g["ci95"][0] <= g["all"] <= g["ci95"][1], key
+    assert set(out["criteria"]) == {"everyday_gain_at_least_0.03_ci_above_0",
+                                    "world_no_family_down_more_than_0.02", "no_collapse",
+                                    "height_map_helps"}
+    assert out["criteria"]["height_map_helps"] == all(
+        v for k, v in out["criteria"].items() if k != "height_map_helps")
+    # the geometry arm reads three channels more; without a background they are zero
+    assert out["config"]["input_size"] == [128, 96]
+    assert script.GEOMETRY_CHANNELS == 3
+
+
+def test_geometry_encoder_inputs_add_the_height_map_only_where_a_background_gave_one():
+    """The geometry arm's three extra channels: the height map over its depth, the log depth
+    over the family's reference and a flag; all zero for a frame read without a background."""
+    script = _script("why_geometry_encoder")
+    rng = np.random.default_rng(0)
+    n, h, w = 3, 8, 6
+    d = {"plain": rng.random((n, 4, h, w), np.float32),
+         "with_bg": rng.random((n, 4, h, w), np.float32),
+         "shape": rng.random((n, 1, h, w), np.float32),
+         "has_height": np.array([True, True, False]),
+         "log_depth": np.array([1.0, 2.0, 0.0], np.float32),
+         "family": np.array(["digit", "mini", "digit"])}
+    idx = np.arange(n)
+    use_bg = np.array([True, False, True])
+    plain = script._inputs(d, idx, use_bg, "difference", {"digit": 0.5, "mini": 1.0}).numpy()
+    assert plain.shape == (n, 4, h, w)
+    assert np.array_equal(plain[0], d["with_bg"][0]) and np.array_equal(plain[1], d["plain"][1])
+    geo = script._inputs(d, idx, use_bg, "geometry", {"digit": 0.5, "mini": 1.0}).numpy()
+    assert geo.shape == (n, 7, h, w)
+    assert np.array_equal(geo[:, :4], plain)
+    assert np.allclose(geo[0, 4], d["shape"][0, 0]) and np.allclose(geo[0, 5], 0.5)
+    assert np.all(geo[0, 6] == 1)
+    assert not geo[1, 4:].any()   # read without its background: no height map
+    assert not geo[2, 4:].any()   # a background but no height map (no lookup)
