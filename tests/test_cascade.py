@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import sys
 
 import numpy as np
 import pytest
@@ -206,3 +208,41 @@ def test_models_are_prepared_in_the_background_while_the_default_answers():
     release.set()
     thread.join(5)
     assert choice.state("slow") == ("ready", None) and choice.model("slow") == "model slow"
+
+
+def test_a_query_waiting_for_a_model_being_prepared_does_not_hold_the_preparation_back():
+    """A batch of queries waiting for a model that `prepare` is loading is not foreground
+    work the loading must yield to (`waiting_for_background`): the load runs at full pace,
+    and the prepare thread runs at the lowest priority, its torch work on one intra-op
+    thread."""
+    import threading
+    import time
+
+    import torch
+
+    from ratouch.threads import BACKGROUND_NICE, foreground, yield_to_foreground
+
+    seen = {}
+
+    def load(name):
+        if name == "slow":
+            seen["threads"] = torch.get_num_threads()
+            seen["nice"] = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+            t0 = time.perf_counter()
+            for _ in range(5):                         # five "corpus batches"
+                yield_to_foreground(2.0)
+            seen["waited"] = time.perf_counter() - t0
+        return f"model {name}"
+
+    choice = ModelChoice("fast", ["fast", "slow"], load=load)
+    with foreground():  # a query batch asking for the model being prepared
+        thread = choice.prepare(["slow"])
+        time.sleep(0.05)
+        assert choice.model("slow") == "model slow"
+    thread.join(5)
+    assert seen["threads"] == 1
+    if sys.platform.startswith("linux"):  # the lowest priority, for this thread only
+        assert seen["nice"] == BACKGROUND_NICE
+        assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) < BACKGROUND_NICE
+    assert seen["waited"] < 5.0  # not 5 x 2 s: the query was waiting for it, not running
+

@@ -28,6 +28,7 @@ from ratouch.corpus.imagenet_t import (
 from ratouch.errors import DataError, DataNotFoundError
 from ratouch.files import write_json_atomic
 from ratouch.images import to_rgb_array
+from ratouch.threads import yield_to_foreground
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 
@@ -137,6 +138,7 @@ def embed_corpus(corpus: str | os.PathLike, encoders, batch: int = 500, workers:
     pos = start
     captions = CaptionEmbeddings(encoders)
     for images in corpus_images(entries, start, batch, workers, progress):
+        yield_to_foreground()  # a model prepared while queries are answered lets them go first
         m = len(images)
         img[pos:pos + m] = encoders.encode_image(list(images))
         txt[pos:pos + m] = captions([e.caption for e in entries[pos:pos + m]])

@@ -17,7 +17,7 @@ from typing import Any, Generic, TypeVar
 
 from ratouch.errors import ConfigError
 from ratouch.serve.request import ModelAnswerer, QueryRequest, QueryResult
-from ratouch.threads import intra_op_threads
+from ratouch.threads import foreground, intra_op_threads
 
 log = logging.getLogger(__name__)
 
@@ -111,7 +111,8 @@ class QueryBatcher(Generic[M]):
             batch = self._take()
             results: Sequence[QueryResult | BaseException]
             try:
-                results = self.answerer.answer([p.request for p in batch])
+                with foreground():  # background work (models being prepared) waits meanwhile
+                    results = self.answerer.answer([p.request for p in batch])
             except BaseException as e:  # noqa: BLE001 - every caller of the batch gets it
                 log.error("a query batch of %d failed", len(batch), exc_info=e)
                 results = [e] * len(batch)

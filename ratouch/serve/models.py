@@ -27,6 +27,7 @@ from ratouch.serve.request import (
     model_name,
     split_model_name,
 )
+from ratouch.threads import background_priority, intra_op_threads, waiting_for_background
 
 #: A loaded model: it answers requests (`answer`), regenerates a description (`regenerate`)
 #: and names its corpus (`corpus`) and itself (`name`).
@@ -104,7 +105,9 @@ class ModelChoice:
             if name in self._models:
                 return self._models[name]
             lock, _ = self._loading.setdefault(name, (threading.Lock(), time.perf_counter()))
-        with lock:  # one load per model; concurrent first requests wait for it
+        with waiting_for_background():  # a load by `prepare` must not wait for this query
+            lock.acquire()
+        try:  # one load per model; concurrent first requests wait for it
             with self._lock:
                 if name in self._models:
                     return self._models[name]
@@ -113,6 +116,8 @@ class ModelChoice:
             with self._lock:
                 self._models[name] = model
             return model
+        finally:
+            lock.release()
 
     def state(self, name: str) -> tuple[str, float | None]:
         """("ready", None), ("preparing", seconds since it started) or ("not prepared",
@@ -127,13 +132,18 @@ class ModelChoice:
     def prepare(self, names: Sequence[str] | None = None) -> threading.Thread:
         """Load `names` (default: every model offered) one after another in a daemon thread,
         so that a model's first query does not wait for its loading (its corpus embeddings
-        built on first use included); a query for a model being prepared waits for it."""
+        built on first use included); a query for a model being prepared waits for it.
+        Queries go first: the thread (and the processes it forks to render a corpus) runs at
+        the lowest priority, its torch work on one intra-op thread, and a corpus being
+        embedded waits while a batch of queries is answered (`ratouch.threads`)."""
         def run() -> None:
-            for name in names if names is not None else self.names:
-                try:
-                    self.model(name)
-                except RATouchError as e:  # its first query will report it
-                    log.warning("could not prepare model %s: %s", name, e)
+            background_priority()
+            with intra_op_threads(1):
+                for name in names if names is not None else self.names:
+                    try:
+                        self.model(name)
+                    except RATouchError as e:  # its first query will report it
+                        log.warning("could not prepare model %s: %s", name, e)
         thread = threading.Thread(target=run, daemon=True, name="prepare-models")
         thread.start()
         return thread
