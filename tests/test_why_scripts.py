@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,8 +17,11 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def _script(name: str):
+    """scripts/`name`.py as a module, registered under its name so that a script's functions
+    can be sent to its worker processes (pickled by reference)."""
     spec = importlib.util.spec_from_file_location(name, REPO / "scripts" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
     spec.loader.exec_module(module)
     return module
 
