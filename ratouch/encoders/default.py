@@ -16,13 +16,12 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
-from scipy.ndimage import gaussian_filter
 
 from ratouch.encoders.prior import feature_dim, load_prior
 from ratouch.encoders.prior_registry import PRIORS, prior_spec
 from ratouch.encoders.text import MINILM_DIM, MiniLM, TextCache
 from ratouch.errors import ConfigError
-from ratouch.images import resize_array
+from ratouch.images import gaussian_blur, resize_array
 from ratouch.world.sensors import canonical, family, guess_family
 
 
@@ -135,7 +134,7 @@ def tactile_difference(frame: np.ndarray, background: np.ndarray | None = None) 
         f = f - background.astype(np.float32) / 255.0
     scale = max(frame.shape[:2]) / 128
     sigma = FIELD_SIGMA * scale
-    return f - gaussian_filter(f, sigma=(sigma, sigma, 0))
+    return f - gaussian_blur(f, sigma)
 
 
 def tactile_input(frame: np.ndarray, size: tuple[int, int],

@@ -38,11 +38,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
 
 from ratouch.errors import DataError, DataNotFoundError
 from ratouch.files import write_atomic
-from ratouch.images import check_background_size, resize_array
+from ratouch.images import check_background_size, gaussian_blur, resize_array
 
 FORMAT = "ratouch-geometry-1"
 #: Working size (width, height) of a landscape sensor's frame (a portrait one: transposed).
@@ -188,7 +187,7 @@ def working_change(frame: np.ndarray, background: np.ndarray, size: tuple[int, i
     out = np.empty_like(f)
     for c in range(3):
         out[..., c] = f[..., c] - _robust_affine(b[..., c], f[..., c])
-    return gaussian_filter(out, (CHANGE_SIGMA, CHANGE_SIGMA, 0))
+    return gaussian_blur(out, CHANGE_SIGMA)
 
 
 def _resize3(a: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -294,7 +293,7 @@ def read_height(lookup: GradientLookup, frame: np.ndarray, background: np.ndarra
     z = z * scale
     depth = float(np.percentile(z, 99.5))
     spread = float((z > depth / 3).mean()) if depth > 0 else 0.0
-    detail = z - gaussian_filter(z, RELIEF_SIGMA)
+    detail = z - gaussian_blur(z, RELIEF_SIGMA)
     relief = float(np.sqrt(np.mean(detail * detail)))
     return HeightMap(z.astype(np.float32), depth, spread, relief,
                      "mm" if lookup.mm_per_pixel is not None else "render units",
@@ -311,7 +310,7 @@ def band_stats(c: np.ndarray) -> np.ndarray:
     """Structured local change of a drift-free change (`GradientLookup.change`): per band of
     :data:`STRUCTURE_BANDS`, the 99.5th percentile and the RMS of |band-pass| (mean over
     channels). (6,) float64, [0, 1] units."""
-    blurred = {s: gaussian_filter(c, (s, s, 0)) for s in sorted({x for b in STRUCTURE_BANDS
+    blurred = {s: gaussian_blur(c, s) for s in sorted({x for b in STRUCTURE_BANDS
                                                                  for x in b})}
     out = []
     for lo, hi in STRUCTURE_BANDS:
@@ -359,10 +358,10 @@ def shape_features(hm: HeightMap, change: np.ndarray, stats: np.ndarray | None =
          np.log(np.percentile(slope, 99) / d + 1e-9), np.log(np.percentile(slope, 90) / d + 1e-9)]
     f += [float(q) for q in np.quantile(np.clip(z / d, -1, 2), [0.5, 0.75, 0.9, 0.95])]
     for s in SHAPE_SCALES:
-        detail = z - gaussian_filter(z, s)
+        detail = z - gaussian_blur(z, s)
         f.append(np.log(np.sqrt(np.mean(detail * detail)) / d + 1e-9))
     inside = z > d / 3
-    detail = z - gaussian_filter(z, 2.0)
+    detail = z - gaussian_blur(z, 2.0)
     f.append(np.log(np.sqrt(np.mean(detail[inside] ** 2)) / d + 1e-9)
              if inside.sum() > 5 else -10.0)
     f += [float(v) for v in np.log((band_stats(change) if stats is None else stats) + 1e-6)]

@@ -34,11 +34,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
 
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
-from ratouch.images import check_background_size, resize_array
+from ratouch.images import check_background_size, gaussian_blur, resize_array
 from ratouch.model.geometry import GeometryCalibration, HeightMap, band_stats, read_height
 from ratouch.world.sensors import WITHHOLD_LIMIT, guess_family, unfamiliar_look
 
@@ -177,7 +176,7 @@ def contact_features(frame: np.ndarray, background: np.ndarray | None = None) ->
         f = f - _working(background, (f.shape[1], f.shape[0]))
     eps = 1e-4
     sigmas = sorted({x for b in CONTACT_BANDS for x in b} | {NOISE_SIGMA})
-    blurred = {s: gaussian_filter(f, (s, s, 0)) for s in sigmas}
+    blurred = {s: gaussian_blur(f, s) for s in sigmas}
     gh, gw = CONTACT_BLOCKS
     feats: list[float] = []
     for lo, hi in CONTACT_BANDS:
@@ -232,7 +231,7 @@ def background_change(frame: np.ndarray, background: np.ndarray) -> float:
     check_background_size(background.shape[1::-1], frame.shape[1::-1], "the background")
     f = _working(frame)
     d = f - _working(background, (f.shape[1], f.shape[0]))
-    d = gaussian_filter(d - d.mean((0, 1)), (NOISE_SIGMA, NOISE_SIGMA, 0))
+    d = gaussian_blur(d - d.mean((0, 1)), NOISE_SIGMA)
     return float(np.percentile(np.abs(d).mean(2), 99))
 
 
