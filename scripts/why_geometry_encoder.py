@@ -47,7 +47,7 @@ from ratouch.images import resize_array
 from ratouch.model.geometry import read_height
 from ratouch.processes import worker_pool
 from ratouch.serve.pipeline import RATouchPipeline
-from ratouch.train.press_map import TAU, material_index, precision_at5
+from ratouch.train.press_map import TAU, _mean, material_index, precision_at5
 from ratouch.train.trust import VALIDATION_START
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
@@ -189,10 +189,6 @@ def _probe(X: np.ndarray, soft: np.ndarray, seed: int) -> float | None:
     said = cross_val_predict(probe, X, soft,
                              cv=StratifiedKFold(folds, shuffle=True, random_state=seed))
     return balanced_accuracy(list(said), list(soft))["balanced"]
-
-
-def _mean(x: np.ndarray) -> float | None:
-    return round(float(np.mean(x)), 4) if len(x) else None
 
 
 def main(argv: list[str] | None = None) -> None:

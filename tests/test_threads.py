@@ -3,6 +3,7 @@ prepared while the app serves) share the cores."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import threading
@@ -18,41 +19,42 @@ from ratouch.threads import (
 )
 
 
+def _batch(waiting: bool = False) -> tuple[threading.Thread, threading.Event, dict]:
+    """A thread answering a batch of queries (`foreground`; inside it, waiting for background
+    work when `waiting`) until the event returned is set; the dict gets what
+    `yield_to_foreground` gave inside it ("own")."""
+    entered, release, seen = threading.Event(), threading.Event(), {}
+
+    def run():
+        with foreground():
+            with waiting_for_background() if waiting else contextlib.nullcontext():
+                seen["own"] = yield_to_foreground(1.0)
+                entered.set()
+                release.wait(5)
+
+    t = threading.Thread(target=run)
+    t.start()
+    entered.wait(5)
+    return t, release, seen
+
+
 def test_background_work_waits_while_queries_are_answered_but_not_for_ever():
     """`yield_to_foreground` waits while a batch of queries runs (`foreground`), returns at
     once when none does or when called from the foreground itself, and gives up after its
     limit, so a model being prepared still advances under constant load."""
     assert yield_to_foreground(1.0) < 0.05            # nothing in the foreground
-    started, done = threading.Event(), threading.Event()
-
-    def batch():
-        with foreground():
-            started.set()
-            assert yield_to_foreground(1.0) == 0.0  # the foreground never waits for itself
-            done.wait(5)
-
-    t = threading.Thread(target=batch)
-    t.start()
-    started.wait(5)
-    threading.Timer(0.3, done.set).start()
+    t, release, seen = _batch()
+    threading.Timer(0.3, release.set).start()
     waited = yield_to_foreground(5.0)
-    assert 0.2 < waited < 3.0                          # until the batch ended
     t.join(5)
+    assert seen["own"] == 0.0                          # the foreground never waits for itself
+    assert 0.2 < waited < 3.0                          # until the batch ended
     with foreground():
         pass
     assert yield_to_foreground(1.0) < 0.05            # the count is back to zero
-    hold, held = threading.Event(), threading.Event()
-
-    def long_batch():
-        with foreground():
-            held.set()
-            hold.wait(5)
-
-    t = threading.Thread(target=long_batch)
-    t.start()
-    held.wait(5)
+    t, release, _ = _batch()
     assert 0.15 < yield_to_foreground(0.2) < 1.0      # gives up after its limit
-    hold.set()
+    release.set()
     t.join(5)
 
 
@@ -61,22 +63,11 @@ def test_a_stretch_waiting_for_background_work_does_not_hold_it_back():
     waits for it; outside any batch it changes nothing."""
     with waiting_for_background():
         assert yield_to_foreground(1.0) < 0.05
-    got = {}
-    inside, release = threading.Event(), threading.Event()
-
-    def batch():
-        with foreground():
-            with waiting_for_background():
-                inside.set()
-                release.wait(5)
-
-    t = threading.Thread(target=batch)
-    t.start()
-    inside.wait(5)
-    got["waited"] = yield_to_foreground(2.0)
+    t, release, _ = _batch(waiting=True)
+    waited = yield_to_foreground(2.0)
     release.set()
     t.join(5)
-    assert got["waited"] < 0.5
+    assert waited < 0.5
     assert yield_to_foreground(1.0) < 0.05
 
 

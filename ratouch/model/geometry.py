@@ -310,8 +310,7 @@ def band_stats(c: np.ndarray) -> np.ndarray:
     """Structured local change of a drift-free change (`GradientLookup.change`): per band of
     :data:`STRUCTURE_BANDS`, the 99.5th percentile and the RMS of |band-pass| (mean over
     channels). (6,) float64, [0, 1] units."""
-    blurred = {s: gaussian_blur(c, s) for s in sorted({x for b in STRUCTURE_BANDS
-                                                                 for x in b})}
+    blurred = {s: gaussian_blur(c, s) for s in sorted({x for b in STRUCTURE_BANDS for x in b})}
     out = []
     for lo, hi in STRUCTURE_BANDS:
         d = np.abs(blurred[lo] - blurred[hi]).mean(2)
