@@ -543,6 +543,11 @@ def test_a_background_shows_the_press_as_a_height_map_in_chromium(app_url, page,
     page.locator("#background input[type=file]").set_input_files(
         str(tmp_path / "background.png"))
     page.locator("#background img").first.wait_for()
+    # the frame is shown as large as its background: the tactile box's source buttons float
+    # over its preview rather than take its height
+    frame = page.locator("#tactile img").first.bounding_box()
+    ground = page.locator("#background img").first.bounding_box()
+    assert frame and ground and abs(frame["height"] - ground["height"]) <= 2, (frame, ground)
     page.locator("#run").click()
     page.locator("#description").get_by_text("Baseline (no retrieval)").wait_for()
     strip = page.locator("#geometry")

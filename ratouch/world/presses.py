@@ -77,10 +77,12 @@ class Drift:
     noise_sd: float
 
 
+@lru_cache(maxsize=4)
 def measure_drift(calibration: str) -> Drift:
     """The drift between a Taxim calibration's real background and its real presses, away
     from each touch (beyond twice its radius): the spread over presses of the per-channel
-    offset and gain, the RMS of the slowly varying remainder and of the fine noise."""
+    offset and gain, the RMS of the slowly varying remainder and of the fine noise. Measured
+    once a process (about 10 s a calibration: the DIGIT's drift reads both)."""
     from ratouch.world.taxim_optics import real_presses
 
     rp = real_presses(calibration)
