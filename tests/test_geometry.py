@@ -243,7 +243,7 @@ def test_shipped_calibration_round_trips(shipped, tmp_path):
 def test_train_geometry_cli_writes_a_calibration(tmp_path, capsys):
     out = tmp_path / "lookups.json"
     assert main(["train", "geometry", "--samples", "3000", "--pairs", "20",
-                 "--out", str(out)]) == 0
+                 "--firmness-per-kind", "6", "--out", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)
     assert set(report["held_out"]) == {"digit", "gelsight", "mini"}
     cal = GeometryCalibration.load(out)

@@ -140,9 +140,12 @@ def test_premise_runs_end_to_end_on_the_shipped_weights(real_pipeline):
 def test_why_ignored_reports_training_signal(real_pipeline):
     from ratouch.eval.premise import why_ignored
 
-    # the first 3,000 of the 12,000 training pairs: a quarter of the rendering
-    w = why_ignored(n=40, pipeline=real_pipeline, n_pairs=3000)
-    assert w["n_pairs"] == 3000 and 0 < w["scarce_share"] < 0.05
+    # the first 1,000 of the 12,000 training pairs: a twelfth of the rendering, with scarce
+    # pairs among them, and no more than the regime keeps
+    w = why_ignored(n=40, pipeline=real_pipeline, n_pairs=1000)
+    regime = ScarceRegime()
+    assert w["n_pairs"] == 1000
+    assert 0 < w["scarce_share"] <= regime.n_scarce * regime.tail_pairs / 1000
     for g in ("head", "scarce"):
         assert set(w["f1"][g]) == {"baseline", "ra_touch", "copy_captions"}
         assert set(w["training_loss"][g]) == {"own", "shuffled", "none"}
