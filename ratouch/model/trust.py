@@ -661,10 +661,15 @@ class TrustCalibration:
                 if tac.get("structure"):
                     shown += (f"; structured change {tac['structure']['score']} <= "
                               f"{tac['structure']['threshold']}")
+                # read alone, a shallow, broad press (a fabric, foam, tape) can look like
+                # the gel at rest: say what reads it (docs/geometry.md)
+                remedy = "" if background is not None else (
+                    "; if something is pressed into it, give the sensor's no-contact frame "
+                    "(background): against it, shallow and broad presses are found")
                 warnings.append(
                     "no contact detected: the tactile image looks like the sensor's "
                     f"background with nothing pressed into it{shown}; no material "
-                    "description is given")
+                    f"description is given{remedy}")
             elif tac["uncertain"]:
                 by = (self.alone_band_reading(frame, score, (name, distance))
                       if background is None and np.isfinite(score) else None)
