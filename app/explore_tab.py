@@ -23,8 +23,8 @@ from ratouch.serve.pipeline import DEFAULT_RETRIEVAL
 
 # A few structured close-ups (indices < 46), then wild scenes, spread over the test split.
 EXAMPLES = [0, 12, 40, 60, 140, 190, 290, 390]
-VISUAL_HEIGHT = 236  # the preview's display height: the inputs fit beside the answer
-TACTILE_HEIGHT = 100  # with the height-map strip under them, Run stays on a 1280x800 screen
+VISUAL_HEIGHT = 196  # the preview's display height: the inputs fit beside the answer
+TACTILE_HEIGHT = 96  # with the height-map strip under them, Run stays on a 1280x800 screen
 SESSION_TTL_S = 2 * 3600
 EXPORTS = Path(tempfile.gettempdir()) / "ratouch-exports"  # gradio copies them to its cache
 
@@ -108,7 +108,8 @@ def _inputs(ui: SimpleNamespace, page: Page, n_corpus: int) -> None:
     with gr.Row(equal_height=True):
         largest = min(page.largest_k(), n_corpus)
         ui.k = gr.Slider(1, largest, value=min(5, n_corpus), step=1,
-                         label=f"K neighbours (1–{largest})", elem_id="k", scale=3)
+                         label=f"K neighbours (1–{largest})", elem_id="k", scale=3,
+                         buttons=[])
         # the encoder size; "cascade": the smallest confident encoder answers
         ui.model = gr.Dropdown(handlers.model_choices(models) or [""],
                                value=(models or [""])[0], label="model",

@@ -91,8 +91,8 @@ def _box_note(visual: boxes.Visual | None, box) -> str:
         x, y = (round(v) for v in visual.corner)
         return f"First corner at ({x}, {y}): click the opposite corner."
     if box is None:
-        return (f"No box marked: the query uses TVL's centred crop {list(boxes.default_box(visual))}"
-                " (dashed). Click two opposite corners on the image, or type x0, y0, x1, y1.")
+        return (f"No box marked: TVL's centred crop {list(boxes.default_box(visual))} (dashed); "
+                "click two corners to mark one.")
     problem = boxes.box_problem(box, visual.size)
     if problem:
         return f"⚠️ {problem}"

@@ -548,6 +548,9 @@ def test_a_background_shows_the_press_as_a_height_map_in_chromium(app_url, page,
     frame = page.locator("#tactile img").first.bounding_box()
     ground = page.locator("#background img").first.bounding_box()
     assert frame and ground and abs(frame["height"] - ground["height"]) <= 2, (frame, ground)
+    # Run is on the first screen before it is clicked (a click here would scroll to it)
+    assert page.evaluate("window.scrollY") == 0 and _in_view(page, page.locator("#run")), \
+        (size, page.locator("#run").bounding_box())
     page.locator("#run").click()
     page.locator("#description").get_by_text("Baseline (no retrieval)").wait_for()
     strip = page.locator("#geometry")
@@ -578,3 +581,57 @@ def test_a_background_shows_the_press_as_a_height_map_in_chromium(app_url, page,
     page.locator("#run").click()
     page.locator("#geometry-hint").wait_for()
     assert strip.locator("img").count() == 0
+
+
+@pytest.fixture(scope="module")
+def menu_app_url(request):
+    """The app as `python -m app` lays it out: with the model menu (two names over one
+    pipeline: the real one on a small corpus where the assets exist, else the fake one)."""
+    from app.app import build_demo, launch
+    from ratouch.serve.models import ModelChoice
+
+    pipe = request.getfixturevalue("real_pipeline") if HAVE_ASSETS else FakePipeline()
+    names = ["default-s", "default-tiny"]
+    choice = ModelChoice(names[0], names, load=lambda name: pipe)
+    demo = build_demo(choice, failure_options=FAILURE_OPTIONS, models=names)
+    port = free_port()
+    launch(demo, "127.0.0.1", port, block=False)
+    yield f"http://127.0.0.1:{port}/"
+    demo.close()
+
+
+@pytest.mark.parametrize("theme", ["light", "dark"])
+def test_run_stays_on_the_first_screen_with_the_model_menu_in_chromium(menu_app_url, page,
+                                                                        tmp_path, theme):
+    """At 1280x800 with the model menu (Run on a row of its own), a real photo, a real
+    GelSight Mini press and its background: Run lies wholly inside the window before it is
+    clicked and after the answer (whose height-map strip is taller than the hint), without
+    scrolling."""
+    from ratouch.world.taxim_optics import real_presses
+
+    page.set_viewport_size({"width": 1280, "height": 800})
+    page.set_default_timeout(120_000)
+    real = real_presses("gelsight_mini")
+    Image.fromarray(real["frames"][3]).save(tmp_path / "press.png")
+    Image.fromarray(real["background"]).save(tmp_path / "background.png")
+    photo = Path(pytest.importorskip("skimage.data").__file__).parent / "gravel.png"
+    page.goto(menu_app_url + ("?__theme=dark" if theme == "dark" else ""))
+    page.locator("#model").wait_for()
+    page.locator("#visual input[type=file]").set_input_files(str(photo))
+    page.get_by_text("No box marked").wait_for()
+    page.locator("#tactile input[type=file]").set_input_files(str(tmp_path / "press.png"))
+    page.locator("#background input[type=file]").set_input_files(
+        str(tmp_path / "background.png"))
+    page.locator("#background img").first.wait_for()
+    run = page.locator("#run")
+    assert page.evaluate("window.scrollY") == 0 and _in_view(page, run), run.bounding_box()
+    before = page.locator("#geometry").bounding_box()["height"]
+    run.click()
+    page.locator("#description").get_by_text("Baseline (no retrieval)").wait_for()
+    if HAVE_ASSETS:  # the strip grows from the hint to the height map
+        page.locator("#geometry img").wait_for()
+        assert page.locator("#geometry").bounding_box()["height"] > before
+    page.wait_for_timeout(500)
+    SHOTS36.mkdir(exist_ok=True)
+    page.screenshot(path=str(SHOTS36 / f"menu_1280x800_{theme}.png"))
+    assert page.evaluate("window.scrollY") == 0 and _in_view(page, run), run.bounding_box()
