@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from ratouch.errors import DataError
+from ratouch.errors import ConfigError, DataError
 from ratouch.images import QUERY_MAX_SIDE, to_rgb_array
 from ratouch.model.trust import (
     UNIFORM_SPREAD,
@@ -393,8 +393,12 @@ def test_calibration_is_reproducible(tmp_path):
 
     enc = create_model("default-s")
     cfg = TrustConfig(n_reference=120, n_validation=100, n_everyday=8, n_alone_blanks=20,
-                      n_alone_presses=12, n_alone_check=6, n_unfamiliar=30)
+                      n_alone_presses=12, n_alone_check=6, n_unfamiliar=30, n_test=60)
     a, b = calibrate(enc, cfg, progress=False), calibrate(enc, cfg, progress=False)
+    assert a.meta["test"] == "test[0:60] (measured only)" == b.meta["test"]
+    assert a.meta["measured"] == b.meta["measured"]
+    with pytest.raises(ConfigError, match="n_test"):
+        TrustConfig(n_test=0)
     assert a.contact_unfamiliar[1] == b.contact_unfamiliar[1]  # opt-in: fitted when asked
     assert "train[0:30]" in a.meta["unfamiliar_contact"]["fit"]
     assert calibrate.__defaults__[0].n_unfamiliar == 0  # and not by default (not shipped)
@@ -505,7 +509,6 @@ def test_colour_blind_contact_reads_only_frames_beyond_every_rendered_unit(unfam
     assert any("blind to its colours" in w for w in block["warnings"])
     assert shipped.assess(V, T, view)["tactile"]["contact_model"] == "disc-press"
     assert cal.assess(V, T, view, bg)["tactile"]["contact_model"] is None
-    from ratouch.errors import ConfigError
     with pytest.raises(ConfigError, match="--unfamiliar"):
         shipped.unfamiliar_score(view)
 

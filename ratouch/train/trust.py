@@ -87,6 +87,9 @@ class TrustConfig:
             colour-blind contact model for frames beyond every rendered unit is fitted on
             (`with_unfamiliar_contact`; 0, the default: none. Measured and not shipped:
             docs/geometry.md, "A sensor unlike every rendered unit, read alone").
+        n_test: the test split's first pairs the calibration's rates are measured on
+            (`meta.measured`; nothing is fitted or thresholded on them), the whole split by
+            default.
     """
 
     seed: int = 0
@@ -99,6 +102,7 @@ class TrustConfig:
     n_alone_presses: int = ALONE_PRESSES
     n_alone_check: int = ALONE_CHECK
     n_unfamiliar: int = 0
+    n_test: int = TEST_SIZE
 
     def __post_init__(self) -> None:
         for name in ("n_reference", "n_validation"):
@@ -112,6 +116,9 @@ class TrustConfig:
                      "n_unfamiliar"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 0")
+        if not 1 <= self.n_test <= TEST_SIZE:
+            raise ConfigError(f"n_test={self.n_test} must lie in [1, {TEST_SIZE}] (the test "
+                              "split's size)")
 
 
 def render_samples(world: World, split: str, indices, progress: bool = False,
@@ -194,8 +201,8 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
     val_idx = range(VALIDATION_START, VALIDATION_START + cfg.n_validation)
     val = render_samples(world, "train", val_idx, progress, "validation")
     nc_val = render_samples(nc_world, "train", val_idx, progress, "validation, no contact")
-    test = render_samples(world, "test", range(TEST_SIZE), progress, "test")
-    nc_test = render_samples(nc_world, "test", range(TEST_SIZE), progress, "test, no contact")
+    test = render_samples(world, "test", range(cfg.n_test), progress, "test")
+    nc_test = render_samples(nc_world, "test", range(cfg.n_test), progress, "test, no contact")
     # per split: (image embeddings, tactile embeddings, the prior's features or None)
     enc: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray | None]] = {}
     for name, d in (("ref", ref), ("val", val), ("test", test)):
@@ -276,7 +283,7 @@ def calibrate(encoders, cfg: TrustConfig = TrustConfig(), progress: bool = True
             measured[f"contact_false_alarm_test{suffix}_{fam}"] = _rate(empty[sel])
     meta = {"world_seed": cfg.seed, "reference": f"train[0:{cfg.n_reference}] with and without contact",
             "validation": f"train[{VALIDATION_START}:{VALIDATION_START + cfg.n_validation}]",
-            "test": f"test[0:{TEST_SIZE}] (measured only)", "target_false_alarm": fa,
+            "test": f"test[0:{cfg.n_test}] (measured only)", "target_false_alarm": fa,
             "rank": cfg.rank, "families": list(family_names()),
             "everyday": (f"{cfg.n_everyday} presses and {cfg.n_everyday} drifted blank pairs "
                          "per family, in the with-background contact model's reference and, "
