@@ -29,7 +29,9 @@ it is). Conditions:
 
 
 def about_md(conditions) -> str:
-    return ABOUT.format(modes=", ".join(view.MODE_TITLE[m].split(" (")[0].lower()
+    # "; " between the modes: a mode's own title may hold a comma ("tactile query, adapted
+    # to everyday presses"), which ", " would read as two modes
+    return ABOUT.format(modes="; ".join(view.MODE_TITLE[m].split(" (")[0].lower()
                                         for m in view.MODES), wait=view.FAILURE_WAIT) + \
         view.conditions_md({c: failures.CONDITIONS[c] for c in conditions})
 

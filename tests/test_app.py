@@ -297,6 +297,23 @@ def test_failure_table_filters_and_views():
     assert "not been computed" in none.status and none.cases is None
 
 
+def test_failure_tab_names_each_query_mode_once():
+    """The tab's text lists every registered mode by its title, once, in a list that a
+    title with a comma of its own ("tactile query, adapted to everyday presses") does not
+    split."""
+    import re
+
+    from app import failure_tab, view
+
+    about = failure_tab.about_md(["natural"])
+    listed = re.search(r"each query mode \((.*?)\) retrieves", about.replace("\n", " "))
+    assert listed is not None, about
+    names = listed.group(1).split("; ")
+    assert names == [view.MODE_TITLE[m].split(" (")[0].lower() for m in view.MODES]
+    assert len(set(names)) == len(view.MODES)
+    assert "tactile query, adapted to everyday presses" in names
+
+
 def test_failure_tab_reads_the_cache_and_computes_only_on_request(fake, monkeypatch):
     from app import handlers
     from ratouch.eval import failures
