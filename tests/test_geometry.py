@@ -12,7 +12,9 @@ import pytest
 from ratouch.cli import main
 from ratouch.errors import DataError, DataNotFoundError
 from ratouch.model.geometry import (
+    FirmnessModel,
     GeometryCalibration,
+    RoutedFirmness,
     integrate,
     read_height,
     sphere_gradients,
@@ -196,7 +198,8 @@ def test_firmness_models_round_trip_and_an_old_file_still_loads(shipped, tmp_pat
     cal = GeometryCalibration.load(tmp_path / "old.json")
     assert cal.firmness == {} and cal.read_firmness("mini", None, None) is None  # type: ignore[arg-type]
     # a model that reads other features is not silently misread
-    body["firmness"]["mini"]["features"] = ["log depth"]
+    mini = body["firmness"]["mini"]
+    mini.get("everyday", mini)["features"] = ["log depth"]  # a routed model's too
     (tmp_path / "other.json").write_text(json.dumps(body))
     with pytest.raises(DataError, match="other shape features"):
         GeometryCalibration.load(tmp_path / "other.json")
@@ -207,15 +210,72 @@ def test_train_geometry_firmness_only_keeps_the_lookups(shipped, tmp_path, capsy
     out = tmp_path / "lookups.json"
     shipped.save(out)
     assert main(["train", "geometry", "--firmness-only", "--firmness-per-kind", "2",
-                 "--out", str(out)]) == 0
+                 "--firmness-world", "24", "--out", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)["firmness"]
     assert set(report) == {"digit", "gelsight", "mini"}
-    assert report["mini"]["renders"] == 14 and 0 < report["mini"]["soft_share"] < 1
+    assert report["mini"]["renders"] == 14 and report["mini"]["world"]["renders"] == 24
+    assert 0 < report["mini"]["soft_share"] < 1 and "router" in report["mini"]
     cal = GeometryCalibration.load(out)
     assert set(cal.firmness) == set(cal.lookups)
     assert (json.loads(out.read_text())["lookups"]
             == json.loads(shipped.save(tmp_path / "s.json").read_text())["lookups"])
-    assert cal.firmness["mini"].meta["per_kind"] == 2
+    routed = cal.firmness["mini"]
+    assert isinstance(routed, RoutedFirmness) and routed.everyday.meta["per_kind"] == 2
+    assert "14 renders of everyday presses (2 a kind) and 24 of the world's renders" in \
+        routed.meta["fitted_on"]
+    assert set(routed.read(np.zeros(20))) == {"soft", "reads", "regime"}
+    # too few world renders to hold both classes: refused, named, nothing written
+    before = out.read_bytes()
+    assert main(["train", "geometry", "--firmness-only", "--firmness-per-kind", "2",
+                 "--firmness-world", "1", "--out", str(out)]) == 2
+    assert "--firmness-world" in capsys.readouterr().err and out.read_bytes() == before
+
+
+def test_routed_firmness_mixes_its_regimes_by_the_router(tmp_path):
+    """A routed firmness model reads a press by the everyday model where the router says
+    everyday, by the world's where it says world, a mix between; it survives a save."""
+    def logistic(bias, coef0=0.0):
+        coef = np.zeros(20)
+        coef[0] = coef0
+        return FirmnessModel("mini", np.zeros(20), np.ones(20), coef, bias)
+
+    x = np.zeros(20)
+    hard, soft = logistic(-5.0), logistic(5.0)
+    for router, want in ((logistic(-30.0), hard.soft(x)), (logistic(30.0), soft.soft(x)),
+                         (logistic(0.0), 0.5 * (hard.soft(x) + soft.soft(x)))):
+        m = RoutedFirmness("mini", hard, soft, router)
+        assert m.soft(x) == pytest.approx(want)
+    m = RoutedFirmness("mini", hard, soft, logistic(0.0, coef0=4.0), {"fitted_on": "test"})
+    assert m.read(np.r_[1.0, np.zeros(19)])["regime"] == "world"
+    low = m.read(np.r_[-1.0, np.zeros(19)])
+    assert low["regime"] == "everyday" and low["reads"] == "hard"
+    lookups = GeometryCalibration.load(geometry_calibration()).lookups
+    out = GeometryCalibration(lookups, {}, {"mini": m}).save(tmp_path / "g.json")
+    again = GeometryCalibration.load(out).firmness["mini"]
+    assert isinstance(again, RoutedFirmness) and again.meta == {"fitted_on": "test"}
+    for v in (np.r_[1.0, np.zeros(19)], np.r_[-1.0, np.zeros(19)], x):
+        assert again.soft(v) == pytest.approx(m.soft(v), abs=1e-6)
+
+
+def test_world_shape_renders_read_only_frames_with_contact_of_each_family(shipped):
+    """The world's renders the firmness model also reads: the first of each family's units
+    in the stream, with contact, labelled soft by the material's compliance."""
+    from ratouch.train.geometry import world_shape_renders
+    from ratouch.world.config import WorldConfig
+    from ratouch.world.material import material
+    from ratouch.world.sampler import World
+
+    got = world_shape_renders(shipped.lookups, 3, start=0, split="test", stop=40)
+    assert set(got) == {"digit", "gelsight", "mini"}
+    world = World(WorldConfig())
+    want: dict = {name: [] for name in got}
+    for i in range(40):
+        s = world.sample("test", i)
+        if s.contact and len(want[s.family]) < 3:
+            want[s.family].append(material(s.material).feel.compliance >= 0.5)
+    for name, (X, y) in got.items():
+        assert X.shape == (3, 20) and np.isfinite(X).all()
+        assert list(y) == want[name]
 
 
 def test_calibration_file_errors_are_clear(tmp_path):
@@ -243,7 +303,7 @@ def test_shipped_calibration_round_trips(shipped, tmp_path):
 def test_train_geometry_cli_writes_a_calibration(tmp_path, capsys):
     out = tmp_path / "lookups.json"
     assert main(["train", "geometry", "--samples", "3000", "--pairs", "20",
-                 "--firmness-per-kind", "6", "--out", str(out)]) == 0
+                 "--firmness-per-kind", "6", "--firmness-world", "24", "--out", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)
     assert set(report["held_out"]) == {"digit", "gelsight", "mini"}
     cal = GeometryCalibration.load(out)

@@ -38,6 +38,33 @@ def test_height_hardness_check_reports_every_family(capsys):
         assert 0 <= r["height_map_accuracy"] <= 1
 
 
+@pytest.mark.skipif(not geometry_calibration().is_file(), reason="no geometry calibration")
+def test_world_firmness_check_reads_every_stream_and_the_criteria(capsys):
+    """scripts/why_world_firmness.py, small: every family's balanced accuracy on the world's
+    validation and test renders and on fresh everyday presses, Taxim's real balls read soft,
+    and (with --after) the criteria missed; the shipped calibration against itself."""
+    script = _script("why_world_firmness")
+    assert script.main(["--per-kind", "1", "--world", "4", "--test", "30",
+                        "--after", str(geometry_calibration())]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["before"] == out["after"]
+    assert set(out["before"]) == {"digit", "gelsight", "mini"}
+    for rec in out["before"].values():
+        assert rec["world_validation"]["n"] == 4 and rec["everyday"]["n"] == 7
+        assert 0 < rec["world_test"]["n"] <= 30
+        assert 0 <= rec["everyday"]["balanced"] <= 1
+    assert out["before"]["gelsight"]["real_balls"] == 48
+    assert out["before"]["mini"]["real_balls"] == 24
+    assert "real_balls" not in out["before"]["digit"]  # no real DIGIT ball presses
+    assert isinstance(out["criteria_missed"], list)
+    # the criteria as written: a world reading at chance is named
+    chance = {"balanced": 0.5, "soft_recall": 0.5, "hard_recall": 0.5, "n": 10}
+    good = {"balanced": 0.9, "soft_recall": 0.9, "hard_recall": 0.9, "n": 10}
+    rec = {"world_validation": chance, "everyday": good, "real_balls_read_soft": 0}
+    missed = script.verdict({"mini": {"everyday": good}}, {"mini": rec})
+    assert len(missed) == 1 and "world validation" in missed[0]
+
+
 class _Shipped:
     """Stands in for `RATouchPipeline` in a script: `load` gives the tests' real pipeline
     (the shipped default-s weights on the 600-entry corpus), not the default 10k corpus."""

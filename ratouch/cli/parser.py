@@ -301,6 +301,9 @@ def _add_train(sub) -> None:
     ge.add_argument("--firmness-per-kind", type=_pos_int, default=60,
                     help="renders per kind of everyday press each family's firmness model "
                          "is fitted on")
+    ge.add_argument("--firmness-world", type=_nonneg_int, default=300,
+                    help="the world's renders with contact a family the firmness model also "
+                         "reads (0: everyday presses only)")
     ge.add_argument("--firmness-only", action="store_true",
                     help="keep the calibration's lookups and floors; fit only the firmness "
                          "models (read from --out or the shipped file)")

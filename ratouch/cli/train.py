@@ -124,12 +124,13 @@ def _train_geometry(args: argparse.Namespace) -> int:
     if args.firmness_only:
         path = args.out or geometry_calibration()
         cal, fits = with_firmness(GeometryCalibration.load(path), args.seed,
-                                  args.firmness_per_kind)
+                                  args.firmness_per_kind, args.firmness_world)
         out = cal.save(path)
         print(json.dumps({"written": str(out), "firmness": fits}, indent=1))
         return 0
     cal, held_out = calibrate_geometry(args.seed, samples=args.samples, pairs=args.pairs,
-                                       per_kind=args.firmness_per_kind)
+                                       per_kind=args.firmness_per_kind,
+                                       world=args.firmness_world)
     out = cal.save(args.out or geometry_calibration())
     print(json.dumps({"written": str(out), "held_out": {
         k: {m: v for m, v in r.items() if m != "presses"} for k, r in held_out.items()},

@@ -420,6 +420,61 @@ class FirmnessModel:
                    float(d["bias"]), dict(d.get("meta", {})))
 
 
+@dataclass(frozen=True)
+class RoutedFirmness:
+    """One family's firmness read in two regimes of press: everyday presses (broad, shallow,
+    thin, edged: `ratouch.world.presses`) and the world's own frames (a material pressed
+    firmly, its compliance in the patch's size and edge), where the same shape means another
+    firmness. A router (a logistic model on the same features; its probability: that the
+    press is of the world's regime) mixes the two models' probabilities.
+
+    Attributes:
+        family: the sensor family.
+        everyday, world: the regimes' firmness models.
+        router: the logistic model whose probability is the world regime's weight.
+        meta: provenance and measured figures.
+    """
+
+    family: str
+    everyday: FirmnessModel
+    world: FirmnessModel
+    router: FirmnessModel
+    meta: dict = field(default_factory=dict)
+
+    def regime(self, features: np.ndarray) -> float:
+        """Probability that the press is of the world's regime."""
+        return self.router.soft(features)
+
+    def soft(self, features: np.ndarray) -> float:
+        """Probability that the press is of a soft thing: the regimes' mixed by the router."""
+        r = self.regime(features)
+        return (1 - r) * self.everyday.soft(features) + r * self.world.soft(features)
+
+    def read(self, features: np.ndarray) -> dict:
+        """{"soft": probability, "reads": "soft" or "hard" (at 0.5), "regime": "world" or
+        "everyday" (the router at 0.5)}."""
+        p = self.soft(features)
+        return {"soft": round(p, 3), "reads": "soft" if p >= 0.5 else "hard",
+                "regime": "world" if self.regime(features) >= 0.5 else "everyday"}
+
+    def to_dict(self) -> dict:
+        return {"family": self.family, "kind": "routed", "meta": self.meta,
+                "everyday": self.everyday.to_dict(), "world": self.world.to_dict(),
+                "router": self.router.to_dict()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> RoutedFirmness:
+        return cls(str(d["family"]), FirmnessModel.from_dict(d["everyday"]),
+                   FirmnessModel.from_dict(d["world"]), FirmnessModel.from_dict(d["router"]),
+                   dict(d.get("meta", {})))
+
+
+def firmness_from_dict(d: dict) -> FirmnessModel | RoutedFirmness:
+    """A family's firmness model as saved (`to_dict`), of either kind."""
+    return (RoutedFirmness.from_dict(d) if d.get("kind") == "routed"
+            else FirmnessModel.from_dict(d))
+
+
 # ----------------------------------------------------------------------- the calibration
 
 @dataclass(frozen=True)
@@ -428,7 +483,7 @@ class GeometryCalibration:
 
     lookups: dict[str, GradientLookup]
     meta: dict = field(default_factory=dict)
-    firmness: dict[str, FirmnessModel] = field(default_factory=dict)
+    firmness: dict[str, FirmnessModel | RoutedFirmness] = field(default_factory=dict)
 
     def lookup(self, family: str) -> GradientLookup | None:
         return self.lookups.get(family)
@@ -462,8 +517,7 @@ class GeometryCalibration:
                 raise ValueError(f"format {d.get('format')!r}, expected {FORMAT!r}")
             return cls({k: GradientLookup.from_dict(v) for k, v in d["lookups"].items()},
                        dict(d.get("meta", {})),
-                       {k: FirmnessModel.from_dict(v)
-                        for k, v in d.get("firmness", {}).items()})
+                       {k: firmness_from_dict(v) for k, v in d.get("firmness", {}).items()})
         except (ValueError, KeyError, TypeError, UnicodeDecodeError) as e:
             raise DataError(f"{path} is not a geometry calibration: {e}") from e
 

@@ -26,11 +26,13 @@ from typing import Any
 
 import numpy as np
 
+from ratouch.errors import ConfigError
 from ratouch.model.geometry import (
     WORK_LANDSCAPE,
     FirmnessModel,
     GeometryCalibration,
     GradientLookup,
+    RoutedFirmness,
     band_stats,
     fit_lookup,
     press_shape,
@@ -51,6 +53,11 @@ FLOOR_QUANTILE = 0.995
 #: Renders per kind of press (`ratouch.world.presses.PRESS_KINDS`) each family's firmness
 #: model is fitted on.
 FIRMNESS_PER_KIND = 60
+#: World training renders with contact per family the firmness model also reads (the world's
+#: own frames: a material pressed firmly, its compliance in the patch's size and edge), and
+#: where their stream starts in the train split (no other fit draws from it).
+FIRMNESS_WORLD = 300
+FIRMNESS_WORLD_START = 1_800_000
 #: Columns of `shape_features` in each group, for the fit's report (the height map's profile
 #: and the change's structured statistics).
 PROFILE_COLUMNS = tuple(range(14))
@@ -208,53 +215,135 @@ def _logistic(X: np.ndarray, y: np.ndarray):  # noqa: ANN202 (an sklearn pipelin
         max_iter=2000, class_weight="balanced")).fit(X, y) if len(X) else None
 
 
-def fit_firmness(lookup: GradientLookup, seed: int = 0, per_kind: int = FIRMNESS_PER_KIND
-                 ) -> tuple[FirmnessModel, dict]:
-    """`lookup`'s family's firmness model, fitted on renders (a stream of its own); and the
-    fit's report: renders, soft share, and 5-fold balanced accuracy of the model on both
-    feature groups together and on each alone."""
+def world_shape_renders(lookups: dict[str, GradientLookup], per_family: int,
+                        start: int = FIRMNESS_WORLD_START, split: str = "train",
+                        stop: int | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per family of `lookups`: the shape features (N, 20) of the world's renders with contact
+    (`split` from `start`, before `stop` where given, the default world, the first
+    `per_family` of each family's units) read against their unit's background, and whether
+    each pressed material is soft (compliance >= 0.5). Only the tactile frame of each sample
+    is rendered."""
+    from ratouch.world.config import WorldConfig
+    from ratouch.world.presses import SOFT_AT
+    from ratouch.world.sampler import World
+    from ratouch.world.sensors import sensor_family
+    from ratouch.world.tactile import render_tactile
+
+    world = World(WorldConfig())
+    rows: dict[str, tuple[list, list]] = {name: ([], []) for name in lookups}
+    need = {name: per_family for name in lookups}
+    index = start
+    stop = start + 50 * per_family * max(len(lookups), 1) if stop is None else stop
+    while any(need.values()) and index < stop:
+        _, _, mat, _, touch, _, _ = world.plan(split, index)
+        index += 1
+        name = sensor_family(touch.sensor)
+        if not touch.contact or not need.get(name):
+            continue
+        frame = render_tactile(touch, world.pyramid, world.cfg.tactile_hw,
+                               world.sensor_background(touch.sensor))
+        rows[name][0].append(press_shape(lookups[name], frame,
+                                         world.background_image(touch.sensor)))
+        rows[name][1].append(mat.feel.compliance >= SOFT_AT)
+        need[name] -= 1
+    return {name: (np.asarray(X, np.float64).reshape(len(y), -1), np.asarray(y, bool))
+            for name, (X, y) in rows.items()}
+
+
+def _cv(X: np.ndarray, y: np.ndarray, groups: bool = True) -> dict:
+    """5-fold balanced accuracy of the logistic model on both feature groups together and
+    (`groups`) on each alone (None where a class has fewer than 2 renders)."""
     from sklearn.model_selection import cross_val_score
 
-    rng = np.random.default_rng([seed, 53, sum(map(ord, lookup.family))])
-    X, y, _ = shape_renders(lookup, rng, per_kind)
-    fit = _logistic(X, y)
-    scaler, model = fit.named_steps["standardscaler"], fit.named_steps["logisticregression"]
     folds = int(min(5, y.sum(), (~y).sum()))
     cv = {}
     for name, cols in (("both", None), ("profile", PROFILE_COLUMNS),
-                       ("change", CHANGE_COLUMNS)):
+                       ("change", CHANGE_COLUMNS))[:3 if groups else 1]:
         Xg = X if cols is None else X[:, list(cols)]
         cv[name] = (round(float(cross_val_score(
             _logistic(Xg, y), Xg, y, cv=folds, scoring="balanced_accuracy").mean()), 3)
             if folds >= 2 else None)
-    report = {"renders": int(len(y)), "soft_share": round(float(y.mean()), 3),
-              "cv_balanced_accuracy": cv, "seed": seed, "per_kind": per_kind}
-    return FirmnessModel(lookup.family, np.asarray(scaler.mean_, np.float64),
+    return cv
+
+
+def _model(family: str, X: np.ndarray, y: np.ndarray, meta: dict) -> FirmnessModel:
+    """The logistic model on standardised features, as a `FirmnessModel` (its probability:
+    of the class `y` marks True)."""
+    fit = _logistic(X, y)
+    scaler, model = fit.named_steps["standardscaler"], fit.named_steps["logisticregression"]
+    return FirmnessModel(family, np.asarray(scaler.mean_, np.float64),
                          np.asarray(scaler.scale_, np.float64),
                          np.asarray(model.coef_[0], np.float64), float(model.intercept_[0]),
-                         {"fitted_on": f"{len(y)} renders of everyday presses "
-                                       f"({per_kind} a kind), soft: compliance >= 0.5",
-                          **report}), report
+                         meta)
+
+
+def fit_firmness(lookup: GradientLookup, seed: int = 0, per_kind: int = FIRMNESS_PER_KIND,
+                 world: tuple[np.ndarray, np.ndarray] | None = None
+                 ) -> tuple[FirmnessModel | RoutedFirmness, dict]:
+    """`lookup`'s family's firmness model, fitted on renders of everyday presses (a stream
+    of its own); with `world`, the (features, soft) of the world's own renders
+    (`world_shape_renders`), a `RoutedFirmness`: the everyday model, a model of the world's
+    renders alone and a router between the two regimes. And the fit's report: renders, soft
+    share, and 5-fold balanced accuracy of the everyday model on both feature groups together
+    and on each alone (with `world`: of the world's model and of the router too)."""
+    rng = np.random.default_rng([seed, 53, sum(map(ord, lookup.family))])
+    X, y, _ = shape_renders(lookup, rng, per_kind)
+    soft = "soft: compliance >= 0.5"
+    report = {"renders": int(len(y)), "soft_share": round(float(y.mean()), 3),
+              "cv_balanced_accuracy": _cv(X, y), "seed": seed, "per_kind": per_kind}
+    everyday = _model(lookup.family, X, y, {
+        "fitted_on": f"{len(y)} renders of everyday presses ({per_kind} a kind), {soft}",
+        **report})
+    if world is None or not len(world[1]):
+        return everyday, report
+    Xw, yw = world
+    if min(yw.sum(), (~yw).sum()) < 2:
+        raise ConfigError(f"the {len(yw)} world renders of {lookup.family} hold "
+                          f"{int(yw.sum())} soft and {int((~yw).sum())} hard: too few of "
+                          "one to fit its firmness model (give more with --firmness-world)")
+    fed = f"train[{FIRMNESS_WORLD_START}:]"
+    world_report = {"renders": int(len(yw)), "soft_share": round(float(yw.mean()), 3),
+                    "cv_balanced_accuracy": _cv(Xw, yw, groups=False)}
+    Xr = np.concatenate([X, Xw])
+    yr = np.r_[np.zeros(len(y), bool), np.ones(len(yw), bool)]
+    router_report = {"cv_balanced_accuracy": _cv(Xr, yr, groups=False)}
+    routed = RoutedFirmness(
+        lookup.family, everyday,
+        _model(lookup.family, Xw, yw, {"fitted_on": f"{len(yw)} of the world's renders "
+                                       f"with contact ({fed}), {soft}", **world_report}),
+        _model(lookup.family, Xr, yr, {"fitted_on": f"the {len(y)} everyday presses (0) "
+                                       f"and the {len(yw)} world renders (1)",
+                                       **router_report}),
+        {"fitted_on": f"{len(y)} renders of everyday presses ({per_kind} a kind) and "
+                      f"{len(yw)} of the world's renders with contact ({fed}): a model "
+                      f"each, mixed by a router; {soft}"})
+    return routed, {**report, "world": world_report, "router": router_report}
 
 
 def with_firmness(cal: GeometryCalibration, seed: int = 0,
-                  per_kind: int = FIRMNESS_PER_KIND) -> tuple[GeometryCalibration, dict]:
-    """`cal` with every family's firmness model fitted (its lookups unchanged), and the fits'
-    reports."""
+                  per_kind: int = FIRMNESS_PER_KIND, world: int = FIRMNESS_WORLD
+                  ) -> tuple[GeometryCalibration, dict]:
+    """`cal` with every family's firmness model fitted (its lookups unchanged) on `per_kind`
+    everyday presses a kind and `world` of the world's renders with contact a family, and the
+    fits' reports."""
+    pool = world_shape_renders(cal.lookups, world) if world else {}
     models, report = {}, {}
     for name, lookup in cal.lookups.items():
-        models[name], report[name] = fit_firmness(lookup, seed, per_kind)
-        log.info("firmness %s: cv balanced accuracy %s", name,
-                 report[name]["cv_balanced_accuracy"])
+        models[name], report[name] = fit_firmness(lookup, seed, per_kind, pool.get(name))
+        log.info("firmness %s: cv balanced accuracy %s (world %s, router %s)", name,
+                 report[name]["cv_balanced_accuracy"], report[name].get("world"),
+                 report[name].get("router"))
     return GeometryCalibration(cal.lookups, cal.meta, models), report
 
 
 def calibrate(seed: int = 0, samples: int = 120_000, pairs: int = FLOOR_PAIRS,
-              per_kind: int = FIRMNESS_PER_KIND) -> tuple[GeometryCalibration, dict[str, Any]]:
+              per_kind: int = FIRMNESS_PER_KIND, world: int = FIRMNESS_WORLD
+              ) -> tuple[GeometryCalibration, dict[str, Any]]:
     """Every family's lookup with its floors and its firmness model, and per family the
     held-out reconstruction and the firmness fit's report (`samples`: pixels each lookup is
     fitted on; `pairs`: blank pairs the floors are set on; `per_kind`: renders per kind of
-    press the firmness model is fitted on)."""
+    press the firmness model is fitted on; `world`: the world's renders a family it also
+    reads)."""
     from ratouch.world.sensors import SENSOR_FAMILIES
 
     lookups, report = {}, {}
@@ -272,7 +361,7 @@ def calibrate(seed: int = 0, samples: int = 120_000, pairs: int = FLOOR_PAIRS,
                  lookup.structure_threshold)
     cal, firmness = with_firmness(GeometryCalibration(
         lookups, {"seed": seed, "ball_mm": BALL_MM, "samples": samples,
-                  "blank_pairs": pairs}), seed, per_kind)
+                  "blank_pairs": pairs}), seed, per_kind, world)
     for name, rec in firmness.items():
         report[name]["firmness"] = rec
     return cal, report
