@@ -362,11 +362,18 @@ def firmness_line(firmness: dict | None) -> str:
     p = float(firmness["soft"])
     sure = p if firmness["reads"] == "soft" else 1 - p
     said = "&gt;99%" if sure > 0.99 else f"{sure:.0%}"
+    everyday = ("renders of everyday presses (soft: fabrics, foams; hard: flat faces, tape, "
+                "wire, edges, small caps)")
+    # a routed model names the regime it read the press in (`RoutedFirmness`)
+    regime = firmness.get("regime")
+    by = (f"by two models fitted on renders, of {everyday} and of firm presses like the "
+          f"world&#39;s own, mixed by how much the press looks like each (read here as "
+          f"{'a firm press' if regime == 'world' else 'an everyday press'})"
+          if regime else f"by a model fitted on {everyday}")
     return (f" · <span id='geometry-firmness' title='firmness read from the height map&#39;s "
-            f"profile and the change&#39;s texture by a model fitted on renders of everyday "
-            f"presses (soft: fabrics, foams; hard: flat faces, tape, wire, edges, small caps), "
-            f"{said} sure; a reading beside the description, not its input'>shape "
-            f"<b>{escape(firmness['reads'])}</b> {said}</span>")
+            f"profile and the change&#39;s texture {by}, {said} sure; a reading beside the "
+            f"description, not its input'>shape <b>{escape(firmness['reads'])}</b> "
+            f"{said}</span>")
 
 
 def structure_line(structure: dict | None) -> str:

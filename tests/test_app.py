@@ -1052,6 +1052,13 @@ def test_the_height_map_is_formatted_with_its_scale_and_numbers():
     sure = view.geometry_html(_geometry_result(firmness={"soft": 0.998, "reads": "soft"}),
                               picture, True)
     assert "shape <b>soft</b> &gt;99%" in sure
+    assert "by a model fitted on renders of everyday presses" in sure  # one regime
+    for regime, said in (("world", "read here as a firm press"),
+                         ("everyday", "read here as an everyday press")):
+        routed = view.geometry_html(_geometry_result(firmness={
+            "soft": 0.778, "reads": "soft", "regime": regime}), picture, True)
+        assert "shape <b>soft</b> 78%" in routed and said in routed, regime
+        assert "two models fitted on renders" in routed
     ru = view.geometry_html(_geometry_result("render units", unfamiliar=True), picture, True)
     assert "depth <b>1.5 r.u.</b> (render units)" in ru and "no real calibration" in ru
     assert "⚠ unfamiliar sensor</b>, read as digit (a guess)" in ru
