@@ -7,6 +7,7 @@ for a person to look at."""
 
 from __future__ import annotations
 
+import math
 import shutil
 from pathlib import Path
 
@@ -76,6 +77,16 @@ def _field(page, name: str) -> str:
     return page.locator(f"#box-{name} input").input_value()
 
 
+def _inside(edge: float, v: float, scale: float) -> float:
+    """A page coordinate (CSS px) that lands inside image pixel int(v) of a preview whose
+    edge is at `edge` (fractional, as laid out) at `scale` CSS px per image pixel, whether
+    the browser reports the click at a whole CSS pixel (as Chromium's clientX/Y) or not:
+    just past the first whole page pixel inside it (its centre where no whole one fits)."""
+    lo, hi = edge + int(v) * scale, edge + (int(v) + 1) * scale
+    c = float(math.ceil(lo + 0.01))
+    return c + 0.1 if c + 0.1 < hi else (lo + hi) / 2
+
+
 def _click_corner(page, x: float, y: float, expect: str, tries: int = 3) -> None:
     """Click image pixel (x, y) of the visual preview once it has settled, until `expect`
     shows. Each upload or click redraws the preview (a new <img>); on a busy machine a click
@@ -89,8 +100,8 @@ def _click_corner(page, x: float, y: float, expect: str, tries: int = 3) -> None
         page.wait_for_timeout(800)  # let the preview settle after its last redraw
         img = page.locator("#visual img").first
         b = img.bounding_box()
-        sx, sy = b["width"] / 128, b["height"] / 128
-        page.mouse.click(b["x"] + x * sx, b["y"] + y * sy)
+        page.mouse.click(_inside(b["x"], x, b["width"] / 128),
+                         _inside(b["y"], y, b["height"] / 128))
         try:
             page.get_by_text(expect).wait_for(timeout=20_000)
             return
