@@ -46,7 +46,7 @@ def renders(cal: GeometryCalibration, per_kind: int, world: int, test: int = TES
             ) -> dict:
     """Per family, the shape features and truths each calibration reads (the lookups are
     the calibrations' shared ones)."""
-    lookups = {k: v for k, v in cal.lookups.items() if v is not None}
+    lookups = cal.lookups
     val = world_shape_renders(lookups, world, world_start)
     test = world_shape_renders(lookups, test, 0, "test", stop=test)
     rng = np.random.default_rng([everyday_seed, EVERYDAY_SEED[1]])

@@ -447,15 +447,18 @@ class RoutedFirmness:
 
     def soft(self, features: np.ndarray) -> float:
         """Probability that the press is of a soft thing: the regimes' mixed by the router."""
-        r = self.regime(features)
+        return self._mixed(features, self.regime(features))
+
+    def _mixed(self, features: np.ndarray, r: float) -> float:
         return (1 - r) * self.everyday.soft(features) + r * self.world.soft(features)
 
     def read(self, features: np.ndarray) -> dict:
         """{"soft": probability, "reads": "soft" or "hard" (at 0.5), "regime": "world" or
         "everyday" (the router at 0.5)}."""
-        p = self.soft(features)
+        r = self.regime(features)  # read once: it weighs the mix and names the regime
+        p = self._mixed(features, r)
         return {"soft": round(p, 3), "reads": "soft" if p >= 0.5 else "hard",
-                "regime": "world" if self.regime(features) >= 0.5 else "everyday"}
+                "regime": "world" if r >= 0.5 else "everyday"}
 
     def to_dict(self) -> dict:
         return {"family": self.family, "kind": "routed", "meta": self.meta,

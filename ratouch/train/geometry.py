@@ -220,7 +220,7 @@ def world_shape_renders(lookups: dict[str, GradientLookup], per_family: int,
                         stop: int | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Per family of `lookups`: the shape features (N, 20) of the world's renders with contact
     (`split` from `start`, before `stop` where given, the default world, the first
-    `per_family` of each family's units) read against their unit's background, and whether
+    `per_family` frames of each family) read against their unit's background, and whether
     each pressed material is soft (compliance >= 0.5). Only the tactile frame of each sample
     is rendered."""
     from ratouch.world.config import WorldConfig
