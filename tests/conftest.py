@@ -21,30 +21,6 @@ from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import write_split
 from ratouch.world.sampler import World
 
-# `make test` runs the suite on two pytest-xdist workers, a test file to a worker
-# (`--dist loadfile --no-loadscope-reorder`): files are handed out in collection order, so the
-# longest go first and the short ones fill in behind them (longest-first keeps the two workers
-# finishing together). Seconds a file took on the 2-core CI machine (`pytest --durations`,
-# 2026-11-30); a file not named here is short. A stale figure only costs balance, never a result.
-FILE_SECONDS = {
-    "test_ray_build.py": 600, "test_trust.py": 410, "test_geometry.py": 300,
-    "test_app_browser.py": 255, "test_premise.py": 245, "test_why_scripts.py": 190,
-    "test_smollm.py": 175, "test_pretrained_generator.py": 90, "test_corpus_recaption.py": 75,
-    "test_faults.py": 60, "test_frames.py": 55, "test_towers.py": 50, "test_probe.py": 45,
-    "test_photos.py": 40, "test_app.py": 40, "test_encoders.py": 40, "test_fastpath.py": 40,
-    "test_load_test.py": 35,
-}
-
-
-def pytest_collection_modifyitems(config, items):
-    """Longest files first when the run is spread over workers; a plain run keeps file order."""
-    if not (getattr(config.option, "numprocesses", None) or hasattr(config, "workerinput")):
-        return
-    order = {}
-    for item in items:
-        order.setdefault(item.path.name, len(order))
-    items.sort(key=lambda it: (-FILE_SECONDS.get(it.path.name, 0), order[it.path.name]))
-
 
 @pytest.fixture(scope="module")
 def one_thread():
