@@ -611,13 +611,29 @@ def menu_app_url(request):
     demo.close()
 
 
+#: Per visible menu (combobox) of the page: where its shown text ends (an ellipsis where the
+#: name is longer than the box; the font measured on a canvas) and where its arrow's glyph
+#: starts, in page pixels.
+_MENU_TEXT_ENDS = """() => [...document.querySelectorAll('input[role=combobox]')]
+  .filter(i => i.offsetParent).map(i => {
+    const r = i.getBoundingClientRect(), cs = getComputedStyle(i);
+    const ctx = document.createElement('canvas').getContext('2d');
+    ctx.font = cs.font;
+    const left = r.left + parseFloat(cs.borderLeftWidth) + parseFloat(cs.paddingLeft);
+    const right = r.right - parseFloat(cs.borderRightWidth) - parseFloat(cs.paddingRight);
+    const arrow = i.parentElement.querySelector('.icon-wrap path').getBoundingClientRect();
+    return {menu: i.closest('[id]').id, value: i.value, arrow: arrow.left,
+            text_end: left + Math.min(ctx.measureText(i.value).width, right - left)};
+  })"""
+
+
 @pytest.mark.parametrize("theme", ["light", "dark"])
 def test_run_stays_on_the_first_screen_with_the_model_menu_in_chromium(menu_app_url, page,
                                                                         tmp_path, theme):
     """At 1280x800 with the model menu (Run on a row of its own), a real photo, a real
     GelSight Mini press and its background: Run lies wholly inside the window before it is
     clicked and after the answer (whose height-map strip is taller than the hint), without
-    scrolling."""
+    scrolling; no menu's text runs under its arrow."""
     from ratouch.world.taxim_optics import real_presses
 
     page.set_viewport_size({"width": 1280, "height": 800})
@@ -636,6 +652,8 @@ def test_run_stays_on_the_first_screen_with_the_model_menu_in_chromium(menu_app_
     page.locator("#background img").first.wait_for()
     run = page.locator("#run")
     assert page.evaluate("window.scrollY") == 0 and _in_view(page, run), run.bounding_box()
+    for menu in page.evaluate(_MENU_TEXT_ENDS):  # the model's long name ran under its arrow
+        assert menu["text_end"] <= menu["arrow"], menu
     before = page.locator("#geometry").bounding_box()["height"]
     run.click()
     page.locator("#description").get_by_text("Baseline (no retrieval)").wait_for()
