@@ -410,8 +410,8 @@ def test_nothing_stale_nothing_unreadable_in_chromium(app_url, page, size, theme
     """Issue 39 at 1440x900 and 1280x800, light and dark: the examples' labels whole; one
     click answers, and the descriptions, the joint query's tiles and the Run button are in
     the window; RA-Touch's highlighted words, the page's warnings and its muted notes
-    readable (contrast >= 4.5); nothing wider than its box; changing K marks the answer stale until Run; no
-    URL carries a server path; two runs side by side."""
+    readable (contrast >= 4.5); nothing wider than its box; changing K marks the answer
+    stale until Run; no URL carries a server path; two runs side by side."""
     w, h = size
     page.set_viewport_size({"width": w, "height": h})
     page.set_default_timeout(120_000)
