@@ -111,13 +111,39 @@ def single(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def ray_two_cores(tmp_path_factory) -> tuple[Path, dict]:
-    """A Ray build on a local Ray of exactly 2 CPUs with 2 embedding actors (the set-up
-    that hangs when the actors take a whole core each)."""
+def ray_two_cores(tmp_path_factory) -> tuple[Path, dict, dict]:
+    """A Ray build on a local Ray of exactly 2 CPUs, killed once its first shard is finished,
+    then run again to the end with 2 embedding actors (the set-up that hangs when the actors
+    take a whole core each): one build serves the kill's tests and the finished corpus's (a
+    local Ray costs about 25 s to start here). Returns the corpus folder, the finishing run's
+    report and what was seen at the kill."""
     folder = tmp_path_factory.mktemp("ray") / "c"
-    r = _run(_cli("--out", str(folder), "--size", str(N), "--num-cpus", "2", "--workers", "2",
-                  "--batch-size", "60", "--shard-size", str(SHARD)))
-    return folder, r
+    args = ["--out", str(folder), "--size", str(N), "--num-cpus", "2", "--batch-size", "60",
+            "--shard-size", str(SHARD)]
+    # one actor until the kill: with two, all three shards can finish before it lands
+    p = subprocess.Popen(_cli(*args, "--workers", "1"), cwd=REPO, env=_env(),
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True)
+    manifest = folder / SHARD_DIR / "manifest.json"
+    deadline = time.monotonic() + BUILD_TIMEOUT_S
+    while time.monotonic() < deadline and p.poll() is None:
+        if manifest.is_file() and json.loads(manifest.read_text())["shards"]:
+            break
+        time.sleep(0.2)
+    assert p.poll() is None, "the build ended before it could be killed"
+    ours = [pid for pid, tag in tagged().items() if tag.startswith(f"{p.pid}-")]
+    os.kill(p.pid, signal.SIGKILL)  # the driver alone, as `kill -9 PID` does
+    p.wait()
+    # its reaper ends the local Ray: no ray::DashboardAgent / RuntimeEnvAgent left behind
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and any(_running(q) for q in ours):
+        time.sleep(0.2)
+    killed = {"tagged": len(ours),
+              "left": [psutil.Process(q).name() for q in ours if _running(q)],
+              "done": set(json.loads(manifest.read_text())["shards"]),
+              "corpus_there": (folder / "metadata.jsonl").exists()}
+    _assert_listed_shards_valid(folder)
+    return folder, _run(_cli(*args, "--workers", "2")), killed
 
 
 def test_actor_cpus_leave_room_for_the_light_stages():
@@ -131,15 +157,15 @@ def test_actor_cpus_leave_room_for_the_light_stages():
 
 def test_ray_build_finishes_on_two_cores_and_matches_the_single_process_build(
         ray_two_cores, single):
-    folder, r = ray_two_cores
-    assert r["size"] == N and r["shards"] == 3 and r["shards_built"] == 3
+    folder, r, killed = ray_two_cores
+    assert r["size"] == N and r["shards"] == 3 and r["shards_built"] == 3 - len(killed["done"])
     assert {"plan", "recaption", "render", "embed", "write", "index"} <= set(r["stages"])
     _assert_same_corpus(single, folder)
     _assert_clean_shards(folder)
 
 
 def test_the_pipeline_opens_a_ray_built_corpus_unchanged(ray_two_cores):
-    folder, _ = ray_two_cores
+    folder, _, _ = ray_two_cores
     search = open_retriever(folder, "default-s")
     _, entries = load_corpus(folder)
     q = load_embeddings(folder, "default-s")[0][:3]
@@ -152,7 +178,7 @@ def test_rerun_skips_finished_shards_and_refuses_another_build(ray_two_cores):
     """A re-run finds every shard finished (no Ray needed) and only adds what is missing:
     here an IVF index built from the shards as one on-disk index, which the retriever opens
     unchanged."""
-    folder, _ = ray_two_cores
+    folder, _, _ = ray_two_cores
     r = _run(_cli("--out", str(folder), "--size", str(N), "--shard-size", str(SHARD),
                   "--index", "ivfflat"), 120)
     assert r["shards_built"] == 0 and r["size"] == N
@@ -167,38 +193,16 @@ def test_rerun_skips_finished_shards_and_refuses_another_build(ray_two_cores):
     assert p.returncode == 2 and "shards of another build" in p.stderr
 
 
-def test_killed_build_resumes_with_finished_shards_kept(tmp_path, single):
+def test_killed_build_resumes_with_finished_shards_kept(ray_two_cores, single):
     """The whole build (driver and its local Ray) is killed once a shard is finished; the
-    finished shards stay valid, nothing partial is visible, and a re-run completes the
-    corpus, building only the missing shards."""
-    folder = tmp_path / "c"
-    cmd = _cli("--out", str(folder), "--size", str(N), "--num-cpus", "2", "--workers", "1",
-               "--batch-size", "60", "--shard-size", str(SHARD))
-    p = subprocess.Popen(cmd, cwd=REPO, env=_env(), stdout=subprocess.DEVNULL,
-                         stderr=subprocess.DEVNULL, start_new_session=True)
-    manifest = folder / SHARD_DIR / "manifest.json"
-    deadline = time.monotonic() + BUILD_TIMEOUT_S
-    while time.monotonic() < deadline and p.poll() is None:
-        if manifest.is_file() and json.loads(manifest.read_text())["shards"]:
-            break
-        time.sleep(0.2)
-    assert p.poll() is None, "the build ended before it could be killed"
-    ours = [pid for pid, tag in tagged().items() if tag.startswith(f"{p.pid}-")]
-    assert len(ours) >= 3, "the build's local Ray processes carry its tag"
-    os.kill(p.pid, signal.SIGKILL)  # the driver alone, as `kill -9 PID` does
-    p.wait()
-    # its reaper ends the local Ray: no ray::DashboardAgent / RuntimeEnvAgent left behind
-    deadline = time.monotonic() + 30
-    while time.monotonic() < deadline and any(_running(q) for q in ours):
-        time.sleep(0.2)
-    left = [psutil.Process(q).name() for q in ours if _running(q)]
-    assert not left, f"the killed build left {left} running"
-    done = set(json.loads(manifest.read_text())["shards"])
-    assert 1 <= len(done) < 3
-    _assert_listed_shards_valid(folder)
-    assert not (folder / "metadata.jsonl").exists()  # the corpus is not there half-made
-    r = _run(cmd)
-    assert r["shards_built"] == 3 - len(done)
+    finished shards stay valid (checked at the kill), nothing partial is visible, and a
+    re-run completes the corpus, building only the missing shards."""
+    folder, r, killed = ray_two_cores
+    assert killed["tagged"] >= 3, "the build's local Ray processes carry its tag"
+    assert not killed["left"], f"the killed build left {killed['left']} running"
+    assert 1 <= len(killed["done"]) < 3
+    assert not killed["corpus_there"]  # the corpus is not there half-made
+    assert r["shards_built"] == 3 - len(killed["done"])
     _assert_same_corpus(single, folder)
     _assert_clean_shards(folder)
 
@@ -207,7 +211,7 @@ def test_reindex_rebuilds_a_corrupt_index_on_ray_as_locally(ray_two_cores):
     """An index refused as corrupt names `--reindex`; with it, the Ray engine removes the
     index and builds it again from the finished shards (no Ray needed), as the local engine
     does."""
-    folder, _ = ray_two_cores
+    folder, _, _ = ray_two_cores
     index = folder / "index" / "default-s" / "text-flat" / "index.faiss"
     good = index.read_bytes()
     index.write_bytes(good[: len(good) // 2])
@@ -231,7 +235,8 @@ def _free_port() -> int:
 
 @pytest.fixture(scope="module")
 def ray_cluster():
-    """A head node and one worker node on 127.0.0.1, one CPU each, stopped by process group."""
+    """A head node and one worker node on 127.0.0.1, one CPU each, stopped by process group
+    (nothing of either left running: checked when the module ends)."""
     port = _free_port()
     address = f"127.0.0.1:{port}"
     ray_bin = str(Path(sys.executable).with_name("ray"))
@@ -251,13 +256,33 @@ def ray_cluster():
         _wait_for_nodes(address, 2)
         yield address
     finally:
+        # a node asked to stop takes 13-20 s to wind down (33 s of the module's time); its
+        # processes are all in its group, so what has not ended within 3 s is killed with it
         for p in reversed(procs):
             with_group(p, signal.SIGTERM)
         for p in reversed(procs):
             try:
-                p.wait(20)
+                p.wait(3)
             except subprocess.TimeoutExpired:
                 with_group(p, signal.SIGKILL)
+                p.wait(20)
+        groups = {p.pid for p in procs}
+        deadline = time.monotonic() + 10  # killed processes are reaped by init: a moment
+        while (left := _in_groups(groups)) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not left, f"the test cluster left {left} running"
+
+
+def _in_groups(groups: set[int]) -> list[str]:
+    """Names of the live (not zombie) processes in these process groups."""
+    found = []
+    for q in psutil.process_iter(["name", "status"]):
+        try:
+            if q.info["status"] != psutil.STATUS_ZOMBIE and os.getpgid(q.pid) in groups:
+                found.append(q.info["name"])
+        except (ProcessLookupError, psutil.Error):
+            pass
+    return found
 
 
 def with_group(p: subprocess.Popen, sig: int) -> None:
