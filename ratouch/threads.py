@@ -43,6 +43,20 @@ def intra_op_threads(n: int) -> Iterator[None]:
         torch.set_num_threads(before)
 
 
+def blas_threads(n: int) -> None:
+    """Run numpy's and scipy's BLAS (OpenBLAS: every matrix product, the blurs, the height
+    map's perceptron) on `n` threads from now on, in the whole process. Unlike torch's
+    count this is not per thread, so it is set once, by what serves (the batch worker,
+    `ratouch query`, `ratouch bench query`), and not restored (threadpoolctl lets one live
+    thread at a time change OpenBLAS's count: the first to set it). Its threads spin like
+    torch's: under load on 2 cores (`scripts/load_test.py --clients 16 --queries 10`) the
+    server took 0.276 CPU-s per query with OpenBLAS's default two and 0.172 with one, for
+    the same throughput (6.6 and 6.5 queries/s)."""
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(n, user_api="blas")
+
+
 _cv = threading.Condition()
 _busy = 0  # foreground stretches running now, in every thread
 _local = threading.local()  # this thread's foreground depth

@@ -3,6 +3,10 @@ intra-op thread count, the callers' left alone."""
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -38,6 +42,38 @@ def test_worker_runs_batches_on_its_own_thread_count():
     for bad in (0, 1.5, True):
         with pytest.raises(ConfigError, match="threads"):
             QueryBatcher(inner, threads=bad)
+
+
+def test_worker_puts_numpys_blas_on_one_thread_for_the_process():
+    """OpenBLAS's count is process-wide: the worker sets it when it starts (its threads spin
+    like torch's, `ratouch.threads.blas_threads`), and numpy's products run on one thread.
+    In a fresh process: in this one an earlier test's worker already holds the setting."""
+    code = """if True:
+        import json
+        from types import SimpleNamespace
+        import numpy as np
+        from threadpoolctl import threadpool_info
+        from ratouch.serve.batcher import QueryBatcher
+        from ratouch.serve.request import QueryRequest, answer_one
+
+        def blas():
+            return sorted({d["num_threads"] for d in threadpool_info()
+                           if d["user_api"] == "blas"})
+
+        seen = [blas()]
+        def fake_answer(requests):
+            seen.append(blas())
+            return [{"k": r.k} for r in requests]
+        request = QueryRequest(np.zeros((4, 4, 3), np.uint8), None, None, (0, 0, 4, 4), 3)
+        answer_one(QueryBatcher(SimpleNamespace(answer=fake_answer)), request)
+        print(json.dumps(seen + [blas()]))
+    """
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "2"}
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                       timeout=120)
+    assert p.returncode == 0, p.stderr[-2000:]
+    # before the worker, inside it, after it
+    assert json.loads(p.stdout.strip().splitlines()[-1]) == [[2], [1], [1]]
 
 
 def test_a_call_of_several_requests_gets_each_its_own_answer():

@@ -25,7 +25,7 @@ from ratouch.cli.common import usage
 from ratouch.corpus.imagenet_t import parse_size
 from ratouch.eval.experiments import Report, write_report
 from ratouch.search.kinds import BENCH_KINDS
-from ratouch.threads import intra_op_threads
+from ratouch.threads import blas_threads, intra_op_threads
 
 
 def _csv(text: str, conv=str) -> list:
@@ -81,7 +81,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(r) if args.json else format_corpus_bench(r))
         return 0
     if args.bench_cmd == "query":
-        with intra_op_threads(1):  # as `ratouch query` and the app serve (ratouch.threads)
+        blas_threads(1)  # as `ratouch query` and the app serve (ratouch.threads)
+        with intra_op_threads(1):
             r = bench_query(args.encoder, args.corpus, n=args.n)
         print(json.dumps(r, indent=None if args.json else 1))
         return 0

@@ -12,7 +12,7 @@ from ratouch.images import not_a_file
 from ratouch.search.modes import RA_TOUCH_MODE
 from ratouch.serve.models import load_model
 from ratouch.serve.request import MAX_K, QueryRequest, answer_one, check_k
-from ratouch.threads import intra_op_threads
+from ratouch.threads import blas_threads, intra_op_threads
 
 
 def run(args: argparse.Namespace) -> int:
@@ -27,7 +27,8 @@ def run(args: argparse.Namespace) -> int:
         if not Path(path).is_file():
             raise usage(f"{role} file {path} does not exist")
     swap = _neighbours_file(args.neighbours_from) if args.neighbours_from else None
-    with intra_op_threads(1):  # the serving setting (see ratouch.threads)
+    blas_threads(1)  # the serving setting (see ratouch.threads)
+    with intra_op_threads(1):
         return _query(args, swap)
 
 

@@ -17,7 +17,7 @@ from typing import Any, Generic, TypeVar
 
 from ratouch.errors import ConfigError
 from ratouch.serve.request import ModelAnswerer, QueryRequest, QueryResult
-from ratouch.threads import foreground, intra_op_threads
+from ratouch.threads import blas_threads, foreground, intra_op_threads
 
 log = logging.getLogger(__name__)
 
@@ -48,10 +48,11 @@ class QueryBatcher(Generic[M]):
         max_batch: most requests in one batch.
         max_wait_s: how long a batch waits for company; 0 answers what is there at once
             (requests that arrive while a batch runs form the next one anyway).
-        threads: intra-op threads of the batch worker. 1 (the default) leaves the other
-            cores to the server's HTTP work, and on shared cores it costs far less CPU per
-            query (measured: 12.5 vs 90 CPU-ms per query in batches of 10, see
-            `ratouch.threads`); None keeps torch's setting.
+        threads: intra-op threads of the batch worker, and numpy's BLAS threads of the
+            whole process (`ratouch.threads.blas_threads`), set when the worker starts. 1
+            (the default) leaves the other cores to the server's HTTP work, and on shared
+            cores it costs far less CPU per query (measured: 12.5 vs 90 CPU-ms per query in
+            batches of 10, see `ratouch.threads`); None keeps torch's and numpy's settings.
     """
 
     def __init__(self, answerer: ModelAnswerer[M], max_batch: int = 16, max_wait_s: float = 0.0,
@@ -103,6 +104,7 @@ class QueryBatcher(Generic[M]):
     def _run(self) -> None:
         if self.threads is None:
             return self._loop()
+        blas_threads(self.threads)  # process-wide: the batch worker is what a server runs
         with intra_op_threads(self.threads):
             self._loop()
 
