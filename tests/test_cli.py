@@ -135,3 +135,18 @@ def test_building_the_parser_imports_no_model_side():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.strip().splitlines()[-1]
     assert out == "[] ['ratouch.cli.parser']"
+
+
+@pytest.mark.slow
+def test_bench_query_times_every_system_with_and_without_a_background(shipped_corpus, capsys):
+    """`ratouch bench query` as the closing notes run it (on the 600-entry test corpus): warm
+    latency without and with each pair's background, and every retrieval system's."""
+    from ratouch.search.modes import RETRIEVAL_SYSTEMS
+
+    assert main(["bench", "query", "--corpus", str(shipped_corpus), "--n", "3", "--json"]) == 0
+    r = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert r["encoder"] == "default-s" and r["corpus_size"] == 600 and r["n_queries"] == 3
+    assert 0 < r["p50_ms"] <= r["p95_ms"]
+    assert 0 < r["with_background"]["p50_ms"] <= r["with_background"]["p95_ms"]
+    assert set(r["by_retrieval"]) == set(RETRIEVAL_SYSTEMS)
+    assert all(v["p50_ms"] > 0 for v in r["by_retrieval"].values())
