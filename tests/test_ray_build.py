@@ -274,13 +274,13 @@ def ray_cluster():
 
 
 def _in_groups(groups: set[int]) -> list[str]:
-    """Names of the live (not zombie) processes in these process groups."""
+    """Names of the running (not zombie: `_running`) processes in these process groups."""
     found = []
-    for q in psutil.process_iter(["name", "status"]):
+    for q in psutil.process_iter(["name"]):
         try:
-            if q.info["status"] != psutil.STATUS_ZOMBIE and os.getpgid(q.pid) in groups:
+            if _running(q.pid) and os.getpgid(q.pid) in groups:
                 found.append(q.info["name"])
-        except (ProcessLookupError, psutil.Error):
+        except ProcessLookupError:  # ended meanwhile
             pass
     return found
 
