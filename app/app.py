@@ -173,7 +173,13 @@ def main(argv: list[str] | None = None) -> None:
                    help="built corpus folder (default: the world's 10k corpus, built on first use)")
     p.add_argument("--max-batch", type=int, default=16,
                    help="most concurrent queries answered in one batch (default 16)")
+    p.add_argument("--batch-workers", type=int, default=1,
+                   help="batches answered at the same time, each on one thread (default 1; "
+                        "on 2 cores, 2 gave about 10%% more queries/s but a longer p95 and "
+                        "more CPU per query: docs/performance.md)")
     args = p.parse_args(argv)
+    if args.batch_workers < 1:
+        p.error(f"--batch-workers must be at least 1, got {args.batch_workers}")
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     # heavy (torch, faiss, transformers): imported here, after the arguments are parsed, and
     # the models loaded in the background, so that the server answers at once
@@ -195,7 +201,8 @@ def main(argv: list[str] | None = None) -> None:
         # a pretrained language model's generators (hundreds of MB) load when first chosen
         loaded["choice"].prepare([m for m in models if m != args.encoder
                                   and split_model_name(m)[1] is None])
-        return QueryBatcher(loaded["choice"], max_batch=args.max_batch)
+        return QueryBatcher(loaded["choice"], max_batch=args.max_batch,
+                            workers=args.batch_workers)
 
     def model_state(name: str):
         return loaded["choice"].state(name) if "choice" in loaded else ("not prepared", None)

@@ -601,6 +601,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="longest whole run (s), launch to report (default 900)")
     p.add_argument("--max-batch", type=int, default=None,
                    help="passed to the app (1 answers every query on its own)")
+    p.add_argument("--batch-workers", type=int, default=None,
+                   help="passed to the app: batches answered at once (default: the app's)")
     p.add_argument("--corpus", default=None,
                    help="passed to the app: a built corpus folder (default: the world's 10k)")
     p.add_argument("--model", default=None,
@@ -612,7 +614,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--check", action="store_true", help="exit 1 when a target is not met")
     args = p.parse_args(argv)
     app_args = (() if args.max_batch is None else ("--max-batch", str(args.max_batch))) + \
-        (() if args.corpus is None else ("--corpus", str(args.corpus)))
+        (() if args.batch_workers is None else ("--batch-workers", str(args.batch_workers))) \
+        + (() if args.corpus is None else ("--corpus", str(args.corpus)))
     try:
         r = run(args.clients, args.queries, args.single, deadline_s=args.deadline,
                 app_args=app_args, log=lambda m: print(m, flush=True), model=args.model,

@@ -1,5 +1,5 @@
-"""The batching server: an `Answerer` wrapping an `Answerer`; its worker runs on its own
-intra-op thread count, the callers' left alone."""
+"""The batching server: an `Answerer` wrapping an `Answerer`; its workers run on their own
+intra-op thread count, the callers' left alone, and answer up to `workers` batches at once."""
 
 from __future__ import annotations
 
@@ -88,6 +88,61 @@ def test_a_call_of_several_requests_gets_each_its_own_answer():
         answer_one(b, _request(2))
 
 
+def _busy_answerer(seconds: float):
+    """A fake answerer that takes `seconds` a batch and records how many batches ran at
+    once at most."""
+    import threading
+    import time
+
+    state = {"now": 0, "most": 0}
+    lock = threading.Lock()
+
+    def fake_answer(requests):
+        with lock:
+            state["now"] += 1
+            state["most"] = max(state["most"], state["now"])
+        time.sleep(seconds)
+        with lock:
+            state["now"] -= 1
+        return [{"k": r.k} for r in requests]
+
+    return SimpleNamespace(answer=fake_answer), state
+
+
+def _wait_idle(b: QueryBatcher, n: int) -> None:
+    import time
+
+    end = time.monotonic() + 10
+    while b._idle < n and time.monotonic() < end:
+        time.sleep(0.01)
+    assert b._idle == n
+
+
+@pytest.mark.parametrize("workers", [1, 2, 3])
+def test_workers_answer_that_many_batches_at_once_and_share_a_burst(workers):
+    inner, state = _busy_answerer(0.2)
+    b = QueryBatcher(inner, max_batch=16, workers=workers)
+    assert answer_one(b, _request(1)) == {"k": 1}  # starts the workers
+    _wait_idle(b, workers)
+    out = b.answer([_request(k) for k in range(1, 13)])
+    assert out == [{"k": k} for k in range(1, 13)]  # each caller its own answer, in order
+    assert state["most"] == workers
+    # the burst of 12 split evenly among the idle workers, not taken whole by the first
+    assert sorted(b.batches[1:]) == [12 // workers] * workers
+
+
+def test_a_burst_larger_than_the_workers_batches_waits_for_the_next_free_one():
+    inner, state = _busy_answerer(0.05)
+    b = QueryBatcher(inner, max_batch=2, workers=2)
+    answer_one(b, _request(1))
+    _wait_idle(b, 2)
+    assert b.answer([_request(k) for k in range(1, 8)]) == [{"k": k} for k in range(1, 8)]
+    assert sum(b.batches[1:]) == 7 and max(b.batches) <= 2 and state["most"] == 2
+    for bad in (0, -1, 1.5, True, None):
+        with pytest.raises(ConfigError, match="workers"):
+            QueryBatcher(inner, workers=bad)
+
+
 def test_a_failing_batch_answers_every_caller_with_its_error():
     def broken(requests):
         raise RuntimeError("the model broke")
@@ -117,6 +172,13 @@ def test_an_answer_does_not_depend_on_who_else_is_asking(pipeline, world):
     assert max(batcher.batches) > 4  # they were answered together
     differ = [i for i, (a, b) in enumerate(zip(_answers(alone), _answers(together))) if a != b]
     assert not differ, f"{len(differ)} of {len(requests)} answers changed under load"
+    # two batches answered at the same time by one pipeline (`--batch-workers 2`): the same
+    two = QueryBatcher(pipeline, max_batch=16, workers=2)
+    with ThreadPoolExecutor(16) as pool:
+        parallel = list(pool.map(lambda r: answer_one(two, r), requests * 2))
+    differ = [i for i, (a, b) in enumerate(zip(_answers(alone) * 2, _answers(parallel)))
+              if a != b]
+    assert not differ, f"{len(differ)} of {2 * len(requests)} answers changed in two workers"
     ranked = [[(-n["score"], n["id"]) for n in ns] for r in together
               for ns in r.neighbours.values()]
     assert all(keys == sorted(keys) for keys in ranked)  # equal shown scores: by corpus id

@@ -134,7 +134,8 @@ def test_the_load_test_runs_against_the_real_app(load_test, app_corpus, tmp_path
     t0 = time.monotonic()
     rc = load_test.main(["--clients", "2", "--queries", "2", "--single", "2",
                          "--deadline", "120", "--timeout", str(BOUND_S),
-                         "--corpus", str(app_corpus), "--json", str(out)])
+                         "--corpus", str(app_corpus), "--batch-workers", "2",
+                         "--json", str(out)])
     seconds = time.monotonic() - t0
     printed = capsys.readouterr()
     assert rc == 0, printed.err + printed.out

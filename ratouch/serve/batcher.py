@@ -38,8 +38,8 @@ class QueryBatcher(Generic[M]):
 
     A worker thread takes what is waiting (up to `max_batch` requests, after waiting at most
     `max_wait_s` for more to arrive once the first has) and has the wrapped answerer answer
-    it; each caller gets its own results. One batch runs at a time, so the model work of a
-    server is bounded however many threads call `answer`. The requests come decoded
+    it; each caller gets its own results. At most `workers` batches run at a time, so the
+    model work of a server is bounded however many threads call `answer`. The requests come decoded
     (`QueryRequest.decode`, in the caller's thread), so that a slow upload (or a bad one)
     delays only its own caller, never the shared batch.
 
@@ -53,12 +53,23 @@ class QueryBatcher(Generic[M]):
             (the default) leaves the other cores to the server's HTTP work, and on shared
             cores it costs far less CPU per query (measured: 12.5 vs 90 CPU-ms per query in
             batches of 10, see `ratouch.threads`); None keeps torch's and numpy's settings.
+        workers: batch workers, each answering its own batch (a share of what waits) at
+            the same time as the others. One batch on one thread leaves the second of 2
+            cores idle for 45 % of the time; 2 workers used it, but they contend for the
+            GIL: on 2 cores (`scripts/load_test.py --clients 16 --queries 10`, 8 runs
+            against 6) 7.7 against 7.0 queries/s on average, the p50 under load halved,
+            the p95 up from 2.6-3.0 to 3.3-4.3 s and the server's CPU per query up from
+            0.157 to 0.18-0.21 s (docs/performance.md), so 1 is the default. The answerer
+            must answer concurrent batches as it answers them one at a time (the pipeline
+            does: `tests/test_batcher.py`).
     """
 
     def __init__(self, answerer: ModelAnswerer[M], max_batch: int = 16, max_wait_s: float = 0.0,
-                 threads: int | None = 1):
+                 threads: int | None = 1, workers: int = 1):
         if max_batch < 1:
             raise ConfigError(f"max_batch must be >= 1, got {max_batch}")
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+            raise ConfigError(f"workers must be an integer >= 1, got {workers!r}")
         if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int)
                                     or threads < 1):
             raise ConfigError(f"threads must be None or an integer >= 1, got {threads!r}")
@@ -69,17 +80,20 @@ class QueryBatcher(Generic[M]):
         self.batches: list[int] = []  # sizes of the recent batches (the last 1000)
         self._queue: list[_Pending] = []
         self._cv = threading.Condition()
-        self._worker: threading.Thread | None = None
+        self.workers = workers
+        self._pool: list[threading.Thread] = []
+        self._idle = 0  # workers waiting in `_take`
 
     def answer(self, requests: Sequence[QueryRequest]) -> list[QueryResult | Exception]:
         """The wrapped answerer's `answer`, in batches with concurrent calls' requests."""
         items = [_Pending(r) for r in requests]
         with self._cv:
             self._queue.extend(items)
-            if self._worker is None or not self._worker.is_alive():
-                self._worker = threading.Thread(target=self._run, daemon=True,
-                                                name="query-batcher")
-                self._worker.start()
+            self._pool = [w for w in self._pool if w.is_alive()]
+            while len(self._pool) < self.workers:
+                self._pool.append(threading.Thread(target=self._run, daemon=True,
+                                                   name=f"query-batcher-{len(self._pool)}"))
+                self._pool[-1].start()
             self._cv.notify()
         for item in items:
             item.done.wait()
@@ -91,14 +105,25 @@ class QueryBatcher(Generic[M]):
         return self.answerer.model(name)
 
     def _take(self) -> list[_Pending]:
+        """The next batch: what waits, shared evenly among the idle workers (so that a
+        burst is split between them rather than taken whole by the first), at most
+        `max_batch`; the next idle worker is woken for the rest."""
         with self._cv:
-            while not self._queue:
-                self._cv.wait()
-            if self.max_wait_s > 0 and len(self._queue) < self.max_batch:
-                end = time.monotonic() + self.max_wait_s
-                while len(self._queue) < self.max_batch and (left := end - time.monotonic()) > 0:
-                    self._cv.wait(left)
-            batch, self._queue = self._queue[:self.max_batch], self._queue[self.max_batch:]
+            self._idle += 1
+            try:
+                while not self._queue:
+                    self._cv.wait()
+                if self.max_wait_s > 0 and len(self._queue) < self.max_batch:
+                    end = time.monotonic() + self.max_wait_s
+                    while (len(self._queue) < self.max_batch
+                           and (left := end - time.monotonic()) > 0):
+                        self._cv.wait(left)
+                n = min(self.max_batch, -(-len(self._queue) // self._idle))
+            finally:
+                self._idle -= 1
+            batch, self._queue = self._queue[:n], self._queue[n:]
+            if self._queue:
+                self._cv.notify()
             return batch
 
     def _run(self) -> None:
