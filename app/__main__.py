@@ -2,4 +2,5 @@
 
 from app.app import main
 
-main()
+if __name__ == "__main__":  # not in a model process (`--model-processes`), which spawns
+    main()

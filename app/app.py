@@ -177,9 +177,15 @@ def main(argv: list[str] | None = None) -> None:
                    help="batches answered at the same time, each on one thread (default 1; "
                         "on 2 cores, 2 gave about 10%% more queries/s but a longer p95 and "
                         "more CPU per query: docs/performance.md)")
+    p.add_argument("--model-processes", type=int, default=0,
+                   help="answer the batches in this many child processes, each with its own "
+                        "copy of the models (about 1.3 GB each), as many batches at once; "
+                        "0 (default): in the server's process (docs/performance.md)")
     args = p.parse_args(argv)
     if args.batch_workers < 1:
         p.error(f"--batch-workers must be at least 1, got {args.batch_workers}")
+    if args.model_processes < 0:
+        p.error(f"--model-processes must be 0 or more, got {args.model_processes}")
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     # heavy (torch, faiss, transformers): imported here, after the arguments are parsed, and
     # the models loaded in the background, so that the server answers at once
@@ -201,8 +207,14 @@ def main(argv: list[str] | None = None) -> None:
         # a pretrained language model's generators (hundreds of MB) load when first chosen
         loaded["choice"].prepare([m for m in models if m != args.encoder
                                   and split_model_name(m)[1] is None])
-        return QueryBatcher(loaded["choice"], max_batch=args.max_batch,
-                            workers=args.batch_workers)
+        if not args.model_processes:
+            return QueryBatcher(loaded["choice"], max_batch=args.max_batch,
+                                workers=args.batch_workers)
+        from ratouch.serve.pool import ProcessPool
+
+        pool = ProcessPool(loaded["choice"], args.model_processes, corpus=args.corpus)
+        return QueryBatcher(pool, max_batch=args.max_batch,
+                            workers=max(args.batch_workers, args.model_processes))
 
     def model_state(name: str):
         return loaded["choice"].state(name) if "choice" in loaded else ("not prepared", None)

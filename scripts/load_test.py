@@ -603,6 +603,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="passed to the app (1 answers every query on its own)")
     p.add_argument("--batch-workers", type=int, default=None,
                    help="passed to the app: batches answered at once (default: the app's)")
+    p.add_argument("--model-processes", type=int, default=None,
+                   help="passed to the app: model processes (default: the app's)")
     p.add_argument("--corpus", default=None,
                    help="passed to the app: a built corpus folder (default: the world's 10k)")
     p.add_argument("--model", default=None,
@@ -615,6 +617,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     app_args = (() if args.max_batch is None else ("--max-batch", str(args.max_batch))) + \
         (() if args.batch_workers is None else ("--batch-workers", str(args.batch_workers))) \
+        + (() if args.model_processes is None
+           else ("--model-processes", str(args.model_processes))) \
         + (() if args.corpus is None else ("--corpus", str(args.corpus)))
     try:
         r = run(args.clients, args.queries, args.single, deadline_s=args.deadline,

@@ -250,9 +250,10 @@ def test_importing_the_app_loads_no_model_and_main_has_the_options():
     with pytest.raises(SystemExit) as e:
         main(["--help"])
     assert e.value.code == 0
-    with pytest.raises(SystemExit) as e:  # refused before any model loads or port opens
-        main(["--batch-workers", "0", "--port", "1"])
-    assert e.value.code == 2
+    for bad in (["--batch-workers", "0"], ["--model-processes", "-1"]):
+        with pytest.raises(SystemExit) as e:  # refused before any model loads or port opens
+            main([*bad, "--port", "1"])
+        assert e.value.code == 2
 
 
 # ------------------------------------------------------------------------- failure cases tab

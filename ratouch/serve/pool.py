@@ -1,0 +1,206 @@
+"""Model work in child processes: batches answered at once without sharing one interpreter.
+
+Two batches answered by threads of one process contend for its GIL (the pipeline's Python
+between numpy and torch calls): on 2 cores two batch threads gave 10 % more queries/s for
+15-35 % more CPU per query (docs/performance.md). `ProcessPool` answers each batch in one
+of `n` child processes instead, each holding its own `ModelChoice` over the same models and
+corpus, so each answers a request exactly as the parent would. The parent keeps its own
+`ModelChoice` for everything else a server asks of a model (`model(name)`: thumbnails,
+regeneration, the failure cases) and answers in-process until the first child is ready.
+
+A child is started with the `spawn` method (a fresh interpreter: no threads or locks forked
+from a server), runs its model work on one intra-op and one BLAS thread, and loads a model
+other than the default on its first request for it. A child that dies (killed, out of
+memory) fails the batch it held with `ModelProcessError` and is replaced; a child whose
+parent dies sees its pipe close and exits. As with any `spawn`, a script that starts a pool
+must guard its own work with ``if __name__ == "__main__":`` (the child imports the script's
+module); `python -m app` does.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import os
+import queue
+import threading
+from collections.abc import Sequence
+from typing import Any
+
+from ratouch.errors import ConfigError, RATouchError
+from ratouch.serve.models import Model, ModelChoice
+from ratouch.serve.request import QueryRequest, QueryResult
+
+log = logging.getLogger(__name__)
+
+
+class ModelProcessError(RATouchError):
+    """A model process ended while it answered a batch (the batch's requests get this)."""
+
+
+def _child(conn, default: str, names: list[str], corpus: str | None) -> None:
+    """A model process: load the default model, say "ready", then answer the batches sent
+    until None (or until the parent's end of the pipe closes)."""
+    from ratouch.threads import blas_threads, intra_op_threads
+
+    blas_threads(1)
+    with intra_op_threads(1):
+        try:
+            choice = ModelChoice(default, names, corpus=corpus)
+        except BaseException as e:  # noqa: BLE001 - reported to the parent, then exit
+            conn.send(("failed", f"{type(e).__name__}: {e}"))
+            return
+        conn.send(("ready", os.getpid()))
+        while True:
+            try:
+                requests = conn.recv()
+            except (EOFError, OSError):  # the parent is gone
+                return
+            if requests is None:
+                return
+            try:
+                out: Any = choice.answer(requests)
+            except BaseException as e:  # noqa: BLE001 - every request of the batch gets it
+                out = e
+            try:
+                conn.send(out)
+            except Exception as e:  # noqa: BLE001 - an answer that cannot be pickled
+                conn.send(ModelProcessError(f"the answer could not be sent back: {e}"))
+
+
+class _Worker:
+    __slots__ = ("process", "conn", "pid")
+
+    def __init__(self, process: Any, conn: Any) -> None:
+        self.process = process
+        self.conn = conn
+        self.pid: int | None = None
+
+
+class ProcessPool:
+    """An `Answerer` whose batches are answered by `n` model processes, one batch each at a
+    time (wrap it in `QueryBatcher(pool, workers=n)` to keep all of them busy).
+
+    Args:
+        local: the parent's own models: `model(name)` is `local.model(name)`, and `answer`
+            uses it until a child is ready.
+        n: model processes (>= 1).
+        corpus: the corpus folder the children's models search (as `local`'s).
+    """
+
+    def __init__(self, local: ModelChoice, n: int, corpus: str | os.PathLike | None = None):
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ConfigError(f"model processes must be an integer >= 1, got {n!r}")
+        self.local = local
+        self.n = n
+        self._args = (local.default, list(local.names), None if corpus is None else str(corpus))
+        self._ctx = mp.get_context("spawn")
+        self._idle: queue.Queue[_Worker] = queue.Queue()
+        self._lock = threading.Lock()
+        self._workers: list[_Worker] = []
+        self._ready = threading.Event()  # set once a child has answered "ready"
+        self._closed = False
+        for _ in range(n):
+            self._start()
+
+    # ------------------------------------------------------------------ the processes
+
+    def _start(self) -> None:
+        parent, child = self._ctx.Pipe()
+        process = self._ctx.Process(target=_child, args=(child, *self._args), daemon=True,
+                                    name="ratouch-model")
+        process.start()
+        child.close()
+        worker = _Worker(process, parent)
+        with self._lock:
+            self._workers.append(worker)
+        threading.Thread(target=self._await_ready, args=(worker,), daemon=True,
+                         name="ratouch-model-ready").start()
+
+    def _await_ready(self, worker: _Worker) -> None:
+        try:
+            kind, what = worker.conn.recv()
+        except (EOFError, OSError):
+            kind, what = "failed", f"exit code {worker.process.exitcode}"
+        if kind != "ready":
+            log.error("a model process could not load its model: %s", what)
+            self._drop(worker)
+            return
+        worker.pid = what
+        log.info("model process %d ready", what)
+        self._ready.set()
+        self._idle.put(worker)
+
+    def _drop(self, worker: _Worker) -> None:
+        with self._lock:
+            if worker in self._workers:
+                self._workers.remove(worker)
+        worker.conn.close()
+        if worker.process.is_alive():
+            worker.process.kill()
+        worker.process.join(5)
+
+    def pids(self) -> list[int]:
+        """The process ids of the ready model processes."""
+        with self._lock:
+            return [w.pid for w in self._workers if w.pid is not None]
+
+    def ready(self) -> bool:
+        """Whether a model process has loaded its model."""
+        return self._ready.is_set()
+
+    def close(self) -> None:
+        """End the model processes (each finishes the batch it holds)."""
+        self._closed = True
+        with self._lock:
+            workers = list(self._workers)
+        for w in workers:
+            try:
+                w.conn.send(None)
+            except (OSError, ValueError):
+                pass
+        for w in workers:
+            w.process.join(10)
+            self._drop(w)
+
+    # ------------------------------------------------------------------ the Answerer
+
+    def answer(self, requests: Sequence[QueryRequest]) -> list[QueryResult | Exception]:
+        """The requests answered by the next free model process (by the parent's own models
+        while none is ready yet)."""
+        if self._closed:
+            raise ModelProcessError("the model processes were closed")
+        worker = self._next() if self._ready.is_set() else None
+        if worker is None:
+            return self.local.answer(requests)
+        try:
+            worker.conn.send(list(requests))
+            out = worker.conn.recv()
+        except (EOFError, OSError) as e:
+            log.error("model process %s ended while answering a batch of %d: %s",
+                      worker.pid, len(requests), e)
+            self._drop(worker)
+            if not self._closed:
+                self._start()  # a replacement; answers once it has loaded
+            err = ModelProcessError(f"the model process answering this query ended (exit code "
+                                    f"{worker.process.exitcode}); ask again")
+            return [err] * len(requests)
+        self._idle.put(worker)
+        if isinstance(out, BaseException):
+            raise out
+        return out
+
+    def _next(self) -> _Worker | None:
+        """The next free model process, waiting for one; None when none is left (every one
+        failed to load again after ending)."""
+        while True:
+            try:
+                return self._idle.get(timeout=1.0)
+            except queue.Empty:
+                with self._lock:
+                    if not self._workers:
+                        return None
+
+    def model(self, name: str | None = None) -> Model:
+        """The parent's own loaded model called `name` (`ModelChoice.model`)."""
+        return self.local.model(name)
