@@ -177,10 +177,12 @@ def main(argv: list[str] | None = None) -> None:
                    help="batches answered at the same time, each on one thread (default 1; "
                         "on 2 cores, 2 gave about 10%% more queries/s but a longer p95 and "
                         "more CPU per query: docs/performance.md)")
-    p.add_argument("--model-processes", type=int, default=0,
-                   help="answer the batches in this many child processes, each with its own "
-                        "copy of the models (about 1.3 GB each), as many batches at once; "
-                        "0 (default): in the server's process (docs/performance.md)")
+    p.add_argument("--model-processes", type=int, default=2,
+                   help="when concurrent queries first arrive, start this many child "
+                        "processes, each with its own copy of the models (about 1.3 GB "
+                        "each), and answer that many batches at once in them (default 2; "
+                        "one user never starts them); 0: every query in the server's "
+                        "process (docs/performance.md)")
     args = p.parse_args(argv)
     if args.batch_workers < 1:
         p.error(f"--batch-workers must be at least 1, got {args.batch_workers}")
@@ -212,7 +214,8 @@ def main(argv: list[str] | None = None) -> None:
                                 workers=args.batch_workers)
         from ratouch.serve.pool import ProcessPool
 
-        pool = ProcessPool(loaded["choice"], args.model_processes, corpus=args.corpus)
+        pool = ProcessPool(loaded["choice"], args.model_processes, corpus=args.corpus,
+                           on_demand=True)
         return QueryBatcher(pool, max_batch=args.max_batch,
                             workers=max(args.batch_workers, args.model_processes))
 

@@ -98,11 +98,13 @@ def test_a_model_process_that_cannot_load_leaves_the_server_answering():
 
 @pytest.mark.slow
 def test_the_app_answers_through_a_model_process(shipped_corpus, world, tmp_path):
-    """`python -m app --model-processes 1`, as a user starts it: the model process is
-    spawned (the app's module is not run again in it), becomes ready, answers a query sent
-    through the API, and ends with the server."""
+    """`python -m app --model-processes 1`, as a user starts it: one user's query is
+    answered in the server's process and starts nothing; concurrent queries start the model
+    process (spawned: the app's module is not run again in it), which then answers the
+    queries sent through the API, and ends with the server."""
     import subprocess
     import sys
+    from concurrent.futures import ThreadPoolExecutor
     from pathlib import Path
 
     import psutil
@@ -121,21 +123,119 @@ def test_the_app_answers_through_a_model_process(shipped_corpus, world, tmp_path
                             "--model-processes", "1"],
                            cwd=Path(__file__).resolve().parents[1], stdout=log,
                            stderr=subprocess.STDOUT)
+    text = lambda: (tmp_path / "app.log").read_text()  # noqa: E731
+    children: list = []
     try:
-        text = lambda: (tmp_path / "app.log").read_text()  # noqa: E731
+        _wait(lambda: "serving on http://" in text() or app.poll() is not None, 300)
+        assert app.poll() is None, text()[-3000:]
+
+        def ask(_=None) -> dict:
+            c = Client(f"http://127.0.0.1:{port}/", verbose=False)
+            return c.predict(handle_file(str(tmp_path / "v.png")),
+                             handle_file(str(tmp_path / "t.png")), None, None, None, None, 5,
+                             api_name="/query")
+
+        first = ask()  # one user: answered here, nothing started
+        assert first["description"]["ra_touch"]
+        assert "starting 1 model process" not in text()
+        assert not psutil.Process(app.pid).children()
+        for _ in range(5):  # concurrent users: the model process is started
+            with ThreadPoolExecutor(4) as ex:
+                assert all(a["description"] == first["description"]
+                           for a in ex.map(ask, range(4)))
+            if "starting 1 model process" in text():
+                break
+        assert "starting 1 model process" in text(), text()[-3000:]
         _wait(lambda: "model process" in text() and " ready" in text()
               or app.poll() is not None, 300)
         assert app.poll() is None, text()[-3000:]
-        children = psutil.Process(app.pid).children()
-        assert len([c for c in children if c.is_running()]) >= 1
+        children = [c for c in psutil.Process(app.pid).children()  # (not the resource
+                    if "spawn_main" in " ".join(c.cmdline())]       # tracker)
+        assert len(children) == 1
+        busy = sum(children[0].cpu_times()[:2])
+        answer = ask()
+        assert answer["description"] == first["description"]
+        assert len(answer["neighbours"]["joint"]) == 5
+        assert sum(children[0].cpu_times()[:2]) - busy > 0.02  # it did the model work
         assert text().count("serving on http://") == 1  # the app ran once, not in the child
-        c = Client(f"http://127.0.0.1:{port}/", verbose=False)
-        out = c.predict(handle_file(str(tmp_path / "v.png")), handle_file(str(tmp_path / "t.png")),
-                        None, None, None, None, 5, api_name="/query")
-        assert out["description"]["ra_touch"] and len(out["neighbours"]["joint"]) == 5
     finally:
         app.terminate()
         app.wait(30)
         log.close()
     _wait(lambda: not any(c.is_running() and c.status() != psutil.STATUS_ZOMBIE
                           for c in children), 30)  # its pipe closed: it ended too
+
+
+def test_on_demand_model_processes_start_with_the_first_concurrent_requests():
+    import threading
+
+    both = threading.Barrier(2, timeout=30)
+    pairs = []
+
+    def local_answer(requests):
+        pairs.append(len(requests))
+        if pairs.count(2) <= 2 and len(requests) == 2:  # the concurrent pair: at once
+            both.wait()
+        return [{"k": r.k} for r in requests]
+
+    local = SimpleNamespace(default="no-such-model", names=["no-such-model"],
+                            answer=local_answer, model=lambda name=None: "local")
+    pool = ProcessPool(local, 2, on_demand=True)
+    try:
+        request = QueryRequest(np.zeros((4, 4, 3), np.uint8), None, None, (0, 0, 4, 4), 3)
+        for _ in range(3):  # one at a time: nothing started
+            assert pool.answer([request]) == [{"k": 3}]
+        assert pool.started == 0
+        threads = [threading.Thread(target=pool.answer, args=([request, request],))
+                   for _ in range(2)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(30)
+        assert pool.started == 2  # both, once
+        pool.answer([request, request])
+        assert pool.started == 2
+        late = ProcessPool(local, 1, on_demand=True)  # a batch of two is concurrent too
+        try:
+            late.answer([request])
+            assert late.started == 0
+            late.answer([request, request, request])
+            assert late.started == 1
+        finally:
+            late.close()
+        _wait(lambda: not pool._workers, 120)  # they could not load: let go, answered here
+        assert pool.answer([request]) == [{"k": 3}]
+    finally:
+        pool.close()
+
+
+def test_a_model_process_ends_with_its_server_even_while_it_loads(shipped_corpus):
+    """A server killed outright (no exit handlers run) leaves no model process behind, even
+    one still loading its model (it notices its parent's end within a second)."""
+    import subprocess
+    import sys
+
+    import psutil
+
+    code = f"""if True:
+        import os, signal, sys, time
+        from types import SimpleNamespace
+        from ratouch.serve.pool import ProcessPool
+        local = SimpleNamespace(default="default-s", names=["default-s"])
+        pool = ProcessPool(local, 1, corpus={str(shipped_corpus)!r})
+        print(pool._workers[0].process.pid, flush=True)
+        time.sleep(1.0)
+        os.kill(os.getpid(), signal.SIGKILL)
+    """
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert p.stdout is not None
+        child = int(p.stdout.readline().split()[0])
+        p.wait(120)  # the server's end (the child holds its stdout: not read to the end)
+    finally:
+        p.kill()
+    t0 = time.monotonic()
+    assert psutil.pid_exists(child)  # still loading when its server went
+    _wait(lambda: not psutil.pid_exists(child)
+          or psutil.Process(child).status() == psutil.STATUS_ZOMBIE, 30)
+    assert time.monotonic() - t0 < 4.0  # well before its model would have loaded

@@ -24,12 +24,15 @@ import multiprocessing as mp
 import os
 import queue
 import threading
+import time
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ratouch.errors import ConfigError, RATouchError
-from ratouch.serve.models import Model, ModelChoice
-from ratouch.serve.request import QueryRequest, QueryResult
+
+if TYPE_CHECKING:  # not imported at run time: a model process starts its watch first
+    from ratouch.serve.models import Model, ModelChoice
+    from ratouch.serve.request import QueryRequest, QueryResult
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +44,9 @@ class ModelProcessError(RATouchError):
 def _child(conn, default: str, names: list[str], corpus: str | None) -> None:
     """A model process: load the default model, say "ready", then answer the batches sent
     until None (or until the parent's end of the pipe closes)."""
+    threading.Thread(target=_orphan_watch, args=(os.getppid(),), daemon=True,
+                     name="ratouch-orphan-watch").start()
+    from ratouch.serve.models import ModelChoice  # torch and the rest: after the watch
     from ratouch.threads import blas_threads, intra_op_threads
 
     blas_threads(1)
@@ -50,7 +56,10 @@ def _child(conn, default: str, names: list[str], corpus: str | None) -> None:
         except BaseException as e:  # noqa: BLE001 - reported to the parent, then exit
             conn.send(("failed", f"{type(e).__name__}: {e}"))
             return
-        conn.send(("ready", os.getpid()))
+        try:
+            conn.send(("ready", os.getpid()))
+        except OSError:  # the parent went while this one loaded
+            return
         while True:
             try:
                 requests = conn.recv()
@@ -66,6 +75,15 @@ def _child(conn, default: str, names: list[str], corpus: str | None) -> None:
                 conn.send(out)
             except Exception as e:  # noqa: BLE001 - an answer that cannot be pickled
                 conn.send(ModelProcessError(f"the answer could not be sent back: {e}"))
+
+
+def _orphan_watch(parent: int, every_s: float = 1.0) -> None:
+    """End this model process within `every_s` of its parent's end, even while it loads
+    (a server killed by a signal runs no exit handlers that would end its children)."""
+    while True:
+        time.sleep(every_s)
+        if os.getppid() != parent:
+            os._exit(0)
 
 
 class _Worker:
@@ -86,9 +104,14 @@ class ProcessPool:
             uses it until a child is ready.
         n: model processes (>= 1).
         corpus: the corpus folder the children's models search (as `local`'s).
+        on_demand: start the model processes only when concurrent requests first arrive
+            (a batch of two or more, or two batches at once); until then, and while they
+            load, `local` answers. One user asking one query at a time never starts them (no
+            start-up work, no memory).
     """
 
-    def __init__(self, local: ModelChoice, n: int, corpus: str | os.PathLike | None = None):
+    def __init__(self, local: ModelChoice, n: int, corpus: str | os.PathLike | None = None,
+                 on_demand: bool = False):
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
             raise ConfigError(f"model processes must be an integer >= 1, got {n!r}")
         self.local = local
@@ -100,8 +123,12 @@ class ProcessPool:
         self._workers: list[_Worker] = []
         self._ready = threading.Event()  # set once a child has answered "ready"
         self._closed = False
-        for _ in range(n):
-            self._start()
+        self._in_flight = 0  # batches being answered now
+        self.started = 0  # model processes started, replacements included
+        self._started_all = not on_demand
+        if not on_demand:
+            for _ in range(n):
+                self._start()
 
     # ------------------------------------------------------------------ the processes
 
@@ -114,6 +141,7 @@ class ProcessPool:
         worker = _Worker(process, parent)
         with self._lock:
             self._workers.append(worker)
+            self.started += 1
         threading.Thread(target=self._await_ready, args=(worker,), daemon=True,
                          name="ratouch-model-ready").start()
 
@@ -170,6 +198,21 @@ class ProcessPool:
         while none is ready yet)."""
         if self._closed:
             raise ModelProcessError("the model processes were closed")
+        with self._lock:
+            self._in_flight += 1
+            start = not self._started_all and (self._in_flight >= 2 or len(requests) >= 2)
+            self._started_all = self._started_all or start
+        if start:
+            log.info("concurrent queries: starting %d model process(es)", self.n)
+            for _ in range(self.n):
+                self._start()
+        try:
+            return self._answer(requests)
+        finally:
+            with self._lock:
+                self._in_flight -= 1
+
+    def _answer(self, requests: Sequence[QueryRequest]) -> list[QueryResult | Exception]:
         worker = self._next() if self._ready.is_set() else None
         if worker is None:
             return self.local.answer(requests)
