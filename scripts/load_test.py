@@ -26,7 +26,11 @@ Targets (reported, checked with --check): HTTP-ready <= 15 s; single-user p50 <=
 Bounded in time: queries still waiting at --deadline are counted as not run, and the whole run
 stops at --timeout.
 
-    .venv/bin/python scripts/load_test.py [--clients 16] [--queries 10] [--json out.json]
+    .venv/bin/python scripts/load_test.py [--clients 16] [--queries 10] [--warm-load N]
+        [--model-processes N] [--json out.json]
+
+--warm-load N: each client first sends N queries that are not counted, so that the load
+measured is the one a server settles into (its model processes started and loaded).
 
 Exit status: 0; 1 when a query failed, the endpoint's inputs changed, the app did not come up
 or (--check) a target was missed.
@@ -354,7 +358,7 @@ def percentiles(xs: list[float]) -> dict:
 def run(clients: int = 16, queries: int = 10, single: int = 8, k: int = 5,
         deadline_s: float = 120.0, app_args: tuple[str, ...] = (), env: dict | None = None,
         log=print, model: str | None = None, timeout_s: float = 900.0,
-        sessions: str = "client") -> dict:
+        sessions: str = "client", warm_load: int = 0) -> dict:
     """Launch the app, measure, stop it. Returns the report (a JSON-ready dict).
 
     Args:
@@ -366,6 +370,8 @@ def run(clients: int = 16, queries: int = 10, single: int = 8, k: int = 5,
         sessions: "client": each client keeps one Gradio session for its queries (as a
             browser tab or gradio_client does); "query": every query opens a new one (the app
             then builds a session's state per query).
+        warm_load: queries each client sends at once before the measured load, not counted
+            (what a server settles into under load: its model processes started, say).
 
     Raises:
         LoadTestError: the app did not come up, its `/query` endpoint takes other inputs than
@@ -478,6 +484,31 @@ def run(clients: int = 16, queries: int = 10, single: int = 8, k: int = 5,
                     except Exception as e:  # noqa: BLE001 - counted and reported
                         with lock:
                             failures[f"{type(e).__name__}: {str(e)[:200]}"] += 1
+
+            if warm_load > 0:
+                t_warm = time.monotonic()
+                warm_failed = [0]
+
+                def warm_run(ci: int) -> None:
+                    try:
+                        c = connect()
+                        for q in range(warm_load):
+                            ask(c, ci + q)
+                    except Exception:  # noqa: BLE001 - counted, not measured
+                        with lock:
+                            warm_failed[0] += 1
+
+                warm = [threading.Thread(target=warm_run, args=(i,), daemon=True)
+                        for i in range(clients)]
+                for th in warm:
+                    th.start()
+                for th in warm:
+                    th.join(timeout=max(1.0, t_end - time.monotonic()))
+                report["warm_load"] = {"queries": clients * warm_load,
+                                       "wall_s": round(time.monotonic() - t_warm, 1),
+                                       "clients_failed": warm_failed[0]}
+                log(f"warm-up load (not counted): {report['warm_load']}")
+                report["rss_before_mib"] = rss_mib(proc.pid)
 
             loadavg = LoadAverage()
             loadavg.start()
@@ -612,6 +643,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sessions", choices=("client", "query"), default="client",
                    help="one Gradio session per client (default, as a browser tab or "
                         "gradio_client keeps one) or a new one per query")
+    p.add_argument("--warm-load", type=int, default=0,
+                   help="queries per client sent before the measured load, not counted")
     p.add_argument("--json", default=None, help="also write the report here")
     p.add_argument("--check", action="store_true", help="exit 1 when a target is not met")
     args = p.parse_args(argv)
@@ -623,7 +656,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         r = run(args.clients, args.queries, args.single, deadline_s=args.deadline,
                 app_args=app_args, log=lambda m: print(m, flush=True), model=args.model,
-                timeout_s=args.timeout, sessions=args.sessions)
+                timeout_s=args.timeout, sessions=args.sessions, warm_load=args.warm_load)
     except LoadTestError as e:
         print(f"load test FAILED: {e}", file=sys.stderr)
         tail = getattr(e, "server_log", None)

@@ -135,7 +135,7 @@ def test_the_load_test_runs_against_the_real_app(load_test, app_corpus, tmp_path
     rc = load_test.main(["--clients", "2", "--queries", "2", "--single", "2",
                          "--deadline", "120", "--timeout", str(BOUND_S),
                          "--corpus", str(app_corpus), "--batch-workers", "2",
-                         "--json", str(out)])
+                         "--warm-load", "1", "--json", str(out)])
     seconds = time.monotonic() - t0
     printed = capsys.readouterr()
     assert rc == 0, printed.err + printed.out
@@ -145,6 +145,7 @@ def test_the_load_test_runs_against_the_real_app(load_test, app_corpus, tmp_path
     assert report["single"]["n"] == 2 and report["under_load"]["n"] == 4
     assert report["endpoint_inputs"] == [n for n, _ in load_test.INPUTS]
     assert report["model"] == "default-s"
+    assert report["warm_load"]["queries"] == 2 and report["warm_load"]["clients_failed"] == 0
     assert {"ready_http_s", "ready_query_s", "single", "under_load", "throughput_qps",
             "cpu_s_per_query", "rss_before_mib", "rss_after_mib", "targets",
             "server_log_tail", "total_s"} <= set(report)
