@@ -127,8 +127,14 @@ def test_workers_answer_that_many_batches_at_once_and_share_a_burst(workers):
     out = b.answer([_request(k) for k in range(1, 13)])
     assert out == [{"k": k} for k in range(1, 13)]  # each caller its own answer, in order
     assert state["most"] == workers
-    # the burst of 12 split evenly among the idle workers, not taken whole by the first
-    assert sorted(b.batches[1:]) == [12 // workers] * workers
+    # the burst of 12 split between the workers, not taken whole by the first: each take
+    # is a `workers`-th of what waits then (12, then what the others left)
+    taken = sorted(b.batches[1:], reverse=True)  # the order they were taken in
+    expected, left = [], 12
+    while left:
+        expected.append(-(-left // workers))
+        left -= expected[-1]
+    assert taken == expected
 
 
 def test_a_burst_larger_than_the_workers_batches_waits_for_the_next_free_one():

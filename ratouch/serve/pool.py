@@ -12,7 +12,8 @@ A child is started with the `spawn` method (a fresh interpreter: no threads or l
 from a server), runs its model work on one intra-op and one BLAS thread, and loads a model
 other than the default on its first request for it. A child that dies (killed, out of
 memory) fails the batch it held with `ModelProcessError` and is replaced; a child whose
-parent dies sees its pipe close and exits. As with any `spawn`, a script that starts a pool
+parent dies ends within a second, even while it loads (`_orphan_watch`, started before
+torch is imported). As with any `spawn`, a script that starts a pool
 must guard its own work with ``if __name__ == "__main__":`` (the child imports the script's
 module); `python -m app` does.
 """
@@ -54,7 +55,10 @@ def _child(conn, default: str, names: list[str], corpus: str | None) -> None:
         try:
             choice = ModelChoice(default, names, corpus=corpus)
         except BaseException as e:  # noqa: BLE001 - reported to the parent, then exit
-            conn.send(("failed", f"{type(e).__name__}: {e}"))
+            try:
+                conn.send(("failed", f"{type(e).__name__}: {e}"))
+            except OSError:  # the parent is gone
+                pass
             return
         try:
             conn.send(("ready", os.getpid()))
