@@ -59,9 +59,11 @@ class QueryBatcher(Generic[M]):
             GIL: on 2 cores (`scripts/load_test.py --clients 16 --queries 10`, 8 runs
             against 6) 7.7 against 7.0 queries/s on average, the p50 under load halved,
             the p95 up from 2.6-3.0 to 3.3-4.3 s and the server's CPU per query up from
-            0.157 to 0.18-0.21 s (docs/performance.md), so 1 is the default. The answerer
-            must answer concurrent batches as it answers them one at a time (the pipeline
-            does: `tests/test_batcher.py`).
+            0.157 to 0.18-0.21 s (docs/performance.md), so 1 is the default for an
+            answerer in this process. Over a `ratouch.serve.pool.ProcessPool`, whose model
+            processes answer the batches, use one worker per model process (the app does).
+            The answerer must answer concurrent batches as it answers them one at a time
+            (the pipeline does: `tests/test_batcher.py`).
     """
 
     def __init__(self, answerer: ModelAnswerer[M], max_batch: int = 16, max_wait_s: float = 0.0,
@@ -109,7 +111,7 @@ class QueryBatcher(Generic[M]):
         the next idle worker is woken for the rest. A burst is split between the workers
         rather than taken whole by the first free one, which left the others' callers
         waiting behind one long batch: with two model processes (16 x 30, after a warm-up
-        load) taking all that waited gave a p95 of 2.36-2.49 s, a share 1.78-2.02 s, for
+        load) taking all that waited gave a p95 of 2.36-2.49 s, a share 1.54-2.02 s, for
         the same throughput (docs/performance.md)."""
         with self._cv:
             self._idle += 1
