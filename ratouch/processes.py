@@ -36,9 +36,14 @@ def worker_pool(workers: int) -> ProcessPoolExecutor:
                                initializer=bind_to_parent, initargs=(os.getpid(),))
 
 
-def bind_to_parent(parent: int) -> None:
-    """Make this (worker) process end when process `parent` ends; a pool's initializer."""
-    if sys.platform.startswith("linux"):
+def bind_to_parent(parent: int, death_signal: bool = True) -> None:
+    """Make this (worker) process end when process `parent` ends; a pool's initializer.
+
+    `death_signal=False` leaves the kernel's signal out and relies on the watchdog alone: the
+    signal fires when the *thread* that started this process ends, not the process, which is
+    wrong for a child started from a short-lived thread (`ratouch.serve.pool`'s model
+    processes are started by whichever thread answers)."""
+    if death_signal and sys.platform.startswith("linux"):
         try:
             libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
             libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)

@@ -648,11 +648,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", default=None, help="also write the report here")
     p.add_argument("--check", action="store_true", help="exit 1 when a target is not met")
     args = p.parse_args(argv)
-    app_args = (() if args.max_batch is None else ("--max-batch", str(args.max_batch))) + \
-        (() if args.batch_workers is None else ("--batch-workers", str(args.batch_workers))) \
-        + (() if args.model_processes is None
-           else ("--model-processes", str(args.model_processes))) \
-        + (() if args.corpus is None else ("--corpus", str(args.corpus)))
+    passed = {"--max-batch": args.max_batch, "--batch-workers": args.batch_workers,
+              "--model-processes": args.model_processes, "--corpus": args.corpus}
+    app_args = tuple(x for flag, value in passed.items() if value is not None
+                     for x in (flag, str(value)))
     try:
         r = run(args.clients, args.queries, args.single, deadline_s=args.deadline,
                 app_args=app_args, log=lambda m: print(m, flush=True), model=args.model,

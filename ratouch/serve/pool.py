@@ -12,8 +12,8 @@ A child is started with the `spawn` method (a fresh interpreter: no threads or l
 from a server), runs its model work on one intra-op and one BLAS thread, and loads a model
 other than the default on its first request for it. A child that dies (killed, out of
 memory) fails the batch it held with `ModelProcessError` and is replaced; a child whose
-parent dies ends within a second, even while it loads (`_orphan_watch`, started before
-torch is imported). As with any `spawn`, a script that starts a pool
+parent dies ends within a second, even while it loads (`ratouch.processes.bind_to_parent`'s
+watchdog, started before torch is imported). As with any `spawn`, a script that starts a pool
 must guard its own work with ``if __name__ == "__main__":`` (the child imports the script's
 module); `python -m app` does.
 """
@@ -25,11 +25,11 @@ import multiprocessing as mp
 import os
 import queue
 import threading
-import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from ratouch.errors import ConfigError, RATouchError
+from ratouch.processes import bind_to_parent
 
 if TYPE_CHECKING:  # not imported at run time: a model process starts its watch first
     from ratouch.serve.models import Model, ModelChoice
@@ -42,11 +42,10 @@ class ModelProcessError(RATouchError):
     """A model process ended while it answered a batch (the batch's requests get this)."""
 
 
-def _child(conn, default: str, names: list[str], corpus: str | None) -> None:
+def _child(conn, parent: int, default: str, names: list[str], corpus: str | None) -> None:
     """A model process: load the default model, say "ready", then answer the batches sent
     until None (or until the parent's end of the pipe closes)."""
-    threading.Thread(target=_orphan_watch, args=(os.getppid(),), daemon=True,
-                     name="ratouch-orphan-watch").start()
+    bind_to_parent(parent, death_signal=False)  # started from a batch worker's thread
     from ratouch.serve.models import ModelChoice  # torch and the rest: after the watch
     from ratouch.threads import blas_threads, intra_op_threads
 
@@ -81,15 +80,6 @@ def _child(conn, default: str, names: list[str], corpus: str | None) -> None:
                 conn.send(ModelProcessError(f"the answer could not be sent back: {e}"))
 
 
-def _orphan_watch(parent: int, every_s: float = 1.0) -> None:
-    """End this model process within `every_s` of its parent's end, even while it loads
-    (a server killed by a signal runs no exit handlers that would end its children)."""
-    while True:
-        time.sleep(every_s)
-        if os.getppid() != parent:
-            os._exit(0)
-
-
 class _Worker:
     __slots__ = ("process", "conn", "pid")
 
@@ -120,7 +110,8 @@ class ProcessPool:
             raise ConfigError(f"model processes must be an integer >= 1, got {n!r}")
         self.local = local
         self.n = n
-        self._args = (local.default, list(local.names), None if corpus is None else str(corpus))
+        self._args = (os.getpid(), local.default, list(local.names),
+                      None if corpus is None else str(corpus))
         self._ctx = mp.get_context("spawn")
         self._idle: queue.Queue[_Worker] = queue.Queue()
         self._lock = threading.Lock()
