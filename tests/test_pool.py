@@ -1,6 +1,7 @@
 """Model work in child processes (`ratouch.serve.pool.ProcessPool`): the same answers as in
 the server's process, a dead model process fails only its batch and is replaced, a model
-process that cannot load leaves the server answering by itself."""
+process that cannot load leaves the server answering by itself, model processes that end on
+batch after batch are given up."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import numpy as np
 import pytest
 
 from ratouch.errors import ConfigError
-from ratouch.serve.pool import ModelProcessError, ProcessPool
+from ratouch.serve.pool import GIVE_UP_AFTER, ModelProcessError, ProcessPool
 from ratouch.serve.request import QueryRequest, answer_one
 
 
@@ -72,6 +73,38 @@ def test_model_processes_answer_as_the_server_would_and_replace_a_dead_one(
     assert pool.pids() == []
     with pytest.raises(ModelProcessError, match="closed"):
         pool.answer(requests[:1])
+
+
+def test_model_processes_that_end_batch_after_batch_are_given_up():
+    """A dead model process is replaced, but after GIVE_UP_AFTER batches in a row have ended
+    their process (none answered between) no more are started and the server's own models
+    answer; an answered batch starts the count again."""
+    from pool_fakes import FATAL_K, EndsOnFatalRequests
+
+    local = SimpleNamespace(default="fake", names=["fake"], model=lambda name=None: "local",
+                            answer=lambda requests: [{"k": r.k, "here": True}
+                                                     for r in requests])
+    ask = lambda k: QueryRequest(np.zeros((4, 4, 3), np.uint8), None, None,  # noqa: E731
+                                 (0, 0, 4, 4), k)
+    pool = ProcessPool(local, 1, make=EndsOnFatalRequests)
+    try:
+        _wait(pool.ready)
+        for _ in range(GIVE_UP_AFTER - 1):  # ends, replaced, ends, replaced ...
+            assert isinstance(pool.answer([ask(FATAL_K)])[0], ModelProcessError)
+        answered = pool.answer([ask(4)])[0]  # ... answered: the count starts again
+        assert answered["k"] == 4 and answered["pid"] in pool.pids()
+        assert not pool.gave_up and pool.started == GIVE_UP_AFTER
+        for _ in range(GIVE_UP_AFTER):
+            assert not pool.gave_up
+            out = pool.answer([ask(FATAL_K), ask(5)])
+            assert all(isinstance(e, ModelProcessError) and "ended" in str(e) for e in out)
+        assert pool.gave_up and pool.started == 2 * GIVE_UP_AFTER - 1  # the last not replaced
+        t0 = time.monotonic()
+        assert pool.answer([ask(6)]) == [{"k": 6, "here": True}]  # the server's models
+        assert time.monotonic() - t0 < 0.5  # nothing waited for
+        assert pool.started == 2 * GIVE_UP_AFTER - 1 and pool.pids() == []
+    finally:
+        pool.close()
 
 
 def test_a_model_process_that_cannot_load_leaves_the_server_answering():

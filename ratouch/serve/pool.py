@@ -11,7 +11,9 @@ regeneration, the failure cases) and answers in-process until the first child is
 A child is started with the `spawn` method (a fresh interpreter: no threads or locks forked
 from a server), runs its model work on one intra-op and one BLAS thread, and loads a model
 other than the default on its first request for it. A child that dies (killed, out of
-memory) fails the batch it held with `ModelProcessError` and is replaced; a child whose
+memory) fails the batch it held with `ModelProcessError` and is replaced, until
+`GIVE_UP_AFTER` batches in a row have ended so (a child that dies on every batch): then the
+dead ones are no longer replaced and the parent's own models answer; a child whose
 parent dies ends within a second, even while it loads (`ratouch.processes.bind_to_parent`'s
 watchdog, started before torch is imported). As with any `spawn`, a script that starts a pool
 must guard its own work with ``if __name__ == "__main__":`` (the child imports the script's
@@ -25,7 +27,7 @@ import multiprocessing as mp
 import os
 import queue
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 from ratouch.errors import ConfigError, RATouchError
@@ -38,21 +40,29 @@ if TYPE_CHECKING:  # not imported at run time: a model process starts its watch 
 log = logging.getLogger(__name__)
 
 
+#: Batches in a row whose model process ended while answering them (none answered between)
+#: after which dead model processes are no longer replaced: the parent answers by itself.
+GIVE_UP_AFTER = 3
+
+
 class ModelProcessError(RATouchError):
     """A model process ended while it answered a batch (the batch's requests get this)."""
 
 
-def _child(conn, parent: int, default: str, names: list[str], corpus: str | None) -> None:
+def _child(conn, parent: int, default: str, names: list[str], corpus: str | None,
+           make: Callable[..., Any] | None) -> None:
     """A model process: load the default model, say "ready", then answer the batches sent
     until None (or until the parent's end of the pipe closes)."""
     bind_to_parent(parent, death_signal=False)  # started from a batch worker's thread
-    from ratouch.serve.models import ModelChoice  # torch and the rest: after the watch
-    from ratouch.threads import blas_threads, intra_op_threads
+    from ratouch.threads import blas_threads, intra_op_threads  # torch: after the watch
 
+    if make is None:
+        from ratouch.serve.models import ModelChoice
+        make = ModelChoice
     blas_threads(1)
     with intra_op_threads(1):
         try:
-            choice = ModelChoice(default, names, corpus=corpus)
+            choice = make(default, names, corpus=corpus)
         except BaseException as e:  # noqa: BLE001 - reported to the parent, then exit
             try:
                 conn.send(("failed", f"{type(e).__name__}: {e}"))
@@ -102,16 +112,19 @@ class ProcessPool:
             (a batch of two or more, or two batches at once); until then, and while they
             load, `local` answers. One user asking one query at a time never starts them (no
             start-up work, no memory).
+        make: what a model process answers with, called there as `make(default, names,
+            corpus=corpus)` (default `ModelChoice`); it must be picklable by reference (a
+            module-level function or class).
     """
 
     def __init__(self, local: ModelChoice, n: int, corpus: str | os.PathLike | None = None,
-                 on_demand: bool = False):
+                 on_demand: bool = False, make: Callable[..., Any] | None = None):
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
             raise ConfigError(f"model processes must be an integer >= 1, got {n!r}")
         self.local = local
         self.n = n
         self._args = (os.getpid(), local.default, list(local.names),
-                      None if corpus is None else str(corpus))
+                      None if corpus is None else str(corpus), make)
         self._ctx = mp.get_context("spawn")
         self._idle: queue.Queue[_Worker] = queue.Queue()
         self._lock = threading.Lock()
@@ -120,6 +133,8 @@ class ProcessPool:
         self._closed = False
         self._in_flight = 0  # batches being answered now
         self.started = 0  # model processes started, replacements included
+        self.ended_in_a_row = 0  # batches whose model process ended, none answered since
+        self.gave_up = False  # True once GIVE_UP_AFTER such batches stopped replacements
         self._started_all = not on_demand
         if not on_demand:
             for _ in range(n):
@@ -218,11 +233,21 @@ class ProcessPool:
             log.error("model process %s ended while answering a batch of %d: %s",
                       worker.pid, len(requests), e)
             self._drop(worker)
-            if not self._closed:
+            with self._lock:
+                self.ended_in_a_row += 1
+                if self.ended_in_a_row >= GIVE_UP_AFTER and not self.gave_up:
+                    self.gave_up = True
+                    log.error("model processes ended on %d batches in a row: they are no "
+                              "longer replaced, and the server's own models answer once "
+                              "none is left", self.ended_in_a_row)
+                replace = not (self._closed or self.gave_up)
+            if replace:
                 self._start()  # a replacement; answers once it has loaded
             err = ModelProcessError(f"the model process answering this query ended (exit code "
                                     f"{worker.process.exitcode}); ask again")
             return [err] * len(requests)
+        with self._lock:
+            self.ended_in_a_row = 0
         self._idle.put(worker)
         if isinstance(out, BaseException):
             raise out
@@ -230,14 +255,15 @@ class ProcessPool:
 
     def _next(self) -> _Worker | None:
         """The next free model process, waiting for one; None when none is left (every one
-        failed to load again after ending)."""
+        failed to load, or ended and was not replaced)."""
         while True:
+            with self._lock:
+                if not self._workers:
+                    return None
             try:
                 return self._idle.get(timeout=1.0)
             except queue.Empty:
-                with self._lock:
-                    if not self._workers:
-                        return None
+                continue
 
     def model(self, name: str | None = None) -> Model:
         """The parent's own loaded model called `name` (`ModelChoice.model`)."""
