@@ -238,16 +238,31 @@ def main(argv: list[str] | None = None) -> None:
     demo.block_thread()
 
 
+def _no_monitoring(demo: gr.Blocks) -> None:
+    """Gradio's traffic monitoring off (the app serves its own timings): by default its queue
+    rebuilds a pandas table of the last 10,000 events after every event, for a dashboard
+    this app never serves (`launch(enable_monitoring=False)` closes the dashboard but not the
+    rebuild); its CPU per query grew with the events served, 5.9 ms at 500 to 17 ms at
+    10,000 (docs/performance.md, "Gradio's monitoring")."""
+    queue = demo._queue
+    if hasattr(queue, "ANAYLTICS_CACHE_FREQUENCY"):  # (Gradio's spelling)
+        queue.ANAYLTICS_CACHE_FREQUENCY = sys.maxsize  # the summary is never rebuilt
+    if hasattr(queue, "ANALYTICS_MAX_EVENTS"):
+        queue.ANALYTICS_MAX_EVENTS = 1  # nor 10,000 records kept for it
+
+
 def launch(demo: gr.Blocks, host: str, port: int, block: bool = True):
     """Serve `demo` with the app's limits: a bounded queue, bounded uploads and sessions.
     Besides uploads, only the docs folder (the benchmark report's figures and the stored
     checks) is served, under its own route (`view.DOCS_ROUTE`), by paths inside it: no URL
     carries the server's own path."""
     docs = Path(getattr(demo, "ratouch_docs", DOCS)).resolve()
-    out = demo.queue(default_concurrency_limit=2, max_size=64).launch(
+    demo.queue(default_concurrency_limit=2, max_size=64)
+    _no_monitoring(demo)
+    out = demo.launch(
         server_name=host, server_port=port, max_file_size="50mb", state_session_capacity=256,
         prevent_thread_lock=True, show_error=False, ssr_mode=False, quiet=not block,
-        css=CSS, footer_links=["api"])
+        css=CSS, footer_links=["api"], enable_monitoring=False)
 
     def docs_file(name: str):
         path = (docs / name).resolve()

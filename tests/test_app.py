@@ -613,6 +613,30 @@ def test_query_api_through_gradio_client(served, pair_files):
         == ["/query"]
 
 
+def test_gradio_monitoring_is_off_and_costs_nothing_per_query(served, pair_files):
+    """Gradio's own traffic monitoring is not served, and its queue neither rebuilds its
+    summary table after each event nor keeps records for it (its cost per query grew with
+    the queries served)."""
+    import urllib.error
+    import urllib.request
+
+    from gradio_client import Client, handle_file
+
+    url, _, demo = served
+    client = Client(url, verbose=False)
+    for _ in range(3):
+        client.predict(handle_file(str(pair_files[0])), None, None, None, None, None, 3,
+                       api_name="/query")
+    queue = demo._queue
+    assert queue.events_recorded >= 3
+    assert queue.cached_event_analytics_summary == {"functions": {}}  # never rebuilt
+    assert len(queue.event_analytics) <= 1
+    for route in ("monitoring", "monitoring/summary"):
+        with pytest.raises(urllib.error.HTTPError) as e:
+            urllib.request.urlopen(url + route)
+        assert e.value.code in (403, 404), route
+
+
 def test_the_model_is_a_choice_in_the_page_and_the_api(pair_files):
     from gradio_client import Client, handle_file
 
