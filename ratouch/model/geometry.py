@@ -206,12 +206,14 @@ def _robust_affine(x: np.ndarray, y: np.ndarray, rounds: int = 3) -> np.ndarray:
     xv, yv = x.ravel(), y.ravel()
     keep = np.ones(xv.shape, bool)
     gain, offset = 1.0, 0.0
-    for _ in range(rounds):
+    for n in range(rounds):
         xs, ys = xv[keep], yv[keep]
         var = xs.var()
         gain = float(((xs - xs.mean()) * (ys - ys.mean())).mean() / var) if var > 1e-10 else 1.0
         gain = float(np.clip(gain, 0.8, 1.25))
         offset = float(ys.mean() - gain * xs.mean())
+        if n == rounds - 1:  # the last fit's pixels to keep would be read by no one
+            break
         r = yv - (gain * xv + offset)
         spread = np.abs(r - np.median(r))
         mad = np.median(spread) * 1.4826 + 1e-6
