@@ -417,3 +417,25 @@ def test_a_lookup_reads_any_working_size_the_same_as_a_fresh_one(shipped):
             assert np.array_equal(mine, theirs)
     assert set(lookup._at_rest) >= {(120, 160), (160, 120)}
     assert not lookup.with_floors((1.0,) * 6, 2.0)._at_rest  # a new lookup starts empty
+
+
+def test_the_lookups_perceptron_is_the_plain_one_pixel_by_pixel(shipped):
+    """The perceptron reads pixels as columns, some at a time: it computes what the plain
+    perceptron (a pixel a row, all at once) does, for a pixel count that is not a multiple of
+    the chunk, and its gradients are of the frame's shape."""
+    from ratouch.model import geometry
+
+    lookup = shipped.lookup("mini")
+    rng = np.random.default_rng(5)
+    x = rng.normal(0, 1, (5, 2 * geometry._COLUMNS + 37))
+    plain = x.T
+    for n, (wt, b) in enumerate(zip(lookup.weights, lookup.biases)):
+        plain = plain @ wt + b
+        if n < len(lookup.weights) - 1:
+            plain = np.maximum(plain, 0)
+    got = lookup._forward(x)
+    assert got.shape == (2, x.shape[1])
+    np.testing.assert_allclose(got, plain.T, rtol=1e-12, atol=1e-12)
+    gx, gy = lookup.gradients(rng.normal(0, 0.02, (31, 43, 3)))
+    assert gx.shape == gy.shape == (31, 43)
+    assert np.array_equal(lookup.gradients(np.zeros((31, 43, 3)))[0], np.zeros((31, 43)))
