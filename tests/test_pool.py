@@ -61,11 +61,11 @@ def test_model_processes_answer_as_the_server_would_and_replace_a_dead_one(
         out = pool.answer([requests[0], too_many])
         assert _answers(out[:1]) == _answers(here[:1]) and isinstance(out[1], Exception)
 
-        os.kill(pids[0], signal.SIGKILL)  # a model process dies
-        failed = [pool.answer([requests[1]])[0] for _ in range(2)]
-        errors = [e for e in failed if isinstance(e, ModelProcessError)]
-        assert len(errors) == 1 and "ended" in str(errors[0])
-        assert _answers([r for r in failed if r is not errors[0]]) == _answers(here[1:2])
+        os.kill(pids[0], signal.SIGKILL)  # a model process dies while idle
+        dead = next(w for w in pool._workers if w.pid == pids[0])
+        _wait(lambda: not dead.process.is_alive(), 30)
+        after = [pool.answer([requests[1]])[0] for _ in range(2)]  # the other answers them
+        assert _answers(after) == _answers(here[1:2]) * 2
         _wait(lambda: len(pool.pids()) == 2 and pids[0] not in pool.pids())  # replaced
         assert _answers(pool.answer(requests[:3])) == _answers(here[:3])
     finally:
@@ -76,9 +76,9 @@ def test_model_processes_answer_as_the_server_would_and_replace_a_dead_one(
 
 
 def test_model_processes_that_end_batch_after_batch_are_given_up():
-    """A dead model process is replaced, but after GIVE_UP_AFTER batches in a row have ended
-    their process (none answered between) no more are started and the server's own models
-    answer; an answered batch starts the count again."""
+    """A model process that ends while answering fails that batch and is replaced, but after
+    GIVE_UP_AFTER have ended in a row (no batch answered between) no more are started and the
+    server's own models answer; an answered batch starts the count again."""
     from pool_fakes import FATAL_K, EndsOnFatalRequests
 
     local = SimpleNamespace(default="fake", names=["fake"], model=lambda name=None: "local",
@@ -103,6 +103,28 @@ def test_model_processes_that_end_batch_after_batch_are_given_up():
         assert pool.answer([ask(6)]) == [{"k": 6, "here": True}]  # the server's models
         assert time.monotonic() - t0 < 0.5  # nothing waited for
         assert pool.started == 2 * GIVE_UP_AFTER - 1 and pool.pids() == []
+    finally:
+        pool.close()
+
+
+def test_a_model_process_found_dead_while_idle_fails_no_query():
+    """A model process that ended between batches is found so before a batch is sent to it:
+    it is replaced, and the batch goes to the next free one (here, its replacement)."""
+    from pool_fakes import EndsOnFatalRequests
+
+    local = SimpleNamespace(default="fake", names=["fake"], model=lambda name=None: "local",
+                            answer=lambda requests: [{"k": r.k, "here": True}
+                                                     for r in requests])
+    pool = ProcessPool(local, 1, make=EndsOnFatalRequests)
+    try:
+        _wait(pool.ready)
+        (pid,) = pool.pids()
+        os.kill(pid, signal.SIGKILL)
+        _wait(lambda: not pool._workers[0].process.is_alive(), 30)
+        request = QueryRequest(np.zeros((4, 4, 3), np.uint8), None, None, (0, 0, 4, 4), 4)
+        answered = pool.answer([request])[0]
+        assert answered["k"] == 4 and answered["pid"] not in (pid, os.getpid())
+        assert pool.started == 2 and pool.ended_in_a_row == 0 and not pool.gave_up
     finally:
         pool.close()
 

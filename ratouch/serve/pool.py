@@ -11,9 +11,11 @@ regeneration, the failure cases) and answers in-process until the first child is
 A child is started with the `spawn` method (a fresh interpreter: no threads or locks forked
 from a server), runs its model work on one intra-op and one BLAS thread, and loads a model
 other than the default on its first request for it. A child that dies (killed, out of
-memory) fails the batch it held with `ModelProcessError` and is replaced, until
-`GIVE_UP_AFTER` batches in a row have ended so (a child that dies on every batch): then the
-dead ones are no longer replaced and the parent's own models answer; a child whose
+memory) fails the batch it held with `ModelProcessError` and is replaced (one found dead
+while idle is replaced and fails nothing: the batch goes to the next free one), until
+`GIVE_UP_AFTER` have ended in a row with no batch answered between (a child that dies on
+every batch): then the dead ones are no longer replaced and the parent's own models answer;
+a child whose
 parent dies ends within a second, even while it loads (`ratouch.processes.bind_to_parent`'s
 watchdog, started before torch is imported). As with any `spawn`, a script that starts a pool
 must guard its own work with ``if __name__ == "__main__":`` (the child imports the script's
@@ -40,8 +42,8 @@ if TYPE_CHECKING:  # not imported at run time: a model process starts its watch 
 log = logging.getLogger(__name__)
 
 
-#: Batches in a row whose model process ended while answering them (none answered between)
-#: after which dead model processes are no longer replaced: the parent answers by itself.
+#: Model processes ended in a row (while answering a batch or idle; no batch answered
+#: between) after which dead ones are no longer replaced: the parent answers by itself.
 GIVE_UP_AFTER = 3
 
 
@@ -133,8 +135,8 @@ class ProcessPool:
         self._closed = False
         self._in_flight = 0  # batches being answered now
         self.started = 0  # model processes started, replacements included
-        self.ended_in_a_row = 0  # batches whose model process ended, none answered since
-        self.gave_up = False  # True once GIVE_UP_AFTER such batches stopped replacements
+        self.ended_in_a_row = 0  # model processes that ended, no batch answered since
+        self.gave_up = False  # True once GIVE_UP_AFTER ended in a row stopped replacements
         self._started_all = not on_demand
         if not on_demand:
             for _ in range(n):
@@ -168,6 +170,21 @@ class ProcessPool:
         log.info("model process %d ready", what)
         self._ready.set()
         self._idle.put(worker)
+
+    def _ended(self, worker: _Worker) -> None:
+        """A model process that ended: let go, and replaced unless the pool is closed or
+        GIVE_UP_AFTER have ended in a row (none answered between)."""
+        self._drop(worker)
+        with self._lock:
+            self.ended_in_a_row += 1
+            if self.ended_in_a_row >= GIVE_UP_AFTER and not self.gave_up:
+                self.gave_up = True
+                log.error("model processes ended %d times in a row: they are no longer "
+                          "replaced, and the server's own models answer once none is left",
+                          self.ended_in_a_row)
+            replace = not (self._closed or self.gave_up)
+        if replace:
+            self._start()  # a replacement; answers once it has loaded
 
     def _drop(self, worker: _Worker) -> None:
         with self._lock:
@@ -223,26 +240,24 @@ class ProcessPool:
                 self._in_flight -= 1
 
     def _answer(self, requests: Sequence[QueryRequest]) -> list[QueryResult | Exception]:
-        worker = self._next() if self._ready.is_set() else None
-        if worker is None:
-            return self.local.answer(requests)
+        while True:
+            worker = self._next() if self._ready.is_set() else None
+            if worker is None:
+                return self.local.answer(requests)
+            if worker.process.is_alive():
+                break
+            # it ended while idle (killed, out of memory): not this batch's fault, which
+            # goes to the next free one
+            log.error("model process %s ended while idle (exit code %s)", worker.pid,
+                      worker.process.exitcode)
+            self._ended(worker)
         try:
             worker.conn.send(list(requests))
             out = worker.conn.recv()
         except (EOFError, OSError) as e:
             log.error("model process %s ended while answering a batch of %d: %s",
                       worker.pid, len(requests), e)
-            self._drop(worker)
-            with self._lock:
-                self.ended_in_a_row += 1
-                if self.ended_in_a_row >= GIVE_UP_AFTER and not self.gave_up:
-                    self.gave_up = True
-                    log.error("model processes ended on %d batches in a row: they are no "
-                              "longer replaced, and the server's own models answer once "
-                              "none is left", self.ended_in_a_row)
-                replace = not (self._closed or self.gave_up)
-            if replace:
-                self._start()  # a replacement; answers once it has loaded
+            self._ended(worker)
             err = ModelProcessError(f"the model process answering this query ended (exit code "
                                     f"{worker.process.exitcode}); ask again")
             return [err] * len(requests)
