@@ -1,7 +1,7 @@
 """Model work in child processes (`ratouch.serve.pool.ProcessPool`): the same answers as in
 the server's process, a dead model process fails only its batch and is replaced, a model
-process that cannot load leaves the server answering by itself, model processes that end on
-batch after batch are given up."""
+process that cannot load leaves the server answering by itself, one found dead while idle
+fails nothing, model processes that end batch after batch are given up."""
 
 from __future__ import annotations
 
@@ -22,6 +22,18 @@ from ratouch.serve.request import QueryRequest, answer_one
 def _answers(results) -> list[tuple]:
     return [(r.description, {m: [n["id"] for n in ns] for m, ns in r.neighbours.items()},
              r.attention, r.warnings, r.trust) for r in results]
+
+
+def _tiny(k: int) -> QueryRequest:
+    """A request asking for `k` neighbours (the stand-in models answer with its `k`)."""
+    return QueryRequest(np.zeros((4, 4, 3), np.uint8), None, None, (0, 0, 4, 4), k)
+
+
+def _here() -> SimpleNamespace:
+    """The server's own models, stood in for: each request answered with its `k`, marked."""
+    return SimpleNamespace(default="fake", names=["fake"], model=lambda name=None: "local",
+                           answer=lambda requests: [{"k": r.k, "here": True}
+                                                    for r in requests])
 
 
 def _wait(cond, seconds: float = 120.0) -> None:
@@ -81,26 +93,21 @@ def test_model_processes_that_end_batch_after_batch_are_given_up():
     server's own models answer; an answered batch starts the count again."""
     from pool_fakes import FATAL_K, EndsOnFatalRequests
 
-    local = SimpleNamespace(default="fake", names=["fake"], model=lambda name=None: "local",
-                            answer=lambda requests: [{"k": r.k, "here": True}
-                                                     for r in requests])
-    ask = lambda k: QueryRequest(np.zeros((4, 4, 3), np.uint8), None, None,  # noqa: E731
-                                 (0, 0, 4, 4), k)
-    pool = ProcessPool(local, 1, make=EndsOnFatalRequests)
+    pool = ProcessPool(_here(), 1, make=EndsOnFatalRequests)
     try:
         _wait(pool.ready)
         for _ in range(GIVE_UP_AFTER - 1):  # ends, replaced, ends, replaced ...
-            assert isinstance(pool.answer([ask(FATAL_K)])[0], ModelProcessError)
-        answered = pool.answer([ask(4)])[0]  # ... answered: the count starts again
+            assert isinstance(pool.answer([_tiny(FATAL_K)])[0], ModelProcessError)
+        answered = pool.answer([_tiny(4)])[0]  # ... answered: the count starts again
         assert answered["k"] == 4 and answered["pid"] in pool.pids()
         assert not pool.gave_up and pool.started == GIVE_UP_AFTER
         for _ in range(GIVE_UP_AFTER):
             assert not pool.gave_up
-            out = pool.answer([ask(FATAL_K), ask(5)])
+            out = pool.answer([_tiny(FATAL_K), _tiny(5)])
             assert all(isinstance(e, ModelProcessError) and "ended" in str(e) for e in out)
         assert pool.gave_up and pool.started == 2 * GIVE_UP_AFTER - 1  # the last not replaced
         t0 = time.monotonic()
-        assert pool.answer([ask(6)]) == [{"k": 6, "here": True}]  # the server's models
+        assert pool.answer([_tiny(6)]) == [{"k": 6, "here": True}]  # the server's models
         assert time.monotonic() - t0 < 0.5  # nothing waited for
         assert pool.started == 2 * GIVE_UP_AFTER - 1 and pool.pids() == []
     finally:
@@ -112,17 +119,13 @@ def test_a_model_process_found_dead_while_idle_fails_no_query():
     it is replaced, and the batch goes to the next free one (here, its replacement)."""
     from pool_fakes import EndsOnFatalRequests
 
-    local = SimpleNamespace(default="fake", names=["fake"], model=lambda name=None: "local",
-                            answer=lambda requests: [{"k": r.k, "here": True}
-                                                     for r in requests])
-    pool = ProcessPool(local, 1, make=EndsOnFatalRequests)
+    pool = ProcessPool(_here(), 1, make=EndsOnFatalRequests)
     try:
         _wait(pool.ready)
         (pid,) = pool.pids()
         os.kill(pid, signal.SIGKILL)
         _wait(lambda: not pool._workers[0].process.is_alive(), 30)
-        request = QueryRequest(np.zeros((4, 4, 3), np.uint8), None, None, (0, 0, 4, 4), 4)
-        answered = pool.answer([request])[0]
+        answered = pool.answer([_tiny(4)])[0]
         assert answered["k"] == 4 and answered["pid"] not in (pid, os.getpid())
         assert pool.started == 2 and pool.ended_in_a_row == 0 and not pool.gave_up
     finally:
@@ -141,7 +144,7 @@ def test_a_model_process_that_cannot_load_leaves_the_server_answering():
     pool = ProcessPool(local, 1)
     try:
         _wait(lambda: not pool._workers, 120)  # it reported its error and was let go
-        request = QueryRequest(np.zeros((4, 4, 3), np.uint8), None, None, (0, 0, 4, 4), 3)
+        request = _tiny(3)
         assert pool.answer([request]) == [{"k": 3}] and seen == [1]
         assert not pool.ready() and pool.model() == "local"
     finally:
@@ -237,7 +240,7 @@ def test_on_demand_model_processes_start_with_the_first_concurrent_requests():
                             answer=local_answer, model=lambda name=None: "local")
     pool = ProcessPool(local, 2, on_demand=True)
     try:
-        request = QueryRequest(np.zeros((4, 4, 3), np.uint8), None, None, (0, 0, 4, 4), 3)
+        request = _tiny(3)
         for _ in range(3):  # one at a time: nothing started
             assert pool.answer([request]) == [{"k": 3}]
         assert pool.started == 0

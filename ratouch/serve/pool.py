@@ -14,10 +14,9 @@ other than the default on its first request for it. A child that dies (killed, o
 memory) fails the batch it held with `ModelProcessError` and is replaced (one found dead
 while idle is replaced and fails nothing: the batch goes to the next free one), until
 `GIVE_UP_AFTER` have ended in a row with no batch answered between (a child that dies on
-every batch): then the dead ones are no longer replaced and the parent's own models answer;
-a child whose
-parent dies ends within a second, even while it loads (`ratouch.processes.bind_to_parent`'s
-watchdog, started before torch is imported). As with any `spawn`, a script that starts a pool
+every batch): then the dead ones are no longer replaced and the parent's own models answer.
+A child whose parent dies ends within a second, even while it loads
+(`ratouch.processes.bind_to_parent`'s watchdog, started before torch is imported). As with any `spawn`, a script that starts a pool
 must guard its own work with ``if __name__ == "__main__":`` (the child imports the script's
 module); `python -m app` does.
 """
