@@ -137,7 +137,7 @@ def test_tvl_weights_fingerprint_follows_the_files_not_their_folder(tmp_path, mo
         weights_fingerprint = None
 
     # the factory imports the TVL backend when it creates a TVL model
-    monkeypatch.setattr(tvl, "load_tvl", lambda clip, tactile, cfg: Loaded())
+    monkeypatch.setattr(tvl, "load_tvl", lambda clip, tactile, cfg, device: Loaded())
     one = tmp_path / "one"
     one.mkdir()
     (one / "open_clip_model.safetensors").write_bytes(b"clip weights")

@@ -745,3 +745,69 @@ def test_real_vit_l_14_architecture_round_trip(tmp_path):
     for out in (image, tactile, text):
         assert out.shape == (1, 768)
         np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-5)
+
+
+# --------------------------------------------------------------------------- devices
+
+
+def test_create_model_takes_a_device_for_tvl_and_keeps_the_default_backend_on_the_cpu(
+        files, monkeypatch):
+    """`create_model(..., device=)`: the TVL backend's models go where asked (the loader checks
+    the name); the default backend refuses anything but the CPU, with a message."""
+    from ratouch.encoders import factory
+
+    monkeypatch.setattr(factory, "MODEL_CONFIGS", {**factory.MODEL_CONFIGS, "tvl-mini": {
+        "name": "tvl-mini", "backend": "tvl", "dim": MINI_DIM, "clip_arch": MINI_ARCH,
+        "tactile_arch": "vit_tiny_patch16_224"}})
+    enc = factory.create_model("tvl-mini", pretrained=files["root"], device="cpu")
+    assert enc.device == torch.device("cpu")
+    with pytest.raises(ConfigError, match="invalid device 'gpu0'"):
+        factory.create_model("tvl-mini", pretrained=files["root"], device="gpu0")
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="CUDA is not available"):
+            factory.create_model("tvl-mini", pretrained=files["root"], device="cuda")
+    with pytest.raises(ConfigError, match="runs on the CPU only"):
+        factory.create_model("default-tiny", pretrained=None, device="cuda")
+
+
+def _device_check():
+    import importlib.util
+    import sys
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "device_check.py"
+    spec = importlib.util.spec_from_file_location("device_check", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["device_check"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_device_check_script_compares_both_paths_and_fails_on_a_miss(files, monkeypatch,
+                                                                     tmp_path, capsys):
+    """scripts/device_check.py, the CPU against itself (no GPU here): the TVL encoders (the
+    mini architecture, random weights written by the script in the real layouts) and the
+    default encoders' training step agree exactly; a bar they cannot meet exits 1, and a
+    device that cannot be used exits 2 with a message."""
+    from ratouch.encoders import factory
+
+    monkeypatch.setattr(factory, "MODEL_CONFIGS", {**factory.MODEL_CONFIGS, "tvl-mini": {
+        "name": "tvl-mini", "backend": "tvl", "dim": MINI_DIM, "clip_arch": MINI_ARCH,
+        "tactile_arch": "vit_tiny_patch16_224"}})
+    script = _device_check()
+    out = tmp_path / "check.json"
+    argv = ["--device", "cpu", "--encoder", "tvl-mini", "--model", "default-tiny", "--n", "3",
+            "--steps", "2", "--batch", "8"]
+    assert script.main(argv + ["--json", str(out)]) == 0
+    rep = json.loads(out.read_text())
+    assert rep["passed"] and rep["tvl"]["encoder"] == "tvl-mini"
+    for kind in ("image", "tactile", "text"):
+        assert rep["tvl"][f"{kind}_min_cos"] == pytest.approx(1.0, abs=1e-6)
+        assert rep["tvl"]["cpu"][f"{kind}_seconds"] > 0
+    tr = rep["training"]
+    assert tr["batch"] == 8 and len(tr["cpu_losses"]) == len(tr["device_losses"]) == 2
+    assert tr["cpu_losses"] == tr["device_losses"] and tr["loss_max_rel_diff"] == 0.0
+    assert tr["cpu_losses"][1] != tr["cpu_losses"][0]  # the optimiser stepped
+    assert script.main(argv + ["--min-cos", "1.01"]) == 1
+    capsys.readouterr()
+    assert script.main(["--device", "nowhere"]) == 2
+    assert "cannot use device 'nowhere'" in capsys.readouterr().err

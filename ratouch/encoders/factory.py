@@ -79,7 +79,8 @@ def default_config(cfg: dict) -> DefaultConfig:
                          **prior)
 
 
-def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | dict | None = "shipped"):
+def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | dict | None = "shipped",
+                 device: str = "cpu"):
     """Create an encoder set by name.
 
     Args:
@@ -88,6 +89,9 @@ def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | di
             init, for training), or a checkpoint folder. For the TVL backend: a dict
             {"clip": path, "tactile": path} of local checkpoint files, or a folder holding
             `open_clip_model.safetensors`/`.bin`/`.pt` and `tvl_enc_vit*.pth`.
+        device: where the TVL backend's models run ("cpu", "cuda", "cuda:1"; checked by
+            `load_tvl`). The default backend runs on the CPU only: it is small, and its
+            encode methods hand numpy arrays in and out.
 
     Returns:
         An object with encode_image / encode_tactile / encode_text, `name`, `dim` and
@@ -99,6 +103,9 @@ def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | di
     if cfg["backend"] == "default":
         from ratouch.encoders.default import DefaultEncoders
 
+        if device != "cpu":
+            raise ConfigError(f"encoder {name!r} runs on the CPU only (device={device!r}); "
+                              "the TVL backend takes a device")
         model = DefaultEncoders(default_config(cfg))
         if pretrained is None:
             return model
@@ -117,7 +124,7 @@ def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | di
     clip, tactile = _tvl_files(cfg, pretrained)
     tvl = load_tvl(str(clip), str(tactile),
                    TVLConfig(clip_arch=cfg["clip_arch"], tactile_arch=cfg["tactile_arch"],
-                             dim=cfg["dim"]))
+                             dim=cfg["dim"]), device=device)
     tvl.weights_fingerprint = files_fingerprint([clip, tactile])
     return tvl
 

@@ -233,6 +233,41 @@ def antonym_report(model: DefaultEncoders) -> dict:
                           "soft_vs_squishy": round(float(p[0, 2]), 3)}}
 
 
+def step_losses(model: DefaultEncoders, data: dict, minilm: torch.Tensor, lab: torch.Tensor,
+                cap: torch.Tensor, batch: int, gen: torch.Generator) -> dict[str, torch.Tensor]:
+    """One training step's four losses: a batch of pairs and one of corpus entries, drawn
+    with `gen` from the cached `data` (rows of the text table `minilm`, on the model's device,
+    by label `lab` and caption `cap` index), moved to the model's device."""
+    dev = minilm.device
+
+    @overload
+    def on(x: torch.Tensor) -> torch.Tensor: ...
+    @overload
+    def on(x: None) -> None: ...
+    def on(x: torch.Tensor | None) -> torch.Tensor | None:
+        return None if x is None else x.to(dev, non_blocking=True)
+
+    ip = torch.randint(len(lab), (batch,), generator=gen)
+    ic = torch.randint(len(cap), (batch,), generator=gen)
+    v = model.embed_vision(on(_augment(_norm_images(data["crops"][ip.numpy()]), gen, False)),
+                           on(_prior(data, "prior_crops", ip)))
+    t = model.embed_tactile(on(_augment(tactile_batch(data, ip, gen), gen, True)))
+    lp = model.embed_text_features(minilm[lab[ip].to(dev)])
+    vc = model.embed_vision(on(_augment(_norm_images(data["corpus_images"][ic.numpy()]), gen,
+                                        False)), on(_prior(data, "prior_corpus", ic)))
+    lc = model.embed_text_features(minilm[cap[ic].to(dev)])
+    same_p = on((lab[ip][:, None] == lab[ip][None, :]).float())
+    same_c = on((cap[ic][:, None] == cap[ic][None, :]).float())
+    eye = on(torch.eye(batch))
+    scale = model.logit_scale.exp().clamp(max=100)
+    return {
+        "tactile_text": soft_info_nce(t, lp, same_p, scale),
+        "vision_text": soft_info_nce(v, lp, same_p, scale),
+        "tactile_vision": soft_info_nce(t, v, eye, scale),
+        "corpus_vision_text": soft_info_nce(vc, lc, same_c, scale),
+    }
+
+
 def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None = None,
                    progress: bool = True) -> tuple[DefaultEncoders, dict]:
     """Train one default encoder set; save it to `out` (safetensors + config + manifest).
@@ -271,17 +306,8 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
     dev = torch.device(tc.device)
     minilm = torch.from_numpy(model.minilm_features(texts)).to(dev)  # (T, 384), frozen
     model.to(dev)
-
-    @overload
-    def on(x: torch.Tensor) -> torch.Tensor: ...
-    @overload
-    def on(x: None) -> None: ...
-    def on(x: torch.Tensor | None) -> torch.Tensor | None:
-        return None if x is None else x.to(dev, non_blocking=True)
-
     lab = torch.tensor([text_id[t] for t in data["labels"]])
     cap = torch.tensor([text_id[t] for t in data["corpus_captions"]])
-    n_pairs, n_corpus = len(lab), len(cap)
     gen = torch.Generator().manual_seed(tc.seed)
     opt = torch.optim.AdamW(model.parameters(), lr=tc.lr, weight_decay=tc.weight_decay)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=tc.lr, total_steps=tc.steps,
@@ -289,25 +315,7 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
     model.train()
     history = []
     for step in progress_bar(range(tc.steps), desc=f"train {tc.model}", progress=progress):
-        ip = torch.randint(n_pairs, (tc.batch,), generator=gen)
-        ic = torch.randint(n_corpus, (tc.batch,), generator=gen)
-        v = model.embed_vision(on(_augment(_norm_images(data["crops"][ip.numpy()]), gen, False)),
-                               on(_prior(data, "prior_crops", ip)))
-        t = model.embed_tactile(on(_augment(tactile_batch(data, ip, gen), gen, True)))
-        lp = model.embed_text_features(minilm[lab[ip].to(dev)])
-        vc = model.embed_vision(on(_augment(_norm_images(data["corpus_images"][ic.numpy()]), gen,
-                                            False)), on(_prior(data, "prior_corpus", ic)))
-        lc = model.embed_text_features(minilm[cap[ic].to(dev)])
-        same_p = on((lab[ip][:, None] == lab[ip][None, :]).float())
-        same_c = on((cap[ic][:, None] == cap[ic][None, :]).float())
-        eye = on(torch.eye(tc.batch))
-        scale = model.logit_scale.exp().clamp(max=100)
-        losses = {
-            "tactile_text": soft_info_nce(t, lp, same_p, scale),
-            "vision_text": soft_info_nce(v, lp, same_p, scale),
-            "tactile_vision": soft_info_nce(t, v, eye, scale),
-            "corpus_vision_text": soft_info_nce(vc, lc, same_c, scale),
-        }
+        losses = step_losses(model, data, minilm, lab, cap, tc.batch, gen)
         loss = cast(torch.Tensor, sum(losses.values()))  # a sum of (four) tensors
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -318,7 +326,7 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
     model.to("cpu").eval()
     report = {
         "model": tc.model, "steps": tc.steps, "batch": tc.batch, "seed": tc.seed,
-        "n_pairs": n_pairs, "n_corpus": n_corpus, "regime": tc.scarcity.tag,
+        "n_pairs": len(lab), "n_corpus": len(cap), "regime": tc.scarcity.tag,
         "scarce_materials": list(tc.scarcity.scarce_materials()), "data_seconds": round(t_data, 1),
         "train_seconds": round(time.perf_counter() - t0 - t_data, 1),
         "final": history[-1], "antonyms_before": before, "antonyms_after": antonym_report(model),
