@@ -14,6 +14,9 @@ background, its corpus embedded on first use) share the cores: `foreground` mark
 and the second calls `yield_to_foreground` between its steps, so that a query answered while
 the app prepares its other models is not slowed by them (`waiting_for_background` marks the
 stretch where a query waits for such work, which must then not wait for the query).
+
+Where work can run on an accelerator instead (the TVL encoders, the encoders' training step),
+`parse_device` checks the device asked for.
 """
 
 from __future__ import annotations
@@ -26,6 +29,23 @@ import time
 from typing import Iterator
 
 import torch
+
+from ratouch.errors import ConfigError
+
+
+def parse_device(device: str | torch.device) -> torch.device:
+    """A device name checked: one torch knows, and a GPU only where torch sees one.
+
+    Raises:
+        ConfigError: an unknown name, or "cuda" on a machine without a usable GPU.
+    """
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as e:
+        raise ConfigError(f"invalid device {device!r}: {e}") from e
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device {device!r} requested but CUDA is not available")
+    return dev
 
 
 @contextlib.contextmanager

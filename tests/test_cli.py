@@ -6,6 +6,7 @@ import argparse
 import json
 
 import pytest
+import torch
 from PIL import Image
 
 from ratouch.cli import main
@@ -35,6 +36,9 @@ def test_world_build_small_train_split(tmp_path, capsys):
     ["world", "preview", "--out", "{tmp}/x.jpg"],
     ["corpus", "build", "--size", "-5", "--out", "{tmp}/x"],
     ["corpus", "build", "--size", "10k", "--out", "{tmp}/x", "--captioner", "llm"],
+    ["train", "encoders", "--model", "debug", "--out", "{tmp}/x", "--device", "gpu0"],
+    pytest.param(["train", "encoders", "--model", "debug", "--out", "{tmp}/x", "--device", "cuda"],
+                 marks=pytest.mark.skipif(torch.cuda.is_available(), reason="a GPU is seen")),
 ])
 def test_bad_arguments_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, argv):
     argv = [a.format(tmp=tmp_path) for a in argv]

@@ -209,6 +209,9 @@ def _add_train(sub) -> None:
     e.add_argument("--n-pairs", type=_pos_int, default=12_000)
     e.add_argument("--n-corpus", type=_pos_int, default=8_000)
     e.add_argument("--threads", type=_pos_int, default=2, help="torch threads for training")
+    e.add_argument("--device", default="cpu",
+                   help="where the training steps run: cpu (default) or cuda[:N] where a GPU is "
+                        "seen (the data is rendered on the CPU either way)")
     r = tsub.add_parser("retriever", help="train the Tactile-Guided Retriever (then frozen)")
     r.add_argument("--encoder", default=DEFAULT_ENCODER)
     r.add_argument("--seed", type=_nonneg_int, default=0)

@@ -175,7 +175,8 @@ def _train_encoders(args: argparse.Namespace) -> int:
     for name in models:
         out = Path(args.out) / name if args.out else shipped_weights(name)
         tc = TrainConfig(model=name, seed=args.seed, steps=args.steps or STEPS.get(name, 300),
-                         n_pairs=args.n_pairs, n_corpus=args.n_corpus, threads=args.threads)
+                         n_pairs=args.n_pairs, n_corpus=args.n_corpus, threads=args.threads,
+                         device=args.device)
         _, report = train_encoders(tc, out=str(out), cache=shared)
         print(json.dumps({"out": str(out), **report}))
     return 0

@@ -55,6 +55,7 @@ from ratouch.checkpoint import (
 from ratouch.encoders.tvl_input import CLIP_MEAN, CLIP_STD, clip_rgb_tensor, tvl_tactile_tensor
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.images import as_image_list
+from ratouch.threads import parse_device
 
 log = logging.getLogger(__name__)
 
@@ -497,17 +498,6 @@ def _check_tactile_head(state: Mapping[str, torch.Tensor], cfg: TVLConfig, path:
 # --------------------------------------------------------------------------- loading
 
 
-def _parse_device(device: str | torch.device) -> torch.device:
-    """Validate a device name."""
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError) as e:
-        raise ConfigError(f"invalid device {device!r}: {e}") from e
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ConfigError(f"device {device!r} requested but CUDA is not available")
-    return dev
-
-
 def _clip_model_config(cfg: TVLConfig) -> dict[str, Any]:
     """The OpenCLIP architecture config of ``cfg.clip_arch``, checked for offline use."""
     import open_clip
@@ -584,7 +574,7 @@ def load_tvl(clip_weights: str | os.PathLike[str], tactile_weights: str | os.Pat
 
     if not isinstance(cfg, TVLConfig):
         raise ConfigError(f"cfg must be a TVLConfig, got {type(cfg).__name__}")
-    dev = _parse_device(device)
+    dev = parse_device(device)
     clip_path = _check_file(clip_weights, "OpenCLIP checkpoint")
     tactile_path = _check_file(tactile_weights, "TVL tactile checkpoint")
     _clip_model_config(cfg)

@@ -28,6 +28,7 @@ from ratouch.files import write_npz_atomic
 from ratouch.images import resize_array
 from ratouch.paths import cache_dir
 from ratouch.processes import worker_pool
+from ratouch.threads import parse_device
 from ratouch.timing import progress_bar
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import world_for
@@ -56,7 +57,7 @@ class TrainConfig:
     threads: int = 2
     regime: str = "scarce"  # which train pairs: see ratouch.world.scarcity
     draw: int = 0
-    device: str = "cpu"  # where the step loop runs ("cuda" where a GPU is lent)
+    device: str = "cpu"  # where the step loop runs (checked by `parse_device`)
 
     @property
     def scarcity(self) -> ScarceRegime:
@@ -70,6 +71,7 @@ class TrainConfig:
         if not self.lr > 0:
             raise ConfigError(f"lr={self.lr} must be > 0")
         self.scarcity  # noqa: B018 (checks regime and draw)
+        parse_device(self.device)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -326,7 +328,7 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
     model.to("cpu").eval()
     report = {
         "model": tc.model, "steps": tc.steps, "batch": tc.batch, "seed": tc.seed,
-        "n_pairs": len(lab), "n_corpus": len(cap), "regime": tc.scarcity.tag,
+        "n_pairs": len(lab), "n_corpus": len(cap), "device": str(dev), "regime": tc.scarcity.tag,
         "scarce_materials": list(tc.scarcity.scarce_materials()), "data_seconds": round(t_data, 1),
         "train_seconds": round(time.perf_counter() - t0 - t_data, 1),
         "final": history[-1], "antonyms_before": before, "antonyms_after": antonym_report(model),
