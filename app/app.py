@@ -206,6 +206,7 @@ def main(argv: list[str] | None = None) -> None:
         # choosing one does not make its first query wait (a query for one still being
         # prepared waits for it and says so)
         loaded["choice"] = ModelChoice(args.encoder, models, corpus=args.corpus)
+        loaded["choice"].warm()  # what the first query builds once, built before it comes
         # a pretrained language model's generators (hundreds of MB) load when first chosen
         loaded["choice"].prepare([m for m in models if m != args.encoder
                                   and split_model_name(m)[1] is None])

@@ -20,3 +20,20 @@ class EndsOnFatalRequests:
         if any(r.k == FATAL_K for r in requests):
             os._exit(3)
         return [{"k": r.k, "pid": os.getpid()} for r in requests]
+
+
+class Warms(EndsOnFatalRequests):
+    """Warms before it is ready (`ModelChoice.warm`'s place) and says so in each answer; a
+    default named "cannot-warm" fails its warm-up."""
+
+    def __init__(self, default, names, corpus=None):
+        super().__init__(default, names, corpus)
+        self.warmed = 0
+
+    def warm(self):
+        if self.default == "cannot-warm":
+            raise RuntimeError("the warm-up failed")
+        self.warmed += 1
+
+    def answer(self, requests):
+        return [{**a, "warmed": self.warmed} for a in super().answer(requests)]

@@ -154,6 +154,55 @@ def test_a_model_process_that_cannot_load_leaves_the_server_answering():
             ProcessPool(local, bad)
 
 
+def test_a_model_process_warms_before_it_says_it_is_ready_and_one_that_cannot_is_let_go():
+    """A model process warms its models once (`ModelChoice.warm`) before it says "ready": its
+    first answer comes after the warm-up. One whose warm-up fails is let go as one that
+    cannot load, and the server answers."""
+    from pool_fakes import Warms
+
+    pool = ProcessPool(_here(), 1, make=Warms)
+    try:
+        _wait(pool.ready)
+        assert [a["warmed"] for a in pool.answer([_tiny(2), _tiny(3)])] == [1, 1]
+        assert pool.answer([_tiny(4)])[0]["warmed"] == 1  # once, not per batch
+    finally:
+        pool.close()
+    cold = SimpleNamespace(**{**vars(_here()), "default": "cannot-warm", "names": ["cannot-warm"]})
+    pool = ProcessPool(cold, 1, make=Warms)
+    try:
+        _wait(lambda: not pool._workers, 120)
+        assert pool.answer([_tiny(5)]) == [{"k": 5, "here": True}] and not pool.ready()
+    finally:
+        pool.close()
+
+
+def test_warming_a_model_choice_answers_two_made_up_queries_with_the_default_model(pipeline):
+    """`ModelChoice.warm`: a grey image and frame, alone and against itself as background,
+    answered by the default model only (the others stay unloaded); an error is raised. On the
+    real pipeline both answer."""
+    from ratouch.serve.models import ModelChoice
+
+    seen = []
+
+    class Recording:
+        def __init__(self, fail=False):
+            self.fail = fail
+
+        def answer(self, requests):
+            seen.append(requests)
+            return [RuntimeError("no") if self.fail else {"k": r.k} for r in requests]
+
+    loads = []
+    choice = ModelChoice("a", ["a", "b"], load=lambda n: (loads.append(n), Recording())[1])
+    choice.warm()
+    (batch,) = seen
+    assert [r.background is None for r in batch] == [True, False] and loads == ["a"]
+    assert all(r.frame is not None and r.k == 1 and r.model is None for r in batch)
+    with pytest.raises(RuntimeError, match="no"):
+        ModelChoice("a", ["a"], load=lambda n: Recording(fail=True)).warm()
+    ModelChoice("default-s", ["default-s"], load=lambda name: pipeline).warm()
+
+
 @pytest.mark.slow
 def test_the_app_answers_through_a_model_process(shipped_corpus, world, tmp_path):
     """`python -m app --model-processes 1`, as a user starts it: one user's query is

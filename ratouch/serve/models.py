@@ -15,6 +15,8 @@ import time
 from collections.abc import Sequence
 from typing import Callable
 
+import numpy as np
+
 from ratouch import paths
 from ratouch.encoders.factory import DEFAULT_SETS
 from ratouch.errors import ConfigError, RATouchError
@@ -160,6 +162,20 @@ class ModelChoice:
             raise ConfigError(f"the cascade's stages {cal.encoders} must be encoder sets, "
                               "not cascades")
         return Cascade(pipelines, cal)
+
+    def warm(self) -> None:
+        """Answer two made-up queries with the default model and drop the answers: a mid-grey
+        image with a mid-grey tactile frame, alone and against itself as the background. What
+        a process's first query builds once for all (the visual prior's traced extractor,
+        the sensor families' looks: about 2 s on 2 cores) is then built before a user's
+        first query, not during it. A model process warms before it says it is ready, while
+        the server still answers; raises what the default model raises."""
+        grey = np.full((96, 128, 3), 128, np.uint8)
+        requests = [QueryRequest.decode(grey, grey, k=1),
+                    QueryRequest.decode(grey, grey, k=1, background=grey)]
+        for res in self.model().answer(requests):
+            if isinstance(res, Exception):
+                raise res
 
     def answer(self, requests: Sequence[QueryRequest]) -> list[QueryResult | Exception]:
         """Each request answered by its own model (one batch per model); an unknown model,

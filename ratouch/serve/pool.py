@@ -9,8 +9,9 @@ corpus, so each answers a request exactly as the parent would. The parent keeps 
 regeneration, the failure cases) and answers in-process until the first child is ready.
 
 A child is started with the `spawn` method (a fresh interpreter: no threads or locks forked
-from a server), runs its model work on one intra-op and one BLAS thread, and loads a model
-other than the default on its first request for it. A child that dies (killed, out of
+from a server), runs its model work on one intra-op and one BLAS thread, warms its default
+model (`ModelChoice.warm`: what a process's first query builds once) before it says it is
+ready, and loads a model other than the default on its first request for it. A child that dies (killed, out of
 memory) fails the batch it held with `ModelProcessError` and is replaced (one found dead
 while idle is replaced and fails nothing: the batch goes to the next free one), until
 `GIVE_UP_AFTER` have ended in a row with no batch answered between (a child that dies on
@@ -64,6 +65,9 @@ def _child(conn, parent: int, default: str, names: list[str], corpus: str | None
     with intra_op_threads(1):
         try:
             choice = make(default, names, corpus=corpus)
+            warm = getattr(choice, "warm", None)
+            if warm is not None:  # before "ready": the server answers meanwhile
+                warm()
         except BaseException as e:  # noqa: BLE001 - reported to the parent, then exit
             try:
                 conn.send(("failed", f"{type(e).__name__}: {e}"))
