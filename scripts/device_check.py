@@ -17,7 +17,7 @@ device, and this script runs each on the CPU and on `--device` and compares:
    time per step in training mode.
 
     python scripts/device_check.py --device cuda [--encoder tvl-vitb] [--n 32] [--steps 20]
-        [--model default-s] [--batch B] [--json out.json]
+        [--precision fp32|bf16] [--model default-s] [--batch B] [--json out.json]
 
 Exit status 0; 1 when a cosine is below --min-cos or a step's loss differs from the CPU's by
 more than --loss-tol (relative); 2 when the device cannot be used.
@@ -85,14 +85,16 @@ def _timed(fn, repeats: int = 3) -> tuple[np.ndarray, float]:
     return out, float(np.median(times))
 
 
-def check_tvl(encoder: str, device: str, n: int, seed: int = 0) -> dict:
-    """Part 1: the TVL encoders on the CPU and on `device`, the same inputs."""
+def check_tvl(encoder: str, device: str, n: int, seed: int = 0,
+              precision: str = "fp32") -> dict:
+    """Part 1: the TVL encoders on the CPU (fp32) and on `device` (in `precision`), the
+    same inputs."""
     rng = np.random.default_rng(seed)
     images = [rng.integers(0, 256, (300, 400, 3), np.uint8) for _ in range(n)]
     frames = [rng.integers(0, 256, (320, 240, 3), np.uint8) for _ in range(n)]
     words = ["soft", "hard", "rough", "smooth", "fuzzy", "metallic", "grainy", "cold"]
     texts = [f"{words[i % 8]}, {words[(3 * i + 1) % 8]}" for i in range(n)]
-    report: dict = {"encoder": encoder, "n": n}
+    report: dict = {"encoder": encoder, "n": n, "precision": precision}
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         random_tvl_weights(encoder, Path(tmp), seed)
@@ -100,7 +102,8 @@ def check_tvl(encoder: str, device: str, n: int, seed: int = 0) -> dict:
         out: dict = {}
         for side, dev in (("cpu", "cpu"), ("device", device)):
             t0 = time.perf_counter()
-            enc = create_model(encoder, pretrained=tmp, device=dev)
+            enc = create_model(encoder, pretrained=tmp, device=dev,
+                               precision="fp32" if side == "cpu" else precision)
             load = time.perf_counter() - t0
             got = {"load_seconds": round(load, 2), "on": str(enc.device)}
             calls = {"image": partial(enc.encode_image, images),
@@ -198,6 +201,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--model", default="default-s", help="a default encoder set (part 2)")
     ap.add_argument("--n", type=int, default=32, help="inputs of each kind (part 1)")
     ap.add_argument("--steps", type=int, default=20, help="training steps a device (part 2)")
+    ap.add_argument("--precision", choices=("fp32", "bf16"), default="fp32",
+                    help="the TVL towers' forward on --device (part 1; the CPU's is fp32)")
     ap.add_argument("--batch", type=int, default=None,
                     help="training batch (part 2; default: the shipped recipe's)")
     ap.add_argument("--min-cos", type=float, default=0.999)
@@ -216,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
                                     if torch.device(args.device).type == "cuda" else "cpu"),
                     "cpu_threads": torch.get_num_threads()}
     try:
-        report["tvl"] = check_tvl(args.encoder, args.device, args.n)
+        report["tvl"] = check_tvl(args.encoder, args.device, args.n, precision=args.precision)
         print(json.dumps({"tvl": report["tvl"]}), flush=True)
         report["training"] = check_training(args.model, args.device, args.steps, args.batch)
     except ConfigError as e:

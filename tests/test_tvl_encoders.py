@@ -766,8 +766,12 @@ def test_create_model_takes_a_device_for_tvl_and_keeps_the_default_backend_on_th
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match="CUDA is not available"):
             factory.create_model("tvl-mini", pretrained=files["root"], device="cuda")
-    with pytest.raises(ConfigError, match="runs on the CPU only"):
+    with pytest.raises(ConfigError, match="runs on the CPU in fp32 only"):
         factory.create_model("default-tiny", pretrained=None, device="cuda")
+    with pytest.raises(ConfigError, match="runs on the CPU in fp32 only"):
+        factory.create_model("default-tiny", pretrained=None, precision="bf16")
+    assert factory.create_model("tvl-mini", pretrained=files["root"],
+                                precision="bf16").cfg.precision == "bf16"
 
 
 def _device_check():
@@ -811,3 +815,19 @@ def test_device_check_script_compares_both_paths_and_fails_on_a_miss(files, monk
     capsys.readouterr()
     assert script.main(["--device", "nowhere"]) == 2
     assert "cannot use device 'nowhere'" in capsys.readouterr().err
+
+
+def test_bf16_precision_is_checked_and_close_to_fp32(files, cfg):
+    """`TVLConfig.precision`: "fp32" or "bf16" (the towers under bfloat16 autocast, the rows
+    still float32 and unit length, near fp32's); anything else is refused."""
+    with pytest.raises(ConfigError, match="precision must be one of fp32, bf16"):
+        TVLConfig(clip_arch=MINI_ARCH, tactile_arch="tiny", dim=MINI_DIM, precision="fp16")
+    half = load_tvl(files["clip"], files["tactile"],
+                    TVLConfig(clip_arch=MINI_ARCH, tactile_arch="tiny", dim=MINI_DIM,
+                              precision="bf16"))
+    full = load_tvl(files["clip"], files["tactile"], cfg)
+    images = _rand_images(3, seed=5)
+    a, b = full.encode_image(images), half.encode_image(images)
+    assert b.dtype == np.float32 and not np.array_equal(a, b)
+    np.testing.assert_allclose(np.linalg.norm(b, axis=1), 1.0, atol=1e-5)
+    assert np.min(np.sum(a * b, axis=1)) > 0.98

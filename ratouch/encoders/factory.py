@@ -80,7 +80,7 @@ def default_config(cfg: dict) -> DefaultConfig:
 
 
 def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | dict | None = "shipped",
-                 device: str = "cpu"):
+                 device: str = "cpu", precision: str = "fp32"):
     """Create an encoder set by name.
 
     Args:
@@ -92,6 +92,8 @@ def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | di
         device: where the TVL backend's models run ("cpu", "cuda", "cuda:1"; checked by
             `load_tvl`). The default backend runs on the CPU only: it is small, and its
             encode methods hand numpy arrays in and out.
+        precision: the TVL backend's forward, "fp32" or "bf16" (`TVLConfig.precision`);
+            the default backend runs in fp32 only.
 
     Returns:
         An object with encode_image / encode_tactile / encode_text, `name`, `dim` and
@@ -103,9 +105,10 @@ def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | di
     if cfg["backend"] == "default":
         from ratouch.encoders.default import DefaultEncoders
 
-        if device != "cpu":
-            raise ConfigError(f"encoder {name!r} runs on the CPU only (device={device!r}); "
-                              "the TVL backend takes a device")
+        if device != "cpu" or precision != "fp32":
+            raise ConfigError(f"encoder {name!r} runs on the CPU in fp32 only (device="
+                              f"{device!r}, precision={precision!r}); the TVL backend takes "
+                              "a device and a precision")
         model = DefaultEncoders(default_config(cfg))
         if pretrained is None:
             return model
@@ -124,7 +127,7 @@ def create_model(name: str = DEFAULT_ENCODER, pretrained: str | os.PathLike | di
     clip, tactile = _tvl_files(cfg, pretrained)
     tvl = load_tvl(str(clip), str(tactile),
                    TVLConfig(clip_arch=cfg["clip_arch"], tactile_arch=cfg["tactile_arch"],
-                             dim=cfg["dim"]), device=device)
+                             dim=cfg["dim"], precision=precision), device=device)
     tvl.weights_fingerprint = files_fingerprint([clip, tactile])
     return tvl
 
