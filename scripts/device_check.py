@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
 import json
 import sys
 import tempfile
@@ -174,14 +175,12 @@ def check_training(model_name: str, device: str, steps: int, batch: int | None =
     shipped recipe's where None)."""
     torch.manual_seed(seed)
     base = create_model(model_name, pretrained=None)
-    tc = TrainConfig(model=model_name, seed=seed)
-    if batch is not None:
-        tc = TrainConfig(model=model_name, seed=seed, batch=batch)
+    tc = TrainConfig(model=model_name, seed=seed, **({} if batch is None else {"batch": batch}))
     data, minilm, lab, cap = _random_training_data(base, 4 * tc.batch, seed)
     report: dict = {"model": model_name, "batch": tc.batch, "steps": steps}
     runs = {}
     for side, dev in (("cpu", "cpu"), ("device", device)):
-        tcd = TrainConfig(model=model_name, seed=seed, batch=tc.batch, device=dev)
+        tcd = dataclasses.replace(tc, device=dev)
         runs[side], _ = _run_steps(copy.deepcopy(base), data, minilm, lab, cap, tcd, steps, False)
         _, sec = _run_steps(copy.deepcopy(base), data, minilm, lab, cap, tcd, steps, True)
         report[f"{side}_step_seconds"] = round(sec, 4)

@@ -11,15 +11,15 @@ regeneration, the failure cases) and answers in-process until the first child is
 A child is started with the `spawn` method (a fresh interpreter: no threads or locks forked
 from a server), runs its model work on one intra-op and one BLAS thread, warms its default
 model (`ModelChoice.warm`: what a process's first query builds once) before it says it is
-ready, and loads a model other than the default on its first request for it. A child that dies (killed, out of
-memory) fails the batch it held with `ModelProcessError` and is replaced (one found dead
-while idle is replaced and fails nothing: the batch goes to the next free one), until
-`GIVE_UP_AFTER` have ended in a row with no batch answered between (a child that dies on
-every batch): then the dead ones are no longer replaced and the parent's own models answer.
-A child whose parent dies ends within a second, even while it loads
-(`ratouch.processes.bind_to_parent`'s watchdog, started before torch is imported). As with any `spawn`, a script that starts a pool
-must guard its own work with ``if __name__ == "__main__":`` (the child imports the script's
-module); `python -m app` does.
+ready, and loads a model other than the default on its first request for it. A child that
+dies (killed, out of memory) fails the batch it held with `ModelProcessError` and is replaced
+(one found dead while idle is replaced and fails nothing: the batch goes to the next free
+one), until `GIVE_UP_AFTER` have ended in a row with no batch answered between (a child that
+dies on every batch): then the dead ones are no longer replaced and the parent's own models
+answer. A child whose parent dies ends within a second, even while it loads
+(`ratouch.processes.bind_to_parent`'s watchdog, started before torch is imported). As with
+any `spawn`, a script that starts a pool must guard its own work with
+``if __name__ == "__main__":`` (the child imports the script's module); `python -m app` does.
 """
 
 from __future__ import annotations
@@ -118,7 +118,8 @@ class ProcessPool:
             load, `local` answers. One user asking one query at a time never starts them (no
             start-up work, no memory).
         make: what a model process answers with, called there as `make(default, names,
-            corpus=corpus)` (default `ModelChoice`); it must be picklable by reference (a
+            corpus=corpus)` (default `ModelChoice`), whose `warm()`, where it has one, runs
+            before the child says it is ready; it must be picklable by reference (a
             module-level function or class).
     """
 
