@@ -22,6 +22,27 @@ from ratouch.world.dataset import write_split
 from ratouch.world.sampler import World
 
 
+def pytest_configure(config):
+    """Under pytest-xdist (`make test` runs the suite on two workers), each worker's share of
+    the cores for its intra-op threads, and for the processes its tests start: with two
+    threads each on two cores, OpenMP's waiting threads spin against the other worker's
+    (SmolLM2's greedy decoding took 42 s a test instead of 2). Nothing changes without
+    xdist."""
+    import os
+
+    workers = os.environ.get("PYTEST_XDIST_WORKER_COUNT")
+    if not workers:
+        return
+    share = str(max(1, (os.cpu_count() or 1) // int(workers)))
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ.setdefault(var, share)  # read by the processes the tests start
+    import torch
+    from threadpoolctl import threadpool_limits
+
+    torch.set_num_threads(int(share))
+    threadpool_limits(int(share))  # numpy's BLAS in this worker
+
+
 @pytest.fixture(scope="module")
 def one_thread():
     """Tiny models on one intra-op thread (more only add overhead on shared cores); a test
