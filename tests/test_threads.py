@@ -89,3 +89,19 @@ def test_background_priority_lowers_the_calling_thread_and_what_it_forks_only():
     t.join(10)
     assert seen == {"changed": True, "nice": BACKGROUND_NICE, "child": BACKGROUND_NICE}
     assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == here
+
+
+def test_an_xdist_worker_and_what_it_starts_run_on_its_share_of_the_cores():
+    """`make test` runs two pytest-xdist workers; each, and each process its tests start,
+    takes `cores // workers` intra-op threads (tests/conftest.py), so that the workers'
+    OpenMP threads do not spin against each other."""
+    import subprocess
+
+    workers = os.environ.get("PYTEST_XDIST_WORKER_COUNT")
+    if not workers:
+        pytest.skip("not under pytest-xdist (`make test` runs it there)")
+    share = max(1, (os.cpu_count() or 1) // int(workers))
+    want = int(os.environ.get("OMP_NUM_THREADS", share))  # a user's own setting is kept
+    out = subprocess.run([sys.executable, "-c", "import torch; print(torch.get_num_threads())"],
+                         capture_output=True, text=True, check=True, timeout=120)
+    assert int(out.stdout.strip()) == want
