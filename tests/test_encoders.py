@@ -110,6 +110,41 @@ def test_training_reduces_the_loss(tmp_path):
     assert last["tactile_text"] < first["tactile_text"]
 
 
+
+_TRAIN_AND_HASH = """
+import hashlib
+from ratouch.train.encoders import TrainConfig, train_encoders
+model, _ = train_encoders(TrainConfig(model="default-tiny", n_pairs=64, n_corpus=64, steps=6,
+                                      batch=16, workers=1), progress=False)
+h = hashlib.sha256()
+for k, v in sorted(model.state_dict().items()):
+    h.update(k.encode())
+    h.update(v.detach().contiguous().numpy().tobytes())
+print(h.hexdigest())
+"""
+
+
+@pytest.mark.slow
+def test_training_gives_the_same_weights_from_an_empty_cache_and_from_the_cache(tmp_path):
+    """Each in a fresh process, as `ratouch train encoders` runs: rendering the data loads the
+    visual prior, reading it cached does not, and neither may change what is trained (the
+    prior's first load once drew from torch's global generator, which dropout reads)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "RATOUCH_CACHE": str(tmp_path / "cache")}
+
+    def run() -> str:
+        out = subprocess.run([sys.executable, "-c", _TRAIN_AND_HASH], env=env, text=True,
+                             capture_output=True, timeout=600)
+        assert out.returncode == 0, out.stderr[-3000:]
+        return out.stdout.strip().splitlines()[-1]
+
+    cold = run()
+    assert list((tmp_path / "cache").glob("train-data-*.npz"))  # rendered, then cached
+    assert run() == cold
+
 def test_weights_fingerprints_identify_the_loaded_weights(debug_checkpoints, monkeypatch):
     """What corpus embeddings record to tell which weights made them."""
     from ratouch.encoders import factory

@@ -109,6 +109,17 @@ def test_layout_is_mapped_by_order_with_shapes_checked(tmp_path, fake_state, mon
         P.build_model("lite0", path=bad)
 
 
+
+def test_building_a_tower_leaves_the_callers_random_stream_alone():
+    """The architecture's random initialisation (then overwritten) must not draw from torch's
+    global generator: a seeded training that renders its data (and so loads the prior) and one
+    that reads it cached would otherwise train on different dropout masks."""
+    torch.manual_seed(3)
+    expected = torch.rand(4)
+    torch.manual_seed(3)
+    P.build_model("lite0")
+    assert torch.equal(torch.rand(4), expected)
+
 def test_missing_file_or_package(tmp_path, monkeypatch):
     missing = tmp_path / "missing.pth"
     with pytest.raises(DataNotFoundError) as e:

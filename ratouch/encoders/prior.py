@@ -115,7 +115,11 @@ def build_model(name: str = DEFAULT_PRIOR, path: str | os.PathLike | None = None
     if not isinstance(state, dict):
         raise DataError(f"visual prior weights {path} hold a {type(state).__name__}, not a "
                         f"state dict")
-    model = timm.create_model(spec.arch, pretrained=False)
+    # the architecture's random initialisation (overwritten by the weights below) draws from
+    # its own copy of torch's generator: loading the prior must not move the caller's random
+    # stream, or a seeded training would depend on whether this process had loaded it yet
+    with torch.random.fork_rng(devices=[]):
+        model = timm.create_model(spec.arch, pretrained=False)
     try:
         mapped = spec.key_map(state, model.state_dict())
     except DataError as e:
