@@ -328,7 +328,8 @@ def train_encoders(tc: TrainConfig, out: str | None = None, cache: dict | None =
     model.to("cpu").eval()
     report = {
         "model": tc.model, "steps": tc.steps, "batch": tc.batch, "seed": tc.seed,
-        "n_pairs": len(lab), "n_corpus": len(cap), "device": str(dev), "regime": tc.scarcity.tag,
+        "n_pairs": len(lab), "n_corpus": len(cap), "device": str(dev), "threads": tc.threads,
+        "regime": tc.scarcity.tag,
         "scarce_materials": list(tc.scarcity.scarce_materials()), "data_seconds": round(t_data, 1),
         "train_seconds": round(time.perf_counter() - t0 - t_data, 1),
         "final": history[-1], "antonyms_before": before, "antonyms_after": antonym_report(model),
