@@ -112,7 +112,6 @@ def test_training_reduces_the_loss(tmp_path):
     assert (meta["train"]["threads"], meta["train"]["device"]) == (2, "cpu")
 
 
-
 _TRAIN_AND_HASH = """
 import hashlib
 from ratouch.train.encoders import TrainConfig, train_encoders
@@ -146,6 +145,7 @@ def test_training_gives_the_same_weights_from_an_empty_cache_and_from_the_cache(
     cold = run()
     assert list((tmp_path / "cache").glob("train-data-*.npz"))  # rendered, then cached
     assert run() == cold
+
 
 def test_weights_fingerprints_identify_the_loaded_weights(debug_checkpoints, monkeypatch):
     """What corpus embeddings record to tell which weights made them."""

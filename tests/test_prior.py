@@ -109,7 +109,6 @@ def test_layout_is_mapped_by_order_with_shapes_checked(tmp_path, fake_state, mon
         P.build_model("lite0", path=bad)
 
 
-
 def test_building_a_tower_leaves_the_callers_random_stream_alone():
     """The architecture's random initialisation (then overwritten) must not draw from torch's
     global generator: a seeded training that renders its data (and so loads the prior) and one
@@ -119,6 +118,7 @@ def test_building_a_tower_leaves_the_callers_random_stream_alone():
     torch.manual_seed(3)
     P.build_model("lite0")
     assert torch.equal(torch.rand(4), expected)
+
 
 def test_missing_file_or_package(tmp_path, monkeypatch):
     missing = tmp_path / "missing.pth"
