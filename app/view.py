@@ -378,16 +378,21 @@ def firmness_line(firmness: dict | None) -> str:
 
 def structure_line(structure: dict | None) -> str:
     """The structured-contact reading against the background: its score against the
-    family's threshold, and what it decides."""
+    threshold of the floors that read it (the family's, or those set for a sensor unlike
+    every rendered unit), and what it decides."""
     if not structure:
         return ""
     score = structure.get("score")
     shown = "n/a" if score is None else f"{score:.2f}"
     mark = ("✓ contact" if structure.get("contact") else
             "below: the trust line's contact check decides")
+    unlike = structure.get("floors") == "unfamiliar sensor"
+    whose = ("the blank floor set for sensors unlike every rendered unit" if unlike else
+             "the family&#39;s blank floor")
     return (f"<div title='structured change against the background (edges and texture, the "
-            f"drift removed), in multiples of the family&#39;s blank floor; above the "
-            f"threshold is contact'>structured change <b>{shown}</b> × floor "
+            f"drift removed), in multiples of {whose}; above the "
+            f"threshold is contact'>structured change <b>{shown}</b> × "
+            f"{'unfamiliar-sensor floor' if unlike else 'floor'} "
             f"(contact &gt; {structure['threshold']:.2f}) {mark}</div>")
 
 

@@ -1090,6 +1090,12 @@ def test_the_height_map_is_formatted_with_its_scale_and_numbers():
     ru = view.geometry_html(_geometry_result("render units", unfamiliar=True), picture, True)
     assert "depth <b>1.5 r.u.</b> (render units)" in ru and "no real calibration" in ru
     assert "⚠ unfamiliar sensor</b>, read as digit (a guess)" in ru
+    assert "× floor" in ru and "unfamiliar-sensor floor" not in ru  # the family's floors
+    own = _geometry_result("render units", unfamiliar=True)
+    own["trust"]["tactile"]["structure"]["floors"] = "unfamiliar sensor"
+    own_html = view.geometry_html(own, picture, True)
+    assert "structured change <b>10.52</b> × unfamiliar-sensor floor" in own_html
+    assert "floor set for sensors unlike every rendered unit" in own_html
     # without a background (or without a tactile frame, or before a query): the hint
     for result, bg in ((_geometry_result(), False), (None, True), ({"trust": None}, False)):
         assert view.geometry_html(result, None, bg) == view.GEOMETRY_HINT

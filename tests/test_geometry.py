@@ -4,6 +4,7 @@ and `ratouch train geometry` / `ratouch eval presses` through the CLI."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -20,9 +21,11 @@ from ratouch.model.geometry import (
     sphere_gradients,
     working_change,
 )
+from ratouch.model.trust import background_change
 from ratouch.paths import geometry_calibration
 from ratouch.train.geometry import HOLD_OUT_EVERY
 from ratouch.world.presses import BALL_MM, render_ball, render_blank_pair, render_press
+from ratouch.world.sensors import beyond_every_unit, unfamiliar_view
 from ratouch.world.taxim_optics import optics, real_presses
 
 
@@ -154,6 +157,72 @@ def test_an_unfamiliar_sensor_is_said_so_with_a_background(pipeline):
                                 bg)
     assert out["tactile"]["unfamiliar_sensor"]
     assert any("looks like none of the sensors" in w for w in out["warnings"])
+
+
+def _recoloured(frame, background, view):
+    """A frame and its background under one `unfamiliar_view` (one sensor, recoloured)."""
+    return (unfamiliar_view(frame, np.random.default_rng(view)),
+            unfamiliar_view(background, np.random.default_rng(view)))
+
+
+def test_a_recoloured_sensor_is_held_to_floors_of_its_own_against_its_background(pipeline):
+    """docs/geometry.md, "A sensor unlike every rendered unit, read against its background":
+    a blank pair recoloured alike beyond every rendered unit is read with the floors set for
+    such a sensor (the block says so), the same pair as rendered with its family's. Where
+    the structured change finds nothing and the with-background model (which reads the
+    colours) says contact, the recoloured frame is "uncertain", and told why; the rendered
+    unit's frame is "contact" as before."""
+    cal = pipeline.trust
+    assert all(lk.unfamiliar_floors for lk in cal.geometry.lookups.values())
+    eager = dataclasses.replace(cal, contact_threshold_bg=-1e9)  # the model always says contact
+    rng = np.random.default_rng(5)
+    for _ in range(40):
+        f, b = render_blank_pair("gelsight", rng)
+        vf, vb = _recoloured(f, b, int(rng.integers(2**31)))
+        if beyond_every_unit(vf) and not beyond_every_unit(f) and \
+                background_change(vf, vb) >= cal.noise_floor:
+            break
+    else:
+        pytest.fail("no recoloured blank pair beyond the limit in 40 draws")
+    own, theirs = cal.structured_contact(f, b), cal.structured_contact(vf, vb)
+    assert own["floors"] == "family" and theirs["floors"] == "unfamiliar sensor"
+    assert theirs["threshold"] == round(cal.geometry.lookup(theirs["family"])
+                                        .unfamiliar_threshold, 3)
+    assert not theirs["contact"]
+    assert eager.contact_state(vf, vb)[0] == "uncertain"
+    if not own["contact"] and background_change(f, b) >= cal.noise_floor:
+        assert eager.contact_state(f, b)[0] == "contact"
+    enc = pipeline.encoders
+    out = eager.assess(enc.encode_image([vf]), enc.encode_tactile([vf]), vf, vb)
+    assert out["tactile"]["uncertain"] and out["tactile"]["unfamiliar_sensor"]
+    assert any(w.startswith("contact uncertain: the tactile frame looks like none")
+               for w in out["warnings"])
+
+
+def test_a_lookups_floors_for_an_unfamiliar_sensor_round_trip_and_an_old_file_has_none(
+        shipped, tmp_path):
+    """The floors a sensor unlike every rendered unit is held to survive a save and decide
+    `contact(..., unfamiliar=True)`; a lookup written before them loads with none, and such a
+    frame is then held to the family's floors."""
+    lk = shipped.lookup("mini").with_unfamiliar_floors((), float("inf"))
+    family = (lk.structure_floors, lk.structure_threshold)
+    stats = np.asarray(lk.structure_floors) * 1.5  # above the family's floors
+    higher = lk.with_unfamiliar_floors(tuple(2 * f for f in lk.structure_floors), 1.2, on="x")
+    assert higher.floors_for(False) == family and higher.floors_for(True)[1] == 1.2
+    assert higher.contact(None, None, stats=stats)[0]
+    assert not higher.contact(None, None, stats=stats, unfamiliar=True)[0]
+    assert lk.contact(None, None, stats=stats, unfamiliar=True)[0]  # none: the family's
+    path = GeometryCalibration({"mini": higher}).save(tmp_path / "a.json")
+    again = GeometryCalibration.load(path).lookup("mini")
+    assert again.floors_for(True) == (tuple(float(f"{2 * f:.6g}") for f in lk.structure_floors),
+                                      1.2)
+    assert again.meta["on"] == "x"
+    body = json.loads(path.read_text())
+    for key in ("unfamiliar_floors", "unfamiliar_threshold"):
+        del body["lookups"]["mini"][key]
+    (tmp_path / "old.json").write_text(json.dumps(body))
+    old = GeometryCalibration.load(tmp_path / "old.json").lookup("mini")
+    assert old.unfamiliar_floors == () and old.floors_for(True) == old.floors_for(False)
 
 
 def test_firmness_from_shape_tells_soft_from_hard_on_fresh_renders(shipped):
@@ -308,6 +377,34 @@ def test_train_geometry_cli_writes_a_calibration(tmp_path, capsys):
     assert set(report["held_out"]) == {"digit", "gelsight", "mini"}
     cal = GeometryCalibration.load(out)
     assert all(np.isfinite(lk.structure_threshold) for lk in cal.lookups.values())
+    assert all(len(lk.unfamiliar_floors) == 6 and np.isfinite(lk.unfamiliar_threshold)
+               for lk in cal.lookups.values())
+
+
+def test_train_geometry_unfamiliar_floors_sets_only_them(shipped, tmp_path, capsys):
+    """`ratouch train geometry --unfamiliar-floors`: the stored lookups, their family floors
+    and the firmness models are kept; only the floors for a sensor unlike every rendered unit
+    are set (on --pairs recoloured blank pairs a family). Given with --firmness-only it is
+    refused and nothing is written."""
+    out = tmp_path / "lookups.json"
+    shipped.save(out)
+    assert main(["train", "geometry", "--unfamiliar-floors", "--pairs", "6",
+                 "--out", str(out)]) == 0
+    report = json.loads(capsys.readouterr().out)["unfamiliar_floors"]
+    assert set(report) == {"digit", "gelsight", "mini"}
+    assert "(6 a family drawn)" in report["mini"]["floors_on"]
+    cal, before = GeometryCalibration.load(out), shipped.save(tmp_path / "s.json")
+    body, old = json.loads(out.read_text()), json.loads(before.read_text())
+    assert body["firmness"] == old["firmness"]
+    for name, lk in cal.lookups.items():
+        was = shipped.lookup(name)
+        assert lk.floors_for(False) == was.floors_for(False)  # as loaded: the same floats
+        assert len(lk.unfamiliar_floors) == 6 and np.isfinite(lk.unfamiliar_threshold)
+        assert body["lookups"][name]["weights"] == old["lookups"][name]["weights"]
+    written = out.read_bytes()
+    assert main(["train", "geometry", "--unfamiliar-floors", "--firmness-only",
+                 "--out", str(out)]) == 2
+    assert "give one of them" in capsys.readouterr().err and out.read_bytes() == written
 
 
 def test_eval_presses_cli(capsys):

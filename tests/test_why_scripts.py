@@ -320,3 +320,23 @@ def test_geometry_encoder_inputs_add_the_height_map_only_where_a_background_gave
     assert np.all(geo[0, 6] == 1)
     assert not geo[1, 4:].any()   # read without its background: no height map
     assert not geo[2, 4:].any()   # a background but no height map (no lookup)
+
+
+@pytest.mark.skipif(not geometry_calibration().is_file(), reason="no geometry calibration")
+def test_unfamiliar_floors_check_reads_every_family_and_the_real_frames(capsys):
+    """scripts/why_unfamiliar_floors.py, small: per family the recoloured blank pairs and
+    presses beyond the limit read before and after, the frames within the limit whose state
+    changed, and recoloured views of Taxim's real presses."""
+    script = _script("why_unfamiliar_floors")
+    script.main(["--blanks", "6", "--per-kind", "1", "--views", "1", "--test", "6"])
+    out = json.loads(capsys.readouterr().out)
+    assert set(out["fresh"]) == {"digit", "gelsight", "mini"}
+    for row in out["fresh"].values():
+        assert 0 <= row["blank pairs"] <= 6 and 0 <= row["presses"] <= 8
+        for side in ("before", "after"):
+            assert set(row[side]) == {"blanks_contact", "blanks_contact_or_uncertain",
+                                      "presses_answered", "presses_contact"}
+    within = out["within_limit"]
+    assert within["Taxim's real presses"]["pairs"] == 72
+    assert within["fresh pairs, not recoloured"]["changed"] == 0  # nothing within the limit moves
+    assert 0 < out["real"]["taxim press views beyond the limit"] <= 72

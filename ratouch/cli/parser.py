@@ -310,6 +310,11 @@ def _add_train(sub) -> None:
     ge.add_argument("--firmness-only", action="store_true",
                     help="keep the calibration's lookups and floors; fit only the firmness "
                          "models (read from --out or the shipped file)")
+    ge.add_argument("--unfamiliar-floors", action="store_true",
+                    help="keep the calibration's lookups, floors and firmness models; set only "
+                         "the floors a sensor unlike every rendered unit is held to, on "
+                         "--pairs recoloured blank pairs a family (read from --out or the "
+                         "shipped file)")
     ge.add_argument("--out", default=None,
                     help="calibration JSON (default: assets/geometry/lookups.json)")
     cc = tsub.add_parser("cascade", help="calibrate the encoder cascade (smallest confident "

@@ -28,7 +28,7 @@ from ratouch.train import recipes
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
 from ratouch.train.gate import format_gate_report, gate_recipe
 from ratouch.train.geometry import calibrate as calibrate_geometry
-from ratouch.train.geometry import with_firmness
+from ratouch.train.geometry import with_firmness, with_unfamiliar_floors
 from ratouch.train.press_map import PressMapConfig, press_map_recipe
 from ratouch.train.trust import TrustConfig, calibrate, with_alone_band, with_unfamiliar_contact
 
@@ -121,6 +121,18 @@ def _train_cascade(args: argparse.Namespace) -> int:
 
 
 def _train_geometry(args: argparse.Namespace) -> int:
+    if args.firmness_only and args.unfamiliar_floors:
+        raise usage("--firmness-only and --unfamiliar-floors each refit one part of the "
+                    "stored calibration: give one of them")
+    if args.unfamiliar_floors:
+        path = args.out or geometry_calibration()
+        cal = with_unfamiliar_floors(GeometryCalibration.load(path), args.seed, args.pairs)
+        out = cal.save(path)
+        print(json.dumps({"written": str(out), "unfamiliar_floors": {
+            k: {"threshold": lk.unfamiliar_threshold,
+                "floors_on": lk.meta.get("unfamiliar_floors_on")}
+            for k, lk in cal.lookups.items()}}, indent=1))
+        return 0
     if args.firmness_only:
         path = args.out or geometry_calibration()
         cal, fits = with_firmness(GeometryCalibration.load(path), args.seed,

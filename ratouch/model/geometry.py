@@ -32,6 +32,7 @@ whole change does not.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from dataclasses import dataclass, field
@@ -73,6 +74,10 @@ class GradientLookup:
             structured change's two statistics over this family's drifted blank pairs (6
             values), and `structure_threshold`, the same quantile of their combined score;
             a frame whose score is above it shows contact (see :func:`structure_score`).
+        unfamiliar_floors, unfamiliar_threshold: the same, set on blank pairs of every
+            family's units each recoloured to lie beyond every rendered unit
+            (`ratouch.world.sensors.unfamiliar_view`), read through this lookup: what a frame
+            from a sensor unlike every rendered unit is held to (none: the family's own).
         meta: provenance and measured figures.
     """
 
@@ -84,6 +89,8 @@ class GradientLookup:
     structure_floors: tuple[float, ...] = ()
     structure_threshold: float = float("inf")
     meta: dict = field(default_factory=dict)
+    unfamiliar_floors: tuple[float, ...] = ()
+    unfamiliar_threshold: float = float("inf")
     #: per working size (h, w): the pixel positions the perceptron reads and its output at
     #: zero change there, which depend on nothing else (computed once, not per frame)
     _at_rest: dict = field(default_factory=dict, init=False, compare=False, repr=False)
@@ -139,6 +146,9 @@ class GradientLookup:
                 "mm_per_pixel": self.mm_per_pixel,
                 "structure_floors": [float(f"{v:.6g}") for v in self.structure_floors],
                 "structure_threshold": self.structure_threshold, "meta": self.meta,
+                **({"unfamiliar_floors": [float(f"{v:.6g}") for v in self.unfamiliar_floors],
+                    "unfamiliar_threshold": self.unfamiliar_threshold}
+                   if self.unfamiliar_floors else {}),
                 "weights": [np.round(w, 6).tolist() for w in self.weights],
                 "biases": [np.round(b, 6).tolist() for b in self.biases]}
 
@@ -148,13 +158,21 @@ class GradientLookup:
                    tuple(np.asarray(b, np.float64) for b in d["biases"]), bool(d["landscape"]),
                    None if d["mm_per_pixel"] is None else float(d["mm_per_pixel"]),
                    tuple(float(v) for v in d["structure_floors"]),
-                   float(d["structure_threshold"]), dict(d.get("meta", {})))
+                   float(d["structure_threshold"]), dict(d.get("meta", {})),
+                   tuple(float(v) for v in d.get("unfamiliar_floors", ())),
+                   float(d.get("unfamiliar_threshold", float("inf"))))
 
     def with_floors(self, floors: tuple[float, ...], threshold: float, **meta
                     ) -> GradientLookup:
-        return GradientLookup(self.family, self.weights, self.biases, self.landscape,
-                              self.mm_per_pixel, tuple(float(f) for f in floors),
-                              float(threshold), {**self.meta, **meta})
+        return dataclasses.replace(self, structure_floors=tuple(float(f) for f in floors),
+                                   structure_threshold=float(threshold),
+                                   meta={**self.meta, **meta})
+
+    def with_unfamiliar_floors(self, floors: tuple[float, ...], threshold: float, **meta
+                               ) -> GradientLookup:
+        return dataclasses.replace(self, unfamiliar_floors=tuple(float(f) for f in floors),
+                                   unfamiliar_threshold=float(threshold),
+                                   meta={**self.meta, **meta})
 
     def change(self, frame: np.ndarray, background: np.ndarray) -> np.ndarray:
         """The frame's drift-free change against `background` at this lookup's working size
@@ -164,16 +182,27 @@ class GradientLookup:
         return working_change(frame, background, self.work_size, turn=turn)
 
     def contact(self, frame: np.ndarray, background: np.ndarray,
-                change: np.ndarray | None = None, stats: np.ndarray | None = None
-                ) -> tuple[bool, float]:
+                change: np.ndarray | None = None, stats: np.ndarray | None = None,
+                unfamiliar: bool = False) -> tuple[bool, float]:
         """Whether `frame` shows contact against `background` by its structured change, and
-        the score against this family's floors (above :attr:`structure_threshold`: contact).
+        the score against this family's floors (above :attr:`structure_threshold`: contact),
+        or, with `unfamiliar`, against the floors for a sensor unlike every rendered unit
+        (:attr:`unfamiliar_floors`; the family's where the lookup has none).
         `change`: `self.change(frame, background)`, `stats`: `band_stats(change)`, where
         already computed."""
         if stats is None:
             stats = band_stats(self.change(frame, background) if change is None else change)
-        score = structure_score(stats, self.structure_floors)
-        return bool(score > self.structure_threshold), score
+        floors, threshold = self.floors_for(unfamiliar)
+        score = structure_score(stats, floors)
+        return bool(score > threshold), score
+
+    def floors_for(self, unfamiliar: bool) -> tuple[tuple[float, ...], float]:
+        """The structured check's floors and threshold for a frame of this family's units,
+        or (`unfamiliar`) of a sensor unlike every rendered unit, where the lookup has such
+        floors."""
+        if unfamiliar and self.unfamiliar_floors:
+            return self.unfamiliar_floors, self.unfamiliar_threshold
+        return self.structure_floors, self.structure_threshold
 
 
 # ------------------------------------------------------------------------- the reading

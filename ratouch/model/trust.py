@@ -457,27 +457,35 @@ class TrustCalibration:
         return None if read is None else read["height"]
 
     def read_geometry(self, frame: np.ndarray, background: np.ndarray,
-                      family: str | None = None, height: bool = True) -> dict | None:
+                      family: str | None = None, height: bool = True,
+                      look: tuple[str, float] | None = None) -> dict | None:
         """The frame's drift-free change against its background, computed once, read both
         ways: {"structure": the structured-contact block, "height": its `HeightMap` and
         "firmness": the family's firmness reading of it (`GeometryCalibration.read_firmness`;
         both None unless `height`, the firmness None where the family has no model)}; None
-        when no geometry calibration or lookup for the family."""
+        when no geometry calibration or lookup for the family. A frame beyond every rendered
+        unit (`WITHHOLD_LIMIT`) is held to the lookup's floors for such a sensor where it has
+        them (the block's "floors": "unfamiliar sensor"; else "family").
+        `look`: `guess_family(frame)` where the caller already has it."""
         if self.geometry is None:
             return None
         check_background_size(background.shape[1::-1], frame.shape[1::-1], "the background")
-        name = guess_family(frame)[0] if family is None else family
+        look = guess_family(frame) if look is None else look
+        name = look[0] if family is None else family
         lookup = self.geometry.lookup(name)
         if lookup is None:
             return None
         change = lookup.change(frame, background)
         stats = band_stats(change)  # read by the contact check and the firmness model
-        hit, score = lookup.contact(frame, background, change, stats)
+        # floors set on one family's units say nothing of a sensor unlike all of them
+        beyond = unfamiliar_look(look, WITHHOLD_LIMIT) and bool(lookup.unfamiliar_floors)
+        hit, score = lookup.contact(frame, background, change, stats, unfamiliar=beyond)
         hm = read_height(lookup, frame, background, change) if height else None
         return {"structure": {"contact": hit,
                               "score": round(score, 3) if np.isfinite(score) else None,
-                              "threshold": round(lookup.structure_threshold, 3),
-                              "family": name},
+                              "threshold": round(lookup.floors_for(beyond)[1], 3),
+                              "family": name,
+                              "floors": "unfamiliar sensor" if beyond else "family"},
                 "height": hm,
                 "firmness": (None if hm is None else
                              self.geometry.read_firmness(name, hm, change, stats))}
@@ -491,7 +499,10 @@ class TrustCalibration:
         sensor's global drift removed) stands above its family's floors is "contact"
         (`structured_contact`: shallow, broad presses that change a few levels); otherwise a
         frame within sensor noise of it (`noise_floor`) is "no contact" by construction,
-        and else the model decides at `contact_threshold_bg`. Without:
+        and else the model decides at `contact_threshold_bg`; for a frame beyond every
+        rendered unit, held to such a sensor's floors (`GradientLookup.unfamiliar_floors`),
+        the model, which reads the frame's colours, makes it "uncertain", never "contact".
+        Without:
         the model decides outside the `uncertain` band and says "uncertain" inside it, and
         below its threshold but above what the frame's family's blank frames score alone
         (`uncertain_alone`), or above what they score on the family's `press_alone` model
@@ -505,7 +516,8 @@ class TrustCalibration:
         """
         if background is not None:
             if structured is None:
-                structured = self.structured_contact(frame, background)
+                read = self.read_geometry(frame, background, height=False, look=look)
+                structured = None if read is None else read["structure"]
             if structured is not None and structured["contact"]:
                 return "contact", float(self.contact_score(frame, background))
             if background_change(frame, background) < self.noise_floor:
@@ -524,7 +536,13 @@ class TrustCalibration:
         if not np.isfinite(score):
             return "uncertain", score
         if background is not None:
-            return ("no contact" if score < self.contact_threshold_bg else "contact"), score
+            if score < self.contact_threshold_bg:
+                return "no contact", score
+            # beyond every rendered unit the model reads colours it was never fitted on:
+            # where the structured change (held to such a sensor's floors) found nothing,
+            # its "contact" is a guess
+            unsure = structured is not None and structured.get("floors") == "unfamiliar sensor"
+            return ("uncertain" if unsure else "contact"), score
         if self.uncertain is not None and self.uncertain[0] <= score < self.uncertain[1]:
             return "uncertain", score
         if score >= self.contact_threshold:
@@ -615,7 +633,7 @@ class TrustCalibration:
                 assert self.contact_unfamiliar is not None  # reads_unfamiliar checked it
                 thr = self.contact_unfamiliar[1]
             read = (None if background is None else
-                    self.read_geometry(frame, background, name))
+                    self.read_geometry(frame, background, name, look=(name, distance)))
             state, score = self.contact_state(
                 frame, background, None if read is None else read["structure"],
                 (name, distance))
@@ -670,6 +688,17 @@ class TrustCalibration:
                     "no contact detected: the tactile image looks like the sensor's "
                     f"background with nothing pressed into it{shown}; no material "
                     f"description is given{remedy}")
+            elif tac["uncertain"] and background is not None:
+                tac["uncertain_by"] = None
+                st = tac.get("structure") or {}
+                warnings.append(
+                    f"contact uncertain: the tactile frame looks like none of the sensors "
+                    f"rendered (distance {distance:.2f}, beyond every rendered unit's "
+                    f"{WITHHOLD_LIMIT:.2f}); against its background it shows no structured "
+                    f"change above the floors set for such a sensor (structured change "
+                    f"{st.get('score')} <= {st.get('threshold')}), and the contact model "
+                    f"that says contact ({tac['contact']} >= {tac['contact_threshold']}) "
+                    "reads colours no rendered unit has: the description below is a guess")
             elif tac["uncertain"]:
                 by = (self.alone_band_reading(frame, score, (name, distance))
                       if background is None and np.isfinite(score) else None)
@@ -695,11 +724,14 @@ class TrustCalibration:
                     "(background)" + ("" if tac["no_contact"] else
                                       ", and read the description below as a guess"))
             elif foreign and not tac["uncertain"]:
+                own = (tac.get("structure") or {}).get("floors") == "unfamiliar sensor"
+                floors = (f"with the floors set for such a sensor, through the nearest "
+                          f"family's lookup, '{name}'" if own else
+                          f"with the nearest family's floors, '{name}'")
                 warnings.append(
                     "the tactile frame looks like none of the sensors the models were trained "
-                    f"on (read against its background as '{state}', with the nearest family's "
-                    f"floors, '{name}')" + ("" if tac["no_contact"] else
-                                            ": read the description below as a guess"))
+                    f"on (read against its background as '{state}', {floors})"
+                    + ("" if tac["no_contact"] else ": read the description below as a guess"))
             elif tac["novel"]:
                 warnings.append(
                     f"the tactile image is unlike the frames the encoders were trained on "

@@ -224,7 +224,8 @@ class QueryResult:
             calibration). A uniform visual crop (a blank
             or flat photo) is novel whatever its distance (`model.trust.UNIFORM_SPREAD`).
             With a background, "tactile" also holds "structure" (the structured-contact
-            reading: "score", "threshold", "family", "contact") and "geometry" (the height
+            reading: "score", "threshold", "family", "contact", "floors": "family" or, for a
+            sensor unlike every rendered unit, "unfamiliar sensor") and "geometry" (the height
             map's "depth", "spread", "relief", "units", "family"), each None where no
             geometry lookup reads the sensor.
         retrieval: which neighbours RA-Touch read and how far touch steered them:

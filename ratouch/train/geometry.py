@@ -17,10 +17,15 @@
   (`ratouch.model.geometry.band_stats`) over blank pairs (a unit's background and a
   later no-contact frame, drifted as Taxim's real pairs drift: `ratouch.world.presses`).
   Renders only: no real frame sets a threshold.
+* **Floors for a sensor unlike every rendered unit** (`set_unfamiliar_floors`): per family's
+  lookup, the same statistics over blank pairs of every family's units, each pair recoloured
+  alike (`ratouch.world.sensors.unfamiliar_view`) to lie beyond every rendered unit, read
+  through that lookup. Renders only.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from typing import Any
 
@@ -194,6 +199,58 @@ def set_floors(lookup: GradientLookup, seed: int = 0, pairs: int = FLOOR_PAIRS
         f"on the other {pairs - half}, {FLOOR_QUANTILE:.1%} quantiles"))
 
 
+def set_unfamiliar_floors(lookups: dict[str, GradientLookup], seed: int = 0,
+                          pairs: int = FLOOR_PAIRS) -> dict[str, GradientLookup]:
+    """Each lookup with its floors for a sensor unlike every rendered unit: `pairs` drifted
+    blank pairs of every family's units, each frame and its background under one
+    `unfamiliar_view` (the same for both), those that lie beyond every rendered unit
+    (`beyond_every_unit`) kept and read through each lookup; each statistic's quantile on
+    half of them (alternately), the combined score's quantile on the other half, as
+    `set_floors` does for a family's own units.
+
+    Raises:
+        ConfigError: `pairs` < 2 (no half to set the threshold on).
+    """
+    from ratouch.world.presses import render_blank_pair
+    from ratouch.world.sensors import beyond_every_unit, family_names, unfamiliar_view
+
+    if pairs < 2:
+        raise ConfigError(f"pairs must be at least 2, got {pairs}")
+    stats: dict[str, list[np.ndarray]] = {name: [] for name in lookups}
+    kept = 0
+    for k, source in enumerate(family_names()):
+        rng = np.random.default_rng([seed, 48, k])
+        for _ in range(pairs):
+            frame, background = render_blank_pair(source, rng)
+            view = int(rng.integers(2**31))  # one view for the frame and its background
+            frame = unfamiliar_view(frame, np.random.default_rng(view))
+            background = unfamiliar_view(background, np.random.default_rng(view))
+            if not beyond_every_unit(frame):
+                continue
+            kept += 1
+            for name, lookup in lookups.items():
+                stats[name].append(band_stats(lookup.change(frame, background)))
+    out = {}
+    for name, lookup in lookups.items():
+        s = np.array(stats[name])
+        floors = tuple(float(v) for v in np.quantile(s[0::2], FLOOR_QUANTILE, axis=0))
+        scores = [structure_score(x, floors) for x in s[1::2]]
+        threshold = float(np.quantile(scores, FLOOR_QUANTILE))
+        out[name] = lookup.with_unfamiliar_floors(floors, threshold, unfamiliar_floors_on=(
+            f"{kept} drifted blank render pairs of every family's units, each recoloured "
+            f"beyond every rendered unit ({pairs} a family drawn): floors on every other one, "
+            f"the threshold on the rest, {FLOOR_QUANTILE:.1%} quantiles"))
+    return out
+
+
+def with_unfamiliar_floors(cal: GeometryCalibration, seed: int = 0,
+                           pairs: int = FLOOR_PAIRS) -> GeometryCalibration:
+    """`cal` with every lookup's floors for a sensor unlike every rendered unit (re)set
+    (`set_unfamiliar_floors`); the rest unchanged."""
+    return dataclasses.replace(cal, lookups=set_unfamiliar_floors(cal.lookups, seed, pairs),
+                               meta={**cal.meta, "unfamiliar_blank_pairs": pairs})
+
+
 def shape_renders(lookup: GradientLookup, rng: np.random.Generator, per_kind: int
                   ) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """`per_kind` renders of every kind of everyday press on `lookup`'s family, read against
@@ -359,9 +416,11 @@ def calibrate(seed: int = 0, samples: int = 120_000, pairs: int = FLOOR_PAIRS,
         log.info("geometry %s: depth MAE %s, radius MAE %s px, threshold %.3g", name,
                  rec["depth_error_mae"], rec["radius_error_px_mae"],
                  lookup.structure_threshold)
+    lookups = set_unfamiliar_floors(lookups, seed, pairs)
     cal, firmness = with_firmness(GeometryCalibration(
         lookups, {"seed": seed, "ball_mm": BALL_MM, "samples": samples,
-                  "blank_pairs": pairs}), seed, per_kind, world)
+                  "blank_pairs": pairs, "unfamiliar_blank_pairs": pairs}),
+        seed, per_kind, world)
     for name, rec in firmness.items():
         report[name]["firmness"] = rec
     return cal, report
