@@ -300,6 +300,40 @@ def test_train_geometry_firmness_only_keeps_the_lookups(shipped, tmp_path, capsy
     assert "--firmness-world" in capsys.readouterr().err and out.read_bytes() == before
 
 
+def test_a_drift_is_measured_once_and_read_back_the_same(tmp_path, monkeypatch):
+    """`measure_drift` keeps its four figures in the cache folder, and a later process reads
+    the same floats without measuring; a damaged file is measured again and rewritten; a cache
+    that cannot be written is not an error."""
+    from ratouch.world import presses
+
+    measured = []
+    real = presses._measured_drift
+
+    def counted(calibration):
+        measured.append(calibration)
+        return real(calibration)
+
+    monkeypatch.setattr(presses, "_measured_drift", counted)
+    monkeypatch.setenv("RATOUCH_CACHE", str(tmp_path / "cache"))
+    try:
+        presses.measure_drift.cache_clear()
+        first = presses.measure_drift("gelsight_mini")
+        (kept,) = (tmp_path / "cache" / "drift").iterdir()
+        assert json.loads(kept.read_text()) == dataclasses.asdict(first)
+        presses.measure_drift.cache_clear()  # as a new process would
+        assert presses.measure_drift("gelsight_mini") == first and measured == ["gelsight_mini"]
+        kept.write_text("{")  # damaged: measured again, the same, and kept again
+        presses.measure_drift.cache_clear()
+        assert presses.measure_drift("gelsight_mini") == first and len(measured) == 2
+        assert json.loads(kept.read_text()) == dataclasses.asdict(first)
+        (tmp_path / "file").write_text("")  # a cache folder that cannot be made
+        monkeypatch.setenv("RATOUCH_CACHE", str(tmp_path / "file"))
+        presses.measure_drift.cache_clear()
+        assert presses.measure_drift("gelsight_mini") == first and len(measured) == 3
+    finally:
+        presses.measure_drift.cache_clear()
+
+
 def test_routed_firmness_mixes_its_regimes_by_the_router(tmp_path):
     """A routed firmness model reads a press by the everyday model where the router says
     everyday, by the world's where it says world, a mix between; it survives a save."""

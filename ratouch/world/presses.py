@@ -28,6 +28,10 @@ the touch), :func:`drifted` applies a drawn drift to a frame. The geometry calib
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
@@ -35,10 +39,14 @@ from functools import lru_cache
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
+from ratouch.files import write_atomic
+from ratouch.paths import cache_dir
 from ratouch.world.material import material
 from ratouch.world.sensors import family, family_sensors
 from ratouch.world.tactile import contact_change, sensor_background
 from ratouch.world.texture import make_tile, mip_pyramid, pixel_grid, sample_tile
+
+log = logging.getLogger(__name__)
 
 #: The press regimes, each with the materials that make it (names of the world's materials).
 PRESS_KINDS: dict[str, tuple[str, ...]] = {
@@ -77,12 +85,45 @@ class Drift:
     noise_sd: float
 
 
+#: Version of :func:`measure_drift`'s recipe: a drift kept on disk under another version is
+#: measured again.
+DRIFT_RECIPE = 1
+
+
 @lru_cache(maxsize=4)
 def measure_drift(calibration: str) -> Drift:
     """The drift between a Taxim calibration's real background and its real presses, away
     from each touch (beyond twice its radius): the spread over presses of the per-channel
-    offset and gain, the RMS of the slowly varying remainder and of the fine noise. Measured
-    once a process (about 10 s a calibration: the DIGIT's drift reads both)."""
+    offset and gain, the RMS of the slowly varying remainder and of the fine noise.
+
+    Measuring takes about 4-8 s a calibration (the DIGIT's drift reads both), so the four
+    figures are kept in the cache folder (`drift/`), named by the calibration file's sha256
+    and :data:`DRIFT_RECIPE`, and read from there by later processes (the same floats: JSON
+    writes a float's shortest exact form). A kept file that cannot be read is measured
+    again; a cache that cannot be written is not an error."""
+    from ratouch.world.taxim_optics import calibration_dir
+
+    pack = calibration_dir(calibration) / "dataPack.npz"
+    digest = hashlib.sha256(pack.read_bytes()).hexdigest()[:16]
+    kept = cache_dir() / "drift" / f"{calibration}-{digest}-r{DRIFT_RECIPE}.json"
+    try:
+        values = json.loads(kept.read_text(encoding="utf-8"))
+        drift = Drift(**{k: float(v) for k, v in values.items()})
+        if all(np.isfinite(v) and v >= 0 for v in dataclasses.astuple(drift)):
+            return drift
+    except (OSError, ValueError, TypeError, AttributeError):
+        pass
+    drift = _measured_drift(calibration)
+    try:
+        write_atomic(kept, json.dumps(dataclasses.asdict(drift)))
+    except OSError as e:
+        log.info("drift of %s not kept in the cache (%s): measured again next time",
+                 calibration, e)
+    return drift
+
+
+def _measured_drift(calibration: str) -> Drift:
+    """:func:`measure_drift`'s figures, measured on the calibration's real pairs."""
     from ratouch.world.taxim_optics import real_presses
 
     rp = real_presses(calibration)
