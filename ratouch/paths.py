@@ -5,7 +5,8 @@ One module owns these folders so that no other module works them out from its ow
 
 * ``$RATOUCH_ASSETS`` — the weights and calibrations a query loads (default the shipped
   ``assets/``; e.g. a copy to try damaged files on);
-* ``$RATOUCH_CACHE`` — cached corpora, training data, experiment and failure results
+* ``$RATOUCH_CACHE`` — cached corpora, training data, experiment and failure results, the
+  sensors' measured drift
   (default ``~/.cache/ratouch``);
 * ``$RATOUCH_TVL_JUDGE_DIR`` — the published TVL judge files (default
   ``../shared/data/tvl_judge`` beside the checkout).
