@@ -513,6 +513,40 @@ def test_colour_blind_contact_reads_only_frames_beyond_every_rendered_unit(unfam
         shipped.unfamiliar_score(view)
 
 
+def test_a_frame_beyond_every_rendered_unit_read_alone_is_never_called_contact(pipeline,
+                                                                                world):
+    """Without the colour-blind model (as shipped), a frame beyond every rendered unit read
+    alone that the disc-press model scores above its threshold is "uncertain", not "contact":
+    the score is read from colours the model was never fitted on (docs/geometry.md). The same
+    press as rendered is "contact"; the warning says why; with its background the structured
+    check decides as before."""
+    from ratouch.world.sensors import WITHHOLD_LIMIT, guess_family, unfamiliar_view
+
+    cal = pipeline.trust
+    assert cal.contact_unfamiliar is None
+    rng = np.random.default_rng(9)
+    for i in range(40):
+        s = world.sample("test", i)
+        views = [unfamiliar_view(s.tactile, rng) for _ in range(5)]
+        far = [v for v in views if guess_family(v)[1] > WITHHOLD_LIMIT
+               and cal.contact_score(v) >= cal.contact_threshold]
+        if far and cal.contact_state(s.tactile)[0] == "contact":
+            break
+    else:
+        pytest.fail("no test press with a view beyond the limit scoring contact")
+    view = far[0]
+    state, score = cal.contact_state(view)
+    assert state == "uncertain" and score == pytest.approx(cal.contact_score(view))
+    V = np.zeros((1, cal.visual.mean.shape[0]))
+    T = np.zeros((1, cal.tactile.mean.shape[0]))
+    block = cal.assess(V, T, view)
+    assert block["tactile"]["uncertain"] and block["tactile"]["unfamiliar_sensor"]
+    assert any(w.startswith("contact uncertain") and "blank frames score as high as presses"
+               in w for w in block["warnings"])
+    # a frame within the limit above the threshold: contact, as before
+    assert cal.assess(V, T, s.tactile)["tactile"]["state"] == "contact"
+
+
 def test_train_trust_unfamiliar_writes_only_that_model(tmp_path, capsys, monkeypatch):
     """`ratouch train trust --unfamiliar --out F` (at small sizes) adds the model and its
     record and changes nothing else; asked for with --alone-band it is a usage error."""

@@ -340,3 +340,25 @@ def test_unfamiliar_floors_check_reads_every_family_and_the_real_frames(capsys):
     assert within["Taxim's real presses"]["pairs"] == 72
     assert within["fresh pairs, not recoloured"]["changed"] == 0  # nothing within the limit moves
     assert 0 < out["real"]["taxim press views beyond the limit"] <= 72
+
+
+def test_unfamiliar_alone_check_reads_every_family_and_the_real_frames(capsys):
+    """scripts/why_unfamiliar_alone.py, small: per family the recoloured frames beyond the
+    limit read alone, the disc-press model's decision against the state given; frames within
+    the limit unchanged; recoloured views of Taxim's presses."""
+    script = _script("why_unfamiliar_alone")
+    script.main(["--test", "12", "--per-kind", "1", "--blanks", "4", "--views", "1"])
+    out = json.loads(capsys.readouterr().out)
+    assert set(out["fresh"]) == {"digit", "gelsight", "mini"}
+    for row in out["fresh"].values():
+        assert set(row) == {"world presses", "world blanks", "everyday presses",
+                            "drifted blanks"}
+        for rec in row.values():
+            if rec["views"]:
+                # "no contact" is the same before and after: only "contact" may turn uncertain
+                assert rec["before"]["no contact"] == rec["after"]["no contact"]
+                assert rec["after"]["contact"] == 0
+    for rec in out["within_limit"].values():
+        assert rec["changed"] == 0
+    assert out["within_limit"]["Taxim's real frames"]["frames"] == 74
+    assert out["real"]["after"]["contact"] in (0, None)

@@ -504,6 +504,8 @@ class TrustCalibration:
         the model, which reads the frame's colours, makes it "uncertain", never "contact".
         Without:
         the model decides outside the `uncertain` band and says "uncertain" inside it, and
+        above its threshold for a frame beyond every rendered unit (its "contact" there is
+        read from colours it was never fitted on), and
         below its threshold but above what the frame's family's blank frames score alone
         (`uncertain_alone`), or above what they score on the family's `press_alone` model
         (for a frame that looks like that family's units) too (a frame that looks like none of the
@@ -546,7 +548,11 @@ class TrustCalibration:
         if self.uncertain is not None and self.uncertain[0] <= score < self.uncertain[1]:
             return "uncertain", score
         if score >= self.contact_threshold:
-            return "contact", score
+            look = guess_family(frame) if look is None else look
+            # beyond every rendered unit the disc-press model reads colours it was never
+            # fitted on: there, recoloured blank renders score above nearly every recoloured
+            # press (docs/geometry.md), so its "contact" is a guess
+            return ("uncertain" if unfamiliar_look(look, WITHHOLD_LIMIT) else "contact"), score
         # the band of the family the frame looks like, where it looks like one: a band set
         # on one family's blanks says nothing of a sensor that looks like none of them
         return ("uncertain" if self.alone_band_reading(frame, score, look) else "no contact"), score
@@ -706,6 +712,14 @@ class TrustCalibration:
                 why = "" if by is None else (
                     f" (read alone, the {by['family']} {by['reading']} scores {by['score']} "
                     f">= {by['edge']}, above what its blank frames score)")
+                if (by is None and background is None and np.isfinite(score)
+                        and score >= self.contact_threshold
+                        and unfamiliar_look((name, distance), WITHHOLD_LIMIT)):
+                    why = (f" (the frame looks like none of the sensors rendered, distance "
+                           f"{distance:.2f}, beyond every rendered unit's {WITHHOLD_LIMIT:.2f}: "
+                           f"its contact {tac['contact']} >= {tac['contact_threshold']} is read "
+                           "from colours the model was never fitted on, where blank frames "
+                           "score as high as presses)")
                 warnings.append(
                     "contact uncertain: give the sensor's no-contact frame (background); "
                     f"the description below is a guess{why}")
