@@ -7,7 +7,7 @@ a sensor removed: every frame held to the floors of the family it looks like) an
 them), through the shipped default-s trust calibration:
 
 1. fresh blank pairs and presses (every kind of everyday press and rigid balls), each frame
-   and its background recoloured alike (`unfamiliar_view`), the views beyond every rendered
+   and its background recoloured alike (`unfamiliar_pair_view`), the views beyond every rendered
    unit (`WITHHOLD_LIMIT`) only: blank pairs called "contact", and "contact" or "uncertain";
    presses answered ("contact" or "uncertain"), per family;
 2. frames within the limit read against their backgrounds whose state changed: the world's
@@ -37,21 +37,18 @@ from ratouch.train.trust import render_samples
 from ratouch.world.config import WorldConfig
 from ratouch.world.presses import render_ball, render_blank_pair, render_presses
 from ratouch.world.sampler import TEST_SIZE, World
-from ratouch.world.sensors import WITHHOLD_LIMIT, beyond_every_unit, family_names, unfamiliar_view
+from ratouch.world.sensors import (
+    WITHHOLD_LIMIT,
+    beyond_every_unit,
+    family_names,
+    unfamiliar_pair_view,
+)
 
 #: The real reference frames (the DIGIT's), where a checkout has them.
 REFERENCE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "reference_tactile"
 ANSWERED = ("contact", "uncertain")
 
 Pair = tuple[np.ndarray, np.ndarray]
-
-
-def recoloured(frame: np.ndarray, background: np.ndarray, rng: np.random.Generator) -> Pair:
-    """The frame and its background under one `unfamiliar_view` (the same for both: one
-    sensor, recoloured)."""
-    view = int(rng.integers(2**31))
-    return (unfamiliar_view(frame, np.random.default_rng(view)),
-            unfamiliar_view(background, np.random.default_rng(view)))
 
 
 def _states(cal: TrustCalibration, pairs: list[Pair]) -> list[str]:
@@ -84,7 +81,7 @@ def fresh_measures(before: TrustCalibration, after: TrustCalibration,
         rng = np.random.default_rng([seed, 100 + k])
         views = {}
         for what, pairs in sets.items():
-            viewed = [recoloured(f, b, rng) for f, b in pairs]
+            viewed = [unfamiliar_pair_view(f, b, rng) for f, b in pairs]
             views[what] = [p for p in viewed if beyond_every_unit(p[0])]
         row: dict = {"blank pairs": len(views["blanks"]), "presses": len(views["presses"])}
         for name, cal in (("before", before), ("after", after)):
@@ -125,7 +122,7 @@ def real_measures(before: TrustCalibration, after: TrustCalibration, real: list,
     """Measure 3: recoloured views of Taxim's real presses (with their background recoloured
     alike) beyond the limit, and the real DIGIT press against the tacto background."""
     rng = np.random.default_rng([seed, 7])
-    viewed = [recoloured(f.frame, f.background, rng) for f in real
+    viewed = [unfamiliar_pair_view(f.frame, f.background, rng) for f in real
               if f.background is not None and "press" in f.name for _ in range(views)]
     viewed = [p for p in viewed if beyond_every_unit(p[0])]
     out: dict = {"taxim press views beyond the limit": len(viewed)}

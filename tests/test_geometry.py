@@ -25,7 +25,7 @@ from ratouch.model.trust import background_change
 from ratouch.paths import geometry_calibration
 from ratouch.train.geometry import HOLD_OUT_EVERY
 from ratouch.world.presses import BALL_MM, render_ball, render_blank_pair, render_press
-from ratouch.world.sensors import beyond_every_unit, unfamiliar_view
+from ratouch.world.sensors import beyond_every_unit, unfamiliar_pair_view
 from ratouch.world.taxim_optics import optics, real_presses
 
 
@@ -159,12 +159,6 @@ def test_an_unfamiliar_sensor_is_said_so_with_a_background(pipeline):
     assert any("looks like none of the sensors" in w for w in out["warnings"])
 
 
-def _recoloured(frame, background, view):
-    """A frame and its background under one `unfamiliar_view` (one sensor, recoloured)."""
-    return (unfamiliar_view(frame, np.random.default_rng(view)),
-            unfamiliar_view(background, np.random.default_rng(view)))
-
-
 def test_a_recoloured_sensor_is_held_to_floors_of_its_own_against_its_background(pipeline):
     """docs/geometry.md, "A sensor unlike every rendered unit, read against its background":
     a blank pair recoloured alike beyond every rendered unit is read with the floors set for
@@ -178,7 +172,7 @@ def test_a_recoloured_sensor_is_held_to_floors_of_its_own_against_its_background
     rng = np.random.default_rng(5)
     for _ in range(40):
         f, b = render_blank_pair("gelsight", rng)
-        vf, vb = _recoloured(f, b, int(rng.integers(2**31)))
+        vf, vb = unfamiliar_pair_view(f, b, rng)
         if beyond_every_unit(vf) and not beyond_every_unit(f) and \
                 background_change(vf, vb) >= cal.noise_floor:
             break

@@ -212,7 +212,7 @@ def set_unfamiliar_floors(lookups: dict[str, GradientLookup], seed: int = 0,
         ConfigError: `pairs` < 2 (no half to set the threshold on).
     """
     from ratouch.world.presses import render_blank_pair
-    from ratouch.world.sensors import beyond_every_unit, family_names, unfamiliar_view
+    from ratouch.world.sensors import beyond_every_unit, family_names, unfamiliar_pair_view
 
     if pairs < 2:
         raise ConfigError(f"pairs must be at least 2, got {pairs}")
@@ -221,10 +221,7 @@ def set_unfamiliar_floors(lookups: dict[str, GradientLookup], seed: int = 0,
     for k, source in enumerate(family_names()):
         rng = np.random.default_rng([seed, 48, k])
         for _ in range(pairs):
-            frame, background = render_blank_pair(source, rng)
-            view = int(rng.integers(2**31))  # one view for the frame and its background
-            frame = unfamiliar_view(frame, np.random.default_rng(view))
-            background = unfamiliar_view(background, np.random.default_rng(view))
+            frame, background = unfamiliar_pair_view(*render_blank_pair(source, rng), rng)
             if not beyond_every_unit(frame):
                 continue
             kept += 1

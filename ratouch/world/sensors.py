@@ -416,6 +416,15 @@ def unfamiliar_view(frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.clip(f + 0.5, 0, 255).astype(np.uint8)
 
 
+def unfamiliar_pair_view(frame: np.ndarray, background: np.ndarray, rng: np.random.Generator
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """A frame and its background under one `unfamiliar_view`, the same for both (one sensor,
+    recoloured); the view is drawn from `rng`."""
+    view = int(rng.integers(2**31))
+    return (unfamiliar_view(frame, np.random.default_rng(view)),
+            unfamiliar_view(background, np.random.default_rng(view)))
+
+
 def beyond_every_unit(frame: np.ndarray) -> bool:
     """Whether a frame (uint8 RGB) lies beyond every rendered unit of the sensor families
     (`guess_family` beyond :data:`WITHHOLD_LIMIT`): the frames whose touch the withholding
