@@ -23,19 +23,24 @@ differs, so "no contact" is the same before and after by construction (counted a
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
 from ratouch.eval.frames import digit_frames, taxim_frames
+from ratouch.files import json_text, write_json_atomic
 from ratouch.model.trust import TrustCalibration
 from ratouch.paths import trust_calibration
 from ratouch.train.trust import render_samples
 from ratouch.world.config import WorldConfig
 from ratouch.world.presses import render_blank_pair, render_presses
 from ratouch.world.sampler import TEST_SIZE, World
-from ratouch.world.sensors import WITHHOLD_LIMIT, beyond_every_unit, family_names, unfamiliar_view
+from ratouch.world.sensors import (
+    WITHHOLD_LIMIT,
+    beyond_every_unit,
+    family_names,
+    unfamiliar_views,
+)
 
 #: The real reference frames (the DIGIT's), where a checkout has them.
 REFERENCE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "reference_tactile"
@@ -64,12 +69,6 @@ def _q(x: list[float]) -> list[float] | None:
     return np.round(np.quantile(x, [0.5, 0.9, 0.995]), 2).tolist() if x else None
 
 
-def recoloured_beyond(frames: list[np.ndarray], rng: np.random.Generator) -> list[np.ndarray]:
-    """Each frame under one `unfamiliar_view`; the views beyond every rendered unit."""
-    views = [unfamiliar_view(f, rng) for f in frames]
-    return [v for v in views if beyond_every_unit(v)]
-
-
 def fresh_measures(cal: TrustCalibration, n_test: int, per_kind: int, blanks: int, seed: int
                    ) -> dict:
     """Measure 1 (see the module docstring)."""
@@ -88,7 +87,7 @@ def fresh_measures(cal: TrustCalibration, n_test: int, per_kind: int, blanks: in
             "drifted blanks": [render_blank_pair(fam, rng)[0] for _ in range(blanks)]}
         row: dict = {}
         for name, frames in groups.items():
-            views = recoloured_beyond(frames, rng)
+            views = unfamiliar_views(frames, rng)[0]
             before, after, scores = states(cal, views)
             row[name] = {"views": len(views), "before": _shares(before),
                          "after": _shares(after), "logit_q50_q90_q995": _q(scores)}
@@ -117,7 +116,7 @@ def real_measures(cal: TrustCalibration, real: list, digit: list, views: int, se
     """Measure 3: recoloured views of Taxim's real presses, and the real DIGIT press alone."""
     rng = np.random.default_rng([seed, 3])
     pressed = [f.frame for f in real if "press" in f.name]
-    viewed = recoloured_beyond([f for f in pressed for _ in range(views)], rng)
+    viewed = unfamiliar_views([f for f in pressed for _ in range(views)], rng)[0]
     before, after, _ = states(cal, viewed)
     out: dict = {"taxim press views beyond the limit": len(viewed),
                  "before": _shares(before), "after": _shares(after)}
@@ -149,10 +148,9 @@ def main(argv: list[str] | None = None) -> None:
               "within_limit": within_limit_changes(cal, args.test, real),
               "real": real_measures(cal, real, digit_frames(REFERENCE), args.views,
                                     args.seed + 1)}
-    text = json.dumps(result, indent=1)
-    print(text)
+    print(json_text(result), end="")
     if args.out:
-        Path(args.out).write_text(text + "\n", encoding="utf-8")
+        write_json_atomic(args.out, result)
 
 
 if __name__ == "__main__":

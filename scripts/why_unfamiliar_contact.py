@@ -22,13 +22,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from ratouch.eval.frames import digit_frames, taxim_frames
+from ratouch.files import json_text, write_json_atomic
 from ratouch.model.trust import TrustCalibration
 from ratouch.paths import trust_calibration
 from ratouch.train.trust import render_samples
@@ -185,10 +185,9 @@ def main(argv: list[str] | None = None) -> None:
                                       args.per_kind, args.blanks),
               "within_limit": within_limit_changes(before, after, real, args.test),
               "real_beyond": real_beyond(before, after, real, args.views, args.view_seed)}
-    text = json.dumps(result, indent=1)
-    print(text)
+    print(json_text(result), end="")
     if args.out:
-        Path(args.out).write_text(text + "\n", encoding="utf-8")
+        write_json_atomic(args.out, result)
 
 
 if __name__ == "__main__":

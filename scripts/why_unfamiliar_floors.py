@@ -23,13 +23,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from ratouch.eval.frames import digit_frames, taxim_frames
+from ratouch.files import json_text, write_json_atomic
 from ratouch.model.geometry import GeometryCalibration
 from ratouch.model.trust import TrustCalibration
 from ratouch.paths import geometry_calibration, trust_calibration
@@ -168,10 +168,9 @@ def main(argv: list[str] | None = None) -> None:
               "within_limit": within_limit_changes(before, after, fresh, real,
                                                    args.test),
               "real": real_measures(before, after, real, digit, args.views, args.seed + 2)}
-    text = json.dumps(result, indent=1)
-    print(text)
+    print(json_text(result), end="")
     if args.out:
-        Path(args.out).write_text(text + "\n", encoding="utf-8")
+        write_json_atomic(args.out, result)
 
 
 if __name__ == "__main__":

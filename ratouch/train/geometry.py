@@ -179,6 +179,15 @@ def fit_shader(name: str, seed: int = 0, presses: int = 40, samples: int = 120_0
     return lookup, _summary(rows, "render units")
 
 
+def floors_and_threshold(fit: np.ndarray, held: np.ndarray) -> tuple[tuple[float, ...], float]:
+    """Structured-change floors from blank pairs' `band_stats`: each statistic's
+    :data:`FLOOR_QUANTILE` over `fit`, and the threshold, that quantile of the combined score
+    (`structure_score`) over `held`, pairs the floors were not set on."""
+    floors = tuple(float(v) for v in np.quantile(fit, FLOOR_QUANTILE, axis=0))
+    scores = [structure_score(s, floors) for s in held]
+    return floors, float(np.quantile(scores, FLOOR_QUANTILE))
+
+
 def set_floors(lookup: GradientLookup, seed: int = 0, pairs: int = FLOOR_PAIRS
                ) -> GradientLookup:
     """The lookup with its structured-change floors set on drifted blank pairs of its
@@ -191,9 +200,7 @@ def set_floors(lookup: GradientLookup, seed: int = 0, pairs: int = FLOOR_PAIRS
     stats = np.array([band_stats(lookup.change(*render_blank_pair(lookup.family, rng)))
                       for _ in range(pairs)])
     half = pairs // 2
-    floors = tuple(float(v) for v in np.quantile(stats[:half], FLOOR_QUANTILE, axis=0))
-    scores = [structure_score(s, floors) for s in stats[half:]]
-    threshold = float(np.quantile(scores, FLOOR_QUANTILE))
+    floors, threshold = floors_and_threshold(stats[:half], stats[half:])
     return lookup.with_floors(floors, threshold, floors_on=(
         f"{pairs} drifted blank render pairs of the family: floors on {half}, the threshold "
         f"on the other {pairs - half}, {FLOOR_QUANTILE:.1%} quantiles"))
@@ -225,14 +232,18 @@ def set_unfamiliar_floors(lookups: dict[str, GradientLookup], seed: int = 0,
             if not beyond_every_unit(frame):
                 continue
             kept += 1
+            # the structured change depends on the lookup's working size and orientation
+            # only: lookups that share them read one change
+            read: dict[tuple, np.ndarray] = {}
             for name, lookup in lookups.items():
-                stats[name].append(band_stats(lookup.change(frame, background)))
+                key = (lookup.work_size, lookup.landscape)
+                if key not in read:
+                    read[key] = band_stats(lookup.change(frame, background))
+                stats[name].append(read[key])
     out = {}
     for name, lookup in lookups.items():
         s = np.array(stats[name])
-        floors = tuple(float(v) for v in np.quantile(s[0::2], FLOOR_QUANTILE, axis=0))
-        scores = [structure_score(x, floors) for x in s[1::2]]
-        threshold = float(np.quantile(scores, FLOOR_QUANTILE))
+        floors, threshold = floors_and_threshold(s[0::2], s[1::2])
         out[name] = lookup.with_unfamiliar_floors(floors, threshold, unfamiliar_floors_on=(
             f"{kept} drifted blank render pairs of every family's units, each recoloured "
             f"beyond every rendered unit ({pairs} a family drawn): floors on every other one, "

@@ -39,7 +39,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from ratouch.files import write_atomic
+from ratouch.files import write_json_atomic
 from ratouch.paths import cache_dir
 from ratouch.world.material import material
 from ratouch.world.sensors import family, family_sensors
@@ -115,7 +115,7 @@ def measure_drift(calibration: str) -> Drift:
         pass
     drift = _measured_drift(calibration)
     try:
-        write_atomic(kept, json.dumps(dataclasses.asdict(drift)))
+        write_json_atomic(kept, dataclasses.asdict(drift))
     except OSError as e:
         log.info("drift of %s not kept in the cache (%s): measured again next time",
                  calibration, e)
