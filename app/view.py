@@ -18,7 +18,7 @@ from PIL import Image
 
 from ratouch.search.modes import QUERY_MODES, RA_TOUCH_MODE
 from ratouch.serve.request import split_model_name
-from ratouch.serve.trace import RetrievalTrace, marked_segments, read_mode
+from ratouch.serve.trace import RetrievalTrace, marked_segments, read_mode, touch_reading
 
 MODES = QUERY_MODES
 MODE_TITLE = QUERY_MODES.field("title")  # live views of the registry's rows
@@ -137,7 +137,7 @@ def neighbour_strip(result: dict, mode: str, thumbnail: Callable[[int], np.ndarr
     the joint query's for the paper's system, the gated or the image query's for `gated`), of
     those the integrator attended to most; outlined in that mode's row only."""
     title = (f"<div class='ra-mode-title'><span style='color:{MODE_COLOUR[mode]}'>●</span> "
-             f"{escape(MODE_TITLE[mode])}</div>")
+             f"{escape(MODE_TITLE[mode])}{touch_reading_mark(result, mode)}</div>")
     rows = result.get("neighbours", {}).get(mode)
     if rows and touch_unread(result, mode):
         return (f"<div class='ra-mode' id='strip-{mode}'>{title}<div class='ra-strip ra-muted'>"
@@ -169,6 +169,27 @@ def neighbour_strip(result: dict, mode: str, thumbnail: Callable[[int], np.ndarr
                      f"{badges}<figcaption>{escape(n['caption'])}</figcaption></figure>")
     return (f"<div class='ra-mode' id='strip-{mode}'>{title}<div class='ra-strip'>"
             f"{''.join(tiles)}</div></div>")
+
+
+def touch_reading_mark(result: dict, mode: str) -> str:
+    """Under the title of the query whose top caption is what touch alone reads
+    (`touch_reading`: the adapted query's for a press whose shape reads as an everyday one,
+    the paper's tactile query's otherwise), a mark that says so, the why in its tooltip; ""
+    for the other modes and for a frame with no contact."""
+    read = touch_reading(result)
+    if read["query"] != mode or not read["caption"] or touch_unread(result, mode):
+        return ""
+    why = {"everyday": "its shape reads as an everyday press (a flat face, fabric, foam, "
+                       "tape, wire, an edge, a small cap), so the query fitted on such presses "
+                       "reads it",
+           "world": "its shape reads as a firm press, so the paper's tactile query reads "
+                    "it"}.get(read["regime"] or "", "without a background there is no shape "
+                                                    "to route by: the paper's tactile query "
+                                                    "reads it")
+    tip = escape(f"what touch alone reads: this query's top caption, "
+                 f"“{read['caption']}”; {why}", quote=True)
+    return (f"<div class='ra-touch-reading' id='touch-reading' title='{tip}'>★ touch alone "
+            f"reads its top caption</div>")
 
 
 def corpus_provenance(corpus) -> str:

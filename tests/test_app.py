@@ -1153,6 +1153,39 @@ def test_trust_is_shown_above_the_descriptions():
     assert "blind to colour" not in view.trust_lines(result)[0]
 
 
+def test_the_touch_only_reading_is_marked_on_its_query():
+    """The strip of the query whose top caption is what touch alone reads says so: the
+    adapted query's for a press whose shape reads as everyday, the paper's tactile query's
+    otherwise; no mark for a frame with no contact."""
+    from app import view
+
+    tactile = {"no_contact": False, "background": True, "state": "contact",
+               "firmness": {"soft": 0.9, "reads": "soft", "regime": "everyday"}}
+
+    def row(caption):
+        return [{"id": 1, "score": 0.5, "class_name": "c", "caption": caption}]
+
+    result = {"trust": {"tactile": tactile},
+              "neighbours": {"tactile": row("hard, rigid"), "adapted": row("soft, <woven>")}}
+
+    def strip(res, mode):
+        return view.neighbour_strip(res, mode, lambda i: np.zeros((4, 4, 3), np.uint8))
+
+    mark = "★ touch alone reads its top caption"
+    assert mark in strip(result, "adapted") and mark not in strip(result, "tactile")
+    assert "“soft, &lt;woven&gt;”; its shape reads as an everyday press" in strip(result,
+                                                                                 "adapted")
+    firm = {**tactile, "firmness": {"soft": 0.1, "reads": "hard", "regime": "world"}}
+    res = {**result, "trust": {"tactile": firm}}
+    assert mark in strip(res, "tactile") and mark not in strip(res, "adapted")
+    assert "its shape reads as a firm press" in strip(res, "tactile")
+    alone = {**result, "trust": {"tactile": {**tactile, "background": False}}}
+    assert "there is no shape to route by" in strip(alone, "tactile")
+    blank = {**tactile, "no_contact": True, "state": "no contact", "firmness": None}
+    res = {**result, "trust": {"tactile": blank}}
+    assert mark not in strip(res, "tactile") + strip(res, "adapted")
+
+
 def test_a_blank_frames_touch_modes_show_no_material():
     """Issue 36: with no contact detected, the modes that read touch do not show the nearest
     captions to an empty gel as a material's (strip and table say why; the JSON keeps them),

@@ -79,6 +79,12 @@ def test_real_presses_are_detected_on_their_touch(mini_rows):
     assert s["presses_detected"] == 24, [r["state"] for r in mini_rows]
     assert s["presses_region_on_touch"] == 24
     assert all(r["sensor"] == "mini" for r in mini_rows)
+    # a rigid ball is a firm press by its shape: the touch-only reading is the paper's tactile
+    # query's (docs/geometry.md, "The touch-only reading routed by the press's regime")
+    for r in mini_rows:
+        if r["known_touch"]:
+            assert r["reading_query"] == "tactile" and r["reading"] == r["reading_tactile"]
+            assert r["shape"]["regime"] == "world" and r["reading_adapted"]
 
 
 def test_a_not_a_number_score_is_never_contact(pipeline, monkeypatch):

@@ -508,7 +508,36 @@ def test_press_readings_count_firmness_refusals_and_the_judge():
         assert ad["presses"] == bg["presses"] and ad["hard_read_soft"] == 0
         assert ad["soft_read_hard"] == ad["soft"] == bg["soft"] and ad["distinct_readings"] == 1
         assert alone["adapted"]["refused"] == alone["presses"]
+        # no firmness router read these presses: the reading is the paper's tactile query's
+        assert bg["routed_to_adapted"] == 0 and bg["tactile"]["judge"] == bg["judge"]
     assert material_label("terry_cloth").count(",") == 4
+
+
+class _EverydayWithBackground(_ReadsSoftWithBackground):
+    """The stand-in, with a firmness router that reads every press against a background as
+    an everyday one."""
+
+    def query(self, visual, tactile, box, k, background=None):
+        out = super().query(visual, tactile, box, k, background)
+        out["trust"]["tactile"].update(background=background is not None, firmness={
+            "soft": 0.2, "reads": "hard", "regime": "everyday"})
+        return out
+
+
+def test_press_readings_are_routed_by_the_press_regime():
+    """An everyday press read against its background is read by the adapted query (the
+    paper's tactile reading beside it); without the background, by the paper's."""
+    from ratouch.eval.judge import OfflineJudge
+    from ratouch.eval.presses import press_readings
+
+    rep = press_readings(_EverydayWithBackground(), OfflineJudge(), n=1, seed=0)
+    for fam in rep.values():
+        bg, alone = fam["with_background"], fam["without_background"]
+        assert bg["routed_to_adapted"] == 1.0 and alone["routed_to_adapted"] == 0.0
+        # the routed reading is the adapted one ("hard, rigid"): no hard press reads soft
+        assert bg["hard_read_soft"] == 0 and bg["soft_read_hard"] == bg["soft"]
+        assert bg["tactile"]["hard_read_soft"] == bg["hard"]  # "soft, plush"
+        assert bg["judge"] == bg["adapted"]["judge"] != bg["tactile"]["judge"]
 
 
 def test_eval_presses_readings_cli(monkeypatch, capsys):

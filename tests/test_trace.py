@@ -99,3 +99,30 @@ def test_the_gated_system_says_who_read_and_how_far_touch_was_trusted():
     assert "- joint #1 · class0" in retrieval_md(text_trace)  # no attention share to show
     del result["retrieval"]["generator"]       # an answer from before the reader says nothing
     assert trace_retrieval(result).generator == ""
+
+
+def _answer(regime: str | None, background: bool = True, adapted: bool = True) -> dict:
+    firmness = None if regime is None else {"soft": 0.8, "reads": "soft", "regime": regime}
+    return {"trust": {"tactile": {"background": background, "firmness": firmness}},
+            "neighbours": {"tactile": [{"caption": "hard, smooth"}],
+                           "adapted": [{"caption": "soft, woven"}] if adapted else []}}
+
+
+def test_touch_reading_follows_the_press_regime():
+    """docs/geometry.md, "The touch-only reading routed by the press's regime": an everyday
+    press read against its background is read by the adapted query, a firm one, a frame
+    without a background (no router) or an answer without adapted neighbours by the paper's
+    tactile query."""
+    from ratouch.serve.trace import touch_reading
+
+    assert touch_reading(_answer("everyday")) == {"caption": "soft, woven", "query": "adapted",
+                                                  "regime": "everyday"}
+    assert touch_reading(_answer("world")) == {"caption": "hard, smooth", "query": "tactile",
+                                               "regime": "world"}
+    # no background: no router reads it, whatever a firmness block says
+    assert touch_reading(_answer("everyday", background=False))["query"] == "tactile"
+    assert touch_reading(_answer(None)) == {"caption": "hard, smooth", "query": "tactile",
+                                            "regime": None}
+    assert touch_reading(_answer("everyday", adapted=False))["caption"] == "hard, smooth"
+    assert touch_reading({"neighbours": {}}) == {"caption": "", "query": "tactile",
+                                                 "regime": None}

@@ -7,8 +7,8 @@ frames, `world.taxim_optics.real_presses`, and the two real DIGIT frames of
 image, so that touch alone must carry the answer. Per frame: the sensor family it was read
 as, the contact reading (contact / no contact / uncertain) and its score, where the frame
 differs from its background (the contact region, when a background is known), the touch-only
-reading (the tactile query's top caption), RA-Touch's description and the tactile query's
-top neighbours.
+reading (`touch_reading`: the top caption of the query made for the press's regime),
+RA-Touch's description and the tactile query's top neighbours.
 
 Nothing is tuned on these frames: every threshold comes from renders (`ratouch train trust`).
 """
@@ -28,6 +28,7 @@ from ratouch.errors import ConfigError, DataNotFoundError
 from ratouch.eval.judge.lexicon import MEMBERS
 from ratouch.files import write_atomic
 from ratouch.images import to_rgb_array
+from ratouch.serve.trace import touch_reading
 from ratouch.vocabulary import parse_adjectives
 from ratouch.world.sensors import family
 
@@ -92,15 +93,18 @@ def read_frame(pipeline, item: Frame, k: int = 5) -> dict:
                             background=item.background)
     tac = (result.get("trust") or {}).get("tactile") or {}
     tactile = (result.get("neighbours") or {}).get("tactile", [])
-    reading = tactile[0]["caption"] if tactile else ""
     adapted = (result.get("neighbours") or {}).get("adapted", [])
+    read = touch_reading(result)
     row = {"frame": item.name, "sensor": (tac.get("sensor") or {}).get("family"),
            "background": item.background is not None,
            "state": tac.get("state"), "contact": tac.get("contact"),
            # called its background within the sensor's noise (the contact model not asked)
            "within_noise": tac.get("within_noise"),
-           "reading": reading, "firmness": firmness(reading),
-           # the adapted tactile query's top caption (the press map's reading)
+           # the touch-only reading (`touch_reading`) and the query it came from
+           "reading": read["caption"], "reading_query": read["query"],
+           "firmness": firmness(read["caption"]),
+           # the paper's tactile query's top caption, and the adapted one's (the press map's)
+           "reading_tactile": tactile[0]["caption"] if tactile else "",
            "reading_adapted": adapted[0]["caption"] if adapted else "",
            "ra_touch": (result.get("description") or {}).get("ra_touch", ""),
            "neighbours": [n.get("caption") for n in tactile[:k]],

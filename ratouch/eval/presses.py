@@ -210,8 +210,11 @@ def press_readings(pipeline, judge, n: int = 4, seed: int = 2, k: int = 5) -> di
     firmness from the judge's soft and hard words, `frames.firmness`; a refused press has
     none); the share whose firmness is right (a refused press is not); the offline judge of the reading against the pressed material's own
     words (`material_label`), a refused press scoring as an empty answer; and how many
-    distinct readings. The same figures for the adapted tactile query's reading (the press
-    map's, `ratouch.model.press_map`) under "adapted"."""
+    distinct readings. The reading is the touch-only reading (`frames.touch_reading`: the
+    adapted query's for a press the firmness router reads as an everyday one, else the
+    paper's tactile query's; "routed_to_adapted": the share read by the adapted one); the
+    same figures for the paper's tactile query's reading under "tactile", and for the adapted
+    tactile query's (the press map's, `ratouch.model.press_map`) under "adapted"."""
     rng = np.random.default_rng([seed, 912])
     out: dict = {}
     for fam in family_names():
@@ -222,15 +225,21 @@ def press_readings(pipeline, judge, n: int = 4, seed: int = 2, k: int = 5) -> di
                                                p.background if way == "with_background"
                                                else None), k)
                     for p in presses]
-            out[fam][way] = {**_reading_stats(rows, presses, "reading", judge),
-                             "adapted": _reading_stats(rows, presses, "reading_adapted",
+            out[fam][way] = {**reading_stats(rows, presses, "reading", judge),
+                             # the share of presses the routed reading read by the adapted query
+                             "routed_to_adapted": round(float(np.mean(
+                                 [r["reading_query"] == "adapted" for r in rows])), 4),
+                             "tactile": reading_stats(rows, presses, "reading_tactile",
+                                                       judge),
+                             "adapted": reading_stats(rows, presses, "reading_adapted",
                                                        judge)}
     return out
 
 
-def _reading_stats(rows: list[dict], presses: list, key: str, judge) -> dict:
+def reading_stats(rows: list[dict], presses: list, key: str, judge) -> dict:
     """The figures of `press_readings` for one reading of the rows (`key`: "reading", the
-    tactile query's top caption, or "reading_adapted", the adapted tactile query's)."""
+    touch-only reading; "reading_tactile", the paper's tactile query's top caption;
+    "reading_adapted", the adapted tactile query's)."""
     # a refused press has no reading: neither firmness, and not right
     firm = [firmness(r[key]) if r["state"] != "no contact" else "refused" for r in rows]
     hard = [f for f, p in zip(firm, presses) if not p.soft]
@@ -253,7 +262,8 @@ def format_press_readings(rep: dict) -> str:
              "|---|---|---|---|---|---|---|---|---|"]
     for fam, ways in rep.items():
         for way, both in ways.items():
-            for name, r in (("tactile", both), ("adapted", both.get("adapted"))):
+            for name, r in (("routed", both), ("tactile", both.get("tactile")),
+                            ("adapted", both.get("adapted"))):
                 if r is None:
                     continue
                 lines.append(

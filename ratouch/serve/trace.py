@@ -4,8 +4,10 @@ description those neighbours' captions carry.
 
 `trace_retrieval(result)` reads a `QueryResult` (or its JSON, `QueryResult.to_dict()`, as the
 app and the `/query` API hold it) and returns a `RetrievalTrace`; `marked_segments` cuts a
-description into pieces, each with the neighbours that carry it, for a client to highlight.
-Nothing here runs a model: it only reads what the answer already holds.
+description into pieces, each with the neighbours that carry it, for a client to highlight;
+`touch_reading(result)` is what touch alone reads in the answer (the top caption of the query
+made for the press's regime). Nothing here runs a model: it only reads what the answer already
+holds.
 """
 
 from __future__ import annotations
@@ -184,3 +186,24 @@ def marked_segments(text: str, carried: Mapping[str, Sequence[int]]
     if pos < len(text):
         out.append((text[pos:], ()))
     return out
+
+
+def touch_reading(result: Mapping[str, Any]) -> dict:
+    """What touch alone reads in a query's result: the top caption of the query made for the
+    press's regime. Read against a background, a press whose family's firmness router
+    (`RoutedFirmness`) reads it as an everyday one (a flat face, a fabric, foam, tape, wire,
+    an edge, a small cap) is read by the adapted tactile query (the press map, fitted on such
+    presses); a firm press of the world's regime (a material or a ball pressed in), or a
+    frame without a background, where there is no router, by the paper's tactile query
+    (docs/geometry.md, "The touch-only reading routed by the press's regime").
+
+    Returns:
+        {"caption": the reading ("" without neighbours), "query": "adapted" or "tactile",
+        "regime": "everyday", "world" or None (no router read the frame)}.
+    """
+    tac = (result.get("trust") or {}).get("tactile") or {}
+    regime = (tac.get("firmness") or {}).get("regime") if tac.get("background") else None
+    neighbours = result.get("neighbours") or {}
+    query = "adapted" if regime == "everyday" and neighbours.get("adapted") else "tactile"
+    top = neighbours.get(query) or []
+    return {"caption": top[0]["caption"] if top else "", "query": query, "regime": regime}
