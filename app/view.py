@@ -179,13 +179,13 @@ def touch_reading_mark(result: dict, mode: str) -> str:
     read = touch_reading(result)
     if read["query"] != mode or not read["caption"] or touch_unread(result, mode):
         return ""
-    why = {"everyday": "its shape reads as an everyday press (a flat face, fabric, foam, "
-                       "tape, wire, an edge, a small cap), so the query fitted on such presses "
+    what = "its shape" if read["by"] == "shape" else "its tactile embedding (no background)"
+    why = {"everyday": f"{what} reads as an everyday press (a flat face, fabric, foam, tape, "
+                       "wire, an edge, a small cap), so the query fitted on such presses "
                        "reads it",
-           "world": "its shape reads as a firm press, so the paper's tactile query reads "
-                    "it"}.get(read["regime"] or "", "without a background there is no shape "
-                                                    "to route by: the paper's tactile query "
-                                                    "reads it")
+           "world": f"{what} reads as a firm press, so the paper's tactile query reads "
+                    "it"}.get(read["regime"] or "", "no router read the press: the paper's "
+                                                    "tactile query reads it")
     tip = escape(f"what touch alone reads: this query's top caption, "
                  f"“{read['caption']}”; {why}", quote=True)
     return (f"<div class='ra-touch-reading' id='touch-reading' title='{tip}'>★ touch alone "

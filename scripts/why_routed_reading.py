@@ -1,20 +1,21 @@
 """The touch-only reading routed by the press's regime: the measures of docs/geometry.md, "The
-touch-only reading routed by the press's regime".
+touch-only reading routed by the press's regime" (with the background: the shape's router) and
+"The touch-only reading of a frame alone, routed too" (without it: the press map's router on
+the tactile embedding).
 
 Every frame is read beside a mid-grey visual (`eval.frames.read_frame`, the shipped default-s
 pipeline and corpus) and judged by the offline judge against the pressed material's five most
 weighted adjectives (`eval.presses.material_label`). Two readings of the same rows: the
-routed one (`reading`: `eval.frames.touch_reading`) and the paper's tactile query's
-(`reading_tactile`); the adapted query's (`reading_adapted`) beside them.
+routed one (`reading`: `ratouch.serve.trace.touch_reading`) and the paper's tactile query's
+(`reading_tactile`); the adapted query's (`reading_adapted`) beside them. Each group is read
+with its background (`with_background`) and without it (`alone`):
 
 1. everyday presses (`render_presses`, `--per-kind` a kind a family, the stream of
-   `press_readings` at `--seed`), read against their background;
-2. the world's own presses (renders with contact, train[`--world-start`:+`--world`]), read
-   against their unit's background;
-3. Taxim's 72 real ball presses against their backgrounds, and the reference DIGIT press
+   `press_readings` at `--seed`);
+2. the world's own presses (renders with contact, train[`--world-start`:+`--world`]);
+3. Taxim's 72 real ball presses (their backgrounds, or none), and the reference DIGIT press
    (where a checkout has it);
-4. the everyday presses read without their background: readings that differ (none by
-   construction).
+4. rows whose reading is not the one their router names (none by construction).
 
     python scripts/why_routed_reading.py [--per-kind K] [--seed S] [--world-start I]
         [--world N] [--taxim N] [--out F]
@@ -76,34 +77,22 @@ def compare(rows: list[dict], items: list, judge, seed: int) -> dict:
     return out
 
 
-def everyday(pipe, judge, per_kind: int, seed: int) -> tuple[dict, int]:
-    """Measures 1 and 4: per family and over all, read against the background; and the
-    readings without it that differ from the paper's tactile query's."""
-    rng = np.random.default_rng([seed, 912])  # the stream of `press_readings`
-    out: dict = {}
-    all_rows: list[dict] = []
-    all_items: list = []
-    changed_alone = 0
-    for fam in family_names():
-        presses = render_presses(fam, rng, per_kind)
-        rows = [read_frame(pipe, Frame(f"{p.kind} {p.material}", p.frame, p.background))
-                for p in presses]
-        alone = [read_frame(pipe, Frame(f"{p.kind} {p.material}", p.frame)) for p in presses]
-        changed_alone += sum(r["reading"] != r["reading_tactile"] for r in alone)
-        out[fam] = compare(rows, presses, judge, seed)
-        all_rows += rows
-        all_items += presses
-    out["all"] = compare(all_rows, all_items, judge, seed)
-    return out, changed_alone
+#: The two ways every group is read.
+WAYS = ("with_background", "alone")
 
 
-def world(pipe, judge, start: int, n: int, seed: int) -> dict:
-    """Measure 2: the world's renders with contact, read against their unit's background."""
-    data = render_samples(World(WorldConfig(seed=0)).warm(), "train", range(start, start + n))
-    rows = [read_frame(pipe, Frame(f"train {start + i}", f, b))
-            for i, (f, b) in enumerate(zip(data["frames"], data["backgrounds"]))]
-    items = [Pressed(m, material(m).feel.compliance >= SOFT_AT) for m in data["materials"]]
-    fams = np.asarray(data["families"])
+def off_router(rows: list[dict]) -> int:
+    """Rows whose reading is not the query their router names (measure 4; none by
+    construction): the adapted query's exactly where the shape (with a background) or the
+    embedding (alone) reads an everyday press, and adapted neighbours exist."""
+    def named(r: dict) -> str:
+        block = r.get("shape") if r["background"] else r.get("press_regime")
+        return "adapted" if (block or {}).get("regime") == "everyday" else "tactile"
+    return sum(r["reading_query"] != named(r) for r in rows if r["reading_adapted"])
+
+
+def by_family(rows: list[dict], items: list, fams: np.ndarray, judge, seed: int) -> dict:
+    """`compare` per family present and over all."""
     out = {fam: compare([r for r, f in zip(rows, fams) if f == fam],
                         [p for p, f in zip(items, fams) if f == fam], judge, seed)
            for fam in family_names() if (fams == fam).any()}
@@ -111,22 +100,55 @@ def world(pipe, judge, start: int, n: int, seed: int) -> dict:
     return out
 
 
-def real(pipe, per_calibration: int | None = None) -> dict:
-    """Measure 3: Taxim's real ball presses against their backgrounds (the first
-    `per_calibration` of each calibration; None: all), and the DIGIT press."""
+def read_both_ways(pipe, frames: list[Frame]) -> dict[str, list[dict]]:
+    """Each frame read with its background and alone."""
+    return {"with_background": [read_frame(pipe, f) for f in frames],
+            "alone": [read_frame(pipe, Frame(f.name, f.frame, None, f.centre, f.radius))
+                      for f in frames]}
+
+
+def everyday(pipe, judge, per_kind: int, seed: int) -> tuple[dict, int]:
+    """Measure 1 (and 4's count): per way, family and over all."""
+    rng = np.random.default_rng([seed, 912])  # the stream of `press_readings`
+    presses = [p for fam in family_names() for p in render_presses(fam, rng, per_kind)]
+    rows = read_both_ways(pipe, [Frame(f"{p.kind} {p.material}", p.frame, p.background)
+                                 for p in presses])
+    fams = np.array([p.family for p in presses])
+    return ({way: by_family(rows[way], presses, fams, judge, seed) for way in WAYS},
+            sum(off_router(r) for r in rows.values()))
+
+
+def world(pipe, judge, start: int, n: int, seed: int) -> tuple[dict, int]:
+    """Measure 2 (and 4's count): the world's renders with contact, per way and family."""
+    data = render_samples(World(WorldConfig(seed=0)).warm(), "train", range(start, start + n))
+    rows = read_both_ways(pipe, [Frame(f"train {start + i}", f, b) for i, (f, b) in
+                                 enumerate(zip(data["frames"], data["backgrounds"]))])
+    items = [Pressed(m, material(m).feel.compliance >= SOFT_AT) for m in data["materials"]]
+    fams = np.asarray(data["families"])
+    return ({way: by_family(rows[way], items, fams, judge, seed) for way in WAYS},
+            sum(off_router(r) for r in rows.values()))
+
+
+def real(pipe, per_calibration: int | None = None) -> tuple[dict, int]:
+    """Measure 3 (and 4's count): Taxim's real ball presses with their backgrounds and alone
+    (the first `per_calibration` of each calibration; None: all), and the DIGIT press."""
     frames = [f for c in ("gelsight", "gelsight_mini")
               for f in [f for f in taxim_frames(c) if "press" in f.name][:per_calibration]]
-    rows = [read_frame(pipe, f) for f in frames]
-    out: dict = {"presses": len(rows)}
-    for name, key in KEYS.items():
-        firm = [firmness(r[key]) for r in rows if r["state"] != "no contact"]
-        out[name] = {w: firm.count(w) for w in ("hard", "soft", "both", "neither")}
-    out["routed_to_adapted"] = sum(r["reading_query"] == "adapted" for r in rows)
+    both = read_both_ways(pipe, frames)
+    out: dict = {"presses": len(frames)}
+    for way, rows in both.items():
+        rec: dict = {"answered": sum(r["state"] != "no contact" for r in rows),
+                     "routed_to_adapted": sum(r["reading_query"] == "adapted" for r in rows)}
+        for name, key in KEYS.items():
+            firm = [firmness(r[key]) for r in rows if r["state"] != "no contact"]
+            rec[name] = {w: firm.count(w) for w in ("hard", "soft", "both", "neither")}
+        out[way] = rec
     for f in digit_frames(REFERENCE):
         if "pressed" in f.name:
             r = read_frame(pipe, f)
-            out[f.name] = {name: r[key] for name, key in KEYS.items()}
-    return out
+            out[f.name] = {**{name: r[key] for name, key in KEYS.items()},
+                           "query": r["reading_query"]}
+    return out, sum(off_router(r) for r in both.values())
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -142,13 +164,14 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     pipe = RATouchPipeline.load("default-s")
     judge = OfflineJudge()
-    presses, changed_alone = everyday(pipe, judge, args.per_kind, args.seed)
+    presses, off1 = everyday(pipe, judge, args.per_kind, args.seed)
+    worlds, off2 = world(pipe, judge, args.world_start, args.world, args.seed)
+    reals, off3 = real(pipe, args.taxim)
     result = {"streams": {"seed": args.seed, "per_kind": args.per_kind,
                           "world": f"train[{args.world_start}:{args.world_start + args.world}]"},
-              "everyday": presses,
-              "world": world(pipe, judge, args.world_start, args.world, args.seed),
-              "real": real(pipe, args.taxim),
-              "alone_changed": changed_alone}
+              "press_map_router": getattr(pipe.press_map, "router", None) is not None,
+              "everyday": presses, "world": worlds, "real": reals,
+              "off_router": off1 + off2 + off3}
     print(json_text(result), end="")
     if args.out:
         write_json_atomic(args.out, result)

@@ -1180,7 +1180,10 @@ def test_the_touch_only_reading_is_marked_on_its_query():
     assert mark in strip(res, "tactile") and mark not in strip(res, "adapted")
     assert "its shape reads as a firm press" in strip(res, "tactile")
     alone = {**result, "trust": {"tactile": {**tactile, "background": False}}}
-    assert "there is no shape to route by" in strip(alone, "tactile")
+    assert "no router read the press" in strip(alone, "tactile")
+    alone["trust"]["tactile"]["press_regime"] = {"everyday": 0.9, "regime": "everyday"}
+    assert "its tactile embedding (no background) reads as an everyday" in strip(alone,
+                                                                                "adapted")
     blank = {**tactile, "no_contact": True, "state": "no contact", "firmness": None}
     res = {**result, "trust": {"tactile": blank}}
     assert mark not in strip(res, "tactile") + strip(res, "adapted")

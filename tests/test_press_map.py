@@ -3,6 +3,7 @@ presses back to their material's captions; its file, its mode, its fit and its C
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -41,6 +42,43 @@ def test_the_map_is_a_residual_on_unit_vectors_and_round_trips(shipped_map, tmp_
     assert again.meta["encoder"] == "default-s"
     with pytest.raises(DataError, match=r"\(N, 384\)"):
         shipped_map.apply(T[:, :10])
+
+
+def test_the_regime_router_reads_embeddings_and_round_trips(shipped_map, tmp_path):
+    """The map's router (which regime a frame read alone is a press of): a probability per
+    embedding, named at 0.5; saved with the map; a map without one loads without one; a
+    router of another width is refused."""
+    router = shipped_map.router
+    assert router is not None and router.coef.shape == (shipped_map.dim,)
+    rng = np.random.default_rng(1)
+    T = rng.normal(size=(4, shipped_map.dim))
+    p = router.everyday(T)
+    assert p.shape == (4,) and ((0 <= p) & (p <= 1)).all()
+    read = router.read(T)
+    assert [r["regime"] for r in read] == ["everyday" if x >= 0.5 else "world" for x in p]
+    again = PressMap.load(shipped_map.save(tmp_path / "m.npz"))
+    assert again.router is not None
+    np.testing.assert_array_equal(again.router.everyday(T), p)
+    bare = PressMap(shipped_map.w1, shipped_map.b1, shipped_map.w2, shipped_map.b2)
+    assert PressMap.load(bare.save(tmp_path / "bare.npz")).router is None
+    narrow = dataclasses.replace(router, coef=router.coef[:10])
+    with pytest.raises(DataError, match="its router reads"):
+        PressMap.load(dataclasses.replace(shipped_map, router=narrow).save(tmp_path / "n.npz"))
+
+
+def test_a_frame_alone_carries_the_routers_reading(pipeline):
+    """The trust block of a frame read without a background holds the press map's regime
+    reading (the touch-only reading follows it); with a background it does not (the shape
+    decides there)."""
+    from ratouch.world.sampler import World
+
+    s = World().sample("test", 3)
+    alone = pipeline.query(s.visual, s.tactile, k=3)
+    regime = alone["trust"]["tactile"]["press_regime"]
+    assert regime["regime"] in ("everyday", "world") and 0 <= regime["everyday"] <= 1
+    bg = pipeline.query(s.visual, s.tactile, k=3,
+                        background=World().background_image(s.sensor))
+    assert "press_regime" not in bg["trust"]["tactile"]
 
 
 def test_bad_files_are_clear(tmp_path):
@@ -87,7 +125,7 @@ def test_train_press_map_cli_fits_saves_and_reports(pipeline, tmp_path, monkeypa
     out = tmp_path / "map.npz"
     assert main(["train", "press-map", "--fit", "1", "--world", "8", "--balls", "2",
                  "--eval", "1", "--world-eval", "6", "--balls-eval", "1", "--steps", "3",
-                 "--out", str(out)]) == 0
+                 "--router-balls", "2", "--out", str(out)]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["written"] == str(out)
     for when in ("before", "after"):
@@ -96,11 +134,25 @@ def test_train_press_map_cli_fits_saves_and_reports(pipeline, tmp_path, monkeypa
     assert m.meta["config"]["steps"] == 3 and m.dim == pipeline.encoders.dim
     assert m.meta["config"]["balls"] == 2 and "12 rigid-ball" in m.meta["fitted_on"]
     assert 0 <= rep["p_at_5"]["after"]["all"]["balls_rigid_top1"] <= 1
+    # the regime router, fitted beside the map on its fit streams read alone
+    assert m.router is not None and rep["router"] == m.meta["router"]
+    assert "6 rigid balls, each read alone" in rep["router"]["fitted_on"]
+    assert set(rep["router"]["fresh_read_everyday"]) == {"everyday", "world", "balls"}
+    # --router-only: the shipped map's weights as they are, a router fitted onto them
+    only = tmp_path / "only.npz"
+    assert main(["train", "press-map", "--router-only", "--fit", "1", "--world", "8",
+                 "--eval", "1", "--world-eval", "6", "--balls-eval", "1", "--router-balls",
+                 "2", "--out", str(only)]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    got, shipped = PressMap.load(only), PressMap.load(press_map("default-s"))
+    for k in ("w1", "b1", "w2", "b2"):
+        np.testing.assert_array_equal(getattr(got, k), getattr(shipped, k))
+    assert got.router is not None and got.meta["router"] == rep["router"]
 
 
 def test_fit_press_map_reports_before_and_after(pipeline):
     pm, rep = fit_press_map(pipeline, PressMapConfig(fit_per_kind=1, world=6, eval_per_kind=1,
-                                                     world_eval=4, steps=2))
+                                                     world_eval=4, steps=2, router_balls=1))
     assert rep["before"]["all"]["everyday"] == pm.meta["p_at_5"]["before"]["all"]["everyday"]
     assert all(v is None or 0 <= v <= 1 for fam in ("digit", "gelsight", "mini")
                for v in rep["after"][fam].values())

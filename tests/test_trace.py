@@ -116,13 +116,23 @@ def test_touch_reading_follows_the_press_regime():
     from ratouch.serve.trace import touch_reading
 
     assert touch_reading(_answer("everyday")) == {"caption": "soft, woven", "query": "adapted",
-                                                  "regime": "everyday"}
+                                                  "regime": "everyday", "by": "shape"}
     assert touch_reading(_answer("world")) == {"caption": "hard, smooth", "query": "tactile",
-                                               "regime": "world"}
-    # no background: no router reads it, whatever a firmness block says
+                                               "regime": "world", "by": "shape"}
+    # no background: the shape's firmness is not read; the embedding's router is
     assert touch_reading(_answer("everyday", background=False))["query"] == "tactile"
+    alone = _answer(None, background=False)
+    alone["trust"]["tactile"]["press_regime"] = {"everyday": 0.8, "regime": "everyday"}
+    assert touch_reading(alone) == {"caption": "soft, woven", "query": "adapted",
+                                    "regime": "everyday", "by": "embedding"}
+    alone["trust"]["tactile"]["press_regime"] = {"everyday": 0.2, "regime": "world"}
+    assert touch_reading(alone)["query"] == "tactile"
+    # with a background the embedding's router is not read
+    both = _answer("world")
+    both["trust"]["tactile"]["press_regime"] = {"everyday": 0.8, "regime": "everyday"}
+    assert touch_reading(both)["query"] == "tactile"
     assert touch_reading(_answer(None)) == {"caption": "hard, smooth", "query": "tactile",
-                                            "regime": None}
+                                            "regime": None, "by": None}
     assert touch_reading(_answer("everyday", adapted=False))["caption"] == "hard, smooth"
     assert touch_reading({"neighbours": {}}) == {"caption": "", "query": "tactile",
-                                                 "regime": None}
+                                                 "regime": None, "by": None}

@@ -367,19 +367,20 @@ def test_unfamiliar_alone_check_reads_every_family_and_the_real_frames(capsys):
 @pytest.mark.slow
 def test_routed_reading_check_compares_the_readings(real_pipeline, monkeypatch, capsys):
     """scripts/why_routed_reading.py, small: the routed, the paper's tactile and the adapted
-    readings of everyday presses and world renders per family, Taxim's real presses, and no
-    reading changed without a background."""
+    readings of everyday presses and world renders per family, with the background and
+    alone, Taxim's real presses, and every reading the one its router names."""
     _, out = _run_on_shipped("why_routed_reading", [
         "--per-kind", "1", "--world-start", "2600000", "--world", "6", "--taxim", "2"],
         real_pipeline, monkeypatch, capsys)
-    assert set(out["everyday"]) == {"digit", "gelsight", "mini", "all"}
-    assert set(out["world"]) <= {"digit", "gelsight", "mini", "all"}
-    assert out["world"]["all"]["rows"] == 6
-    alll = out["everyday"]["all"]
-    assert alll["rows"] == 3 * 7 and set(alll) >= {"routed", "tactile", "adapted"}
-    assert 0 <= alll["routed_to_adapted"] <= 1
-    lo, hi = alll["routed_minus_tactile"]["ci95"]
-    assert lo <= alll["routed_minus_tactile"]["mean"] <= hi
-    assert out["real"]["presses"] == 4
-    assert sum(out["real"]["routed"].values()) <= 4
-    assert out["alone_changed"] == 0
+    for way in ("with_background", "alone"):
+        assert set(out["everyday"][way]) == {"digit", "gelsight", "mini", "all"}
+        assert set(out["world"][way]) <= {"digit", "gelsight", "mini", "all"}
+        assert out["world"][way]["all"]["rows"] == 6
+        alll = out["everyday"][way]["all"]
+        assert alll["rows"] == 3 * 7 and set(alll) >= {"routed", "tactile", "adapted"}
+        assert 0 <= alll["routed_to_adapted"] <= 1
+        lo, hi = alll["routed_minus_tactile"]["ci95"]
+        assert lo <= alll["routed_minus_tactile"]["mean"] <= hi
+        real = out["real"][way]
+        assert sum(real["routed"].values()) == real["answered"] <= out["real"]["presses"] == 4
+    assert out["off_router"] == 0

@@ -281,6 +281,11 @@ def _add_train(sub) -> None:
     pm.add_argument("--balls-eval", type=_pos_int, default=20,
                     help="fresh rigid balls per family the report reads")
     pm.add_argument("--steps", type=_pos_int, default=600)
+    pm.add_argument("--router-balls", type=_pos_int, default=40,
+                    help="rigid-ball renders per family the regime router is fitted on")
+    pm.add_argument("--router-only", action="store_true",
+                    help="fit only the regime router (which regime a frame read alone is a "
+                         "press of) onto the shipped map; its weights unchanged")
     pm.add_argument("--out", default=None,
                     help="press map file (default: assets/press_map/ENCODER.npz)")
     rd = _stage2_parser(tsub, "reader", "train the gated system's generator (the reader): "

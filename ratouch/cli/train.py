@@ -66,9 +66,10 @@ def run(args: argparse.Namespace) -> int:
     if args.train_cmd == "press-map":
         cfg = PressMapConfig(fit_per_kind=args.fit, world=args.world, balls=args.balls,
                              eval_per_kind=args.eval, world_eval=args.world_eval,
-                             balls_eval=args.balls_eval, steps=args.steps, seed=args.seed)
+                             balls_eval=args.balls_eval, steps=args.steps, seed=args.seed,
+                             router_balls=args.router_balls)
         with intra_op_threads(2):
-            rep = press_map_recipe(args.encoder, cfg, args.out)
+            rep = press_map_recipe(args.encoder, cfg, args.out, args.router_only)
         print(json.dumps(rep, indent=1))
         return 0
     if args.train_cmd == "gate":

@@ -110,6 +110,8 @@ def read_frame(pipeline, item: Frame, k: int = 5) -> dict:
            "neighbours": [n.get("caption") for n in tactile[:k]],
            "geometry": tac.get("geometry"), "structure": tac.get("structure"),
            "shape": tac.get("firmness"),
+           # alone: which regime the press map's router reads the press in (the reading's)
+           "press_regime": tac.get("press_regime"),
            "unfamiliar_sensor": bool(tac.get("unfamiliar_sensor")),
            "warnings": list(result.get("warnings", [])),
            "known_touch": item.centre is not None}

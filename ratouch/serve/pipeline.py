@@ -533,11 +533,19 @@ class RATouchPipeline(RetrievalSide):
         return out
 
     def _assess(self, request: QueryRequest, encoded: Encoded) -> dict | None:
-        """Step 2: the trust block of one request (None: no calibration)."""
+        """Step 2: the trust block of one request (None: no calibration). A frame read
+        without a background also gets the press map's reading of which regime it is a press
+        of (`tactile.press_regime`: `RegimeRouter.read`; the touch-only reading follows it,
+        `ratouch.serve.trace.touch_reading`), where the map has a router."""
         if self.trust is None:
             return None
-        return self.trust.assess(encoded.V, encoded.T, request.frame, request.background,
-                                 encoded.prior, crop=request.crop)
+        out = self.trust.assess(encoded.V, encoded.T, request.frame, request.background,
+                                encoded.prior, crop=request.crop)
+        router = None if self.press_map is None else self.press_map.router
+        if (router is not None and out.get("tactile") is not None and encoded.T is not None
+                and request.background is None):
+            out["tactile"]["press_regime"] = router.read(encoded.T)[0]
+        return out
 
     def _trust_warnings(self, trust: dict | None) -> list[str]:
         if trust is None:

@@ -190,20 +190,25 @@ def marked_segments(text: str, carried: Mapping[str, Sequence[int]]
 
 def touch_reading(result: Mapping[str, Any]) -> dict:
     """What touch alone reads in a query's result: the top caption of the query made for the
-    press's regime. Read against a background, a press whose family's firmness router
-    (`RoutedFirmness`) reads it as an everyday one (a flat face, a fabric, foam, tape, wire,
+    press's regime. A press read as an everyday one (a flat face, a fabric, foam, tape, wire,
     an edge, a small cap) is read by the adapted tactile query (the press map, fitted on such
-    presses); a firm press of the world's regime (a material or a ball pressed in), or a
-    frame without a background, where there is no router, by the paper's tactile query
+    presses); a firm press of the world's regime (a material or a ball pressed in), or a frame
+    no router read, by the paper's tactile query. Against a background the regime is the
+    shape's (the family's firmness router, `RoutedFirmness`, `tactile.firmness`); alone, the
+    tactile embedding's (the press map's `RegimeRouter`, `tactile.press_regime`)
     (docs/geometry.md, "The touch-only reading routed by the press's regime").
 
     Returns:
         {"caption": the reading ("" without neighbours), "query": "adapted" or "tactile",
-        "regime": "everyday", "world" or None (no router read the frame)}.
+        "regime": "everyday", "world" or None (no router read the frame), "by": "shape",
+        "embedding" or None}.
     """
     tac = (result.get("trust") or {}).get("tactile") or {}
-    regime = (tac.get("firmness") or {}).get("regime") if tac.get("background") else None
+    by = "shape" if tac.get("background") else "embedding"
+    regime = ((tac.get("firmness") if by == "shape" else tac.get("press_regime")) or {}).get(
+        "regime")
     neighbours = result.get("neighbours") or {}
     query = "adapted" if regime == "everyday" and neighbours.get("adapted") else "tactile"
     top = neighbours.get(query) or []
-    return {"caption": top[0]["caption"] if top else "", "query": query, "regime": regime}
+    return {"caption": top[0]["caption"] if top else "", "query": query, "regime": regime,
+            "by": by if regime else None}

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ratouch.model.press_map import PressMap
+from ratouch.model.press_map import PressMap, RegimeRouter
 from ratouch.train.trust import VALIDATION_START, render_samples
 from ratouch.world.config import WorldConfig
 from ratouch.world.material import material
@@ -47,7 +47,9 @@ class PressMapConfig:
     """fit_per_kind: everyday presses per family and kind fitted on; world: the world's
     training renders fitted on; balls: rigid-ball renders per family fitted on (with the
     world's presses); eval_per_kind / world_eval / balls_eval: the fresh presses, validation
-    renders and balls the report reads; steps: AdamW steps (batches of 256)."""
+    renders and balls the report reads; steps: AdamW steps (batches of 256); router_balls:
+    rigid-ball renders per family the regime router is fitted on (beside the map's own
+    everyday and world presses, each read alone)."""
 
     fit_per_kind: int = 40
     world: int = 600
@@ -57,6 +59,7 @@ class PressMapConfig:
     balls_eval: int = 20
     steps: int = 600
     seed: int = 0
+    router_balls: int = 40
 
 
 def material_index(side) -> tuple[np.ndarray, list[str], np.ndarray]:
@@ -177,8 +180,9 @@ def fit_press_map(side, cfg: PressMapConfig = PressMapConfig()) -> tuple[PressMa
         Tw, yw, n_balls = np.concatenate([Tw, Tb]), np.concatenate([yw, yb]), len(Tb)
     pm = fit_map(Te, ye, Tw, yw, protos, cfg.steps, cfg.seed)
     Ee, ey, ef, eb = everyday_presses(enc, index, cfg.seed + 1, cfg.eval_per_kind)
-    Ew, wy, wf, _ = world_presses(enc, index, VALIDATION_START, cfg.world_eval)
-    Eb, _, bf, _ = ball_presses(enc, index, cfg.seed + 1, cfg.balls_eval)
+    Ew, wy, wf, wb = world_presses(enc, index, VALIDATION_START, cfg.world_eval)
+    Eb, _, bf, bb = ball_presses(enc, index, cfg.seed + 1, cfg.balls_eval)
+    router, routed = _router_fit_and_report(enc, index, cfg, (Ee[~eb], Ew[~wb], Eb[~bb]))
     rigid = np.array([bool(m) and material(str(m)).feel.compliance < SOFT_AT for m in mats])
     report: dict = {}
     for name, f in (("before", lambda T: T), ("after", pm.apply)):
@@ -194,26 +198,86 @@ def fit_press_map(side, cfg: PressMapConfig = PressMapConfig()) -> tuple[PressMa
         report[name]["all"] = {"everyday": _mean(he), "world": _mean(hw),
                                "balls_rigid_top1": _mean(hb)}
     meta = {"encoder": enc.name, "config": asdict(cfg), "tau": TAU, "keep": KEEP,
-            "materials": len(names), "p_at_5": report,
+            "materials": len(names), "p_at_5": report, "router": routed,
             "fitted_on": f"{len(Te)} everyday-press, {n_world} world-press "
                          f"and {n_balls} rigid-ball ({BALL_MATERIAL}) embeddings (each "
                          "press with and without its background)"}
     log.info("press map %s: everyday P@5 %s -> %s, world %s -> %s", enc.name,
              report["before"]["all"]["everyday"], report["after"]["all"]["everyday"],
              report["before"]["all"]["world"], report["after"]["all"]["world"])
-    return PressMap(pm.w1, pm.b1, pm.w2, pm.b2, meta), report
+    return PressMap(pm.w1, pm.b1, pm.w2, pm.b2, meta, router), report
 
 
-def press_map_recipe(encoder: str, cfg: PressMapConfig = PressMapConfig(), out=None) -> dict:
-    """`ratouch train press-map`: fit an encoder set's press map on its shipped retrieval
-    side (its encoders and default corpus), save it (default `paths.press_map(encoder)`), and
-    return its report."""
+def fit_router(everyday: np.ndarray, firm: np.ndarray) -> RegimeRouter:
+    """The regime router (`RegimeRouter`): a logistic model (C 0.1, classes balanced, on the
+    standardised embeddings) telling the tactile embeddings of everyday presses read alone
+    (`everyday`, (N, D)) from those of firm presses read alone (`firm`: the world's presses
+    and rigid balls). Fixed before its first run (docs/geometry.md, "The touch-only reading
+    of a frame alone, routed too")."""
+    from sklearn.linear_model import LogisticRegression
+
+    X = np.concatenate([everyday, firm]).astype(np.float64)
+    y = np.r_[np.ones(len(everyday)), np.zeros(len(firm))]
+    mean, scale = X.mean(0), X.std(0) + 1e-6
+    m = LogisticRegression(C=0.1, class_weight="balanced", max_iter=2000)
+    m.fit((X - mean) / scale, y)
+    return RegimeRouter(mean, scale, m.coef_[0].astype(np.float64), float(m.intercept_[0]))
+
+
+def _router_fit_and_report(enc, index: dict, cfg: PressMapConfig,
+                           fresh: tuple[np.ndarray, np.ndarray, np.ndarray]
+                           ) -> tuple[RegimeRouter, dict]:
+    """The router fitted on the map's fit streams read alone (its everyday presses, its world
+    presses, `cfg.router_balls` rigid balls a family), and the share of each fresh group
+    (`fresh`: everyday presses, the world's validation renders, balls, each read alone) it
+    sends to the everyday regime."""
+    Te, _, _, te_bg = everyday_presses(enc, index, cfg.seed, cfg.fit_per_kind)
+    Tw, _, _, tw_bg = world_presses(enc, index, 0, cfg.world)
+    Tb, _, _, tb_bg = ball_presses(enc, index, cfg.seed, cfg.router_balls)
+    router = fit_router(Te[~te_bg], np.concatenate([Tw[~tw_bg], Tb[~tb_bg]]))
+    shares = {name: round(float((router.everyday(T) >= 0.5).mean()), 4)
+              for name, T in zip(("everyday", "world", "balls"), fresh)}
+    log.info("regime router %s: fresh renders alone read everyday: %s", enc.name, shares)
+    return router, {"fitted_on": f"{int((~te_bg).sum())} everyday presses, "
+                                 f"{int((~tw_bg).sum())} world presses and "
+                                 f"{int((~tb_bg).sum())} rigid balls, each read alone",
+                    "fresh_read_everyday": shares}
+
+
+def with_router(side, pm: PressMap, cfg: PressMapConfig = PressMapConfig()) -> PressMap:
+    """`pm` with its regime router (re)fitted on `side` (`ratouch train press-map
+    --router-only`): the map's weights as they are."""
+    enc = side.encoders
+    _, names, _ = material_index(side)
+    index = {m: i for i, m in enumerate(names)}
+    Ee, _, _, eb = everyday_presses(enc, index, cfg.seed + 1, cfg.eval_per_kind)
+    Ew, _, _, wb = world_presses(enc, index, VALIDATION_START, cfg.world_eval)
+    Eb, _, _, bb = ball_presses(enc, index, cfg.seed + 1, cfg.balls_eval)
+    router, routed = _router_fit_and_report(enc, index, cfg, (Ee[~eb], Ew[~wb], Eb[~bb]))
+    return PressMap(pm.w1, pm.b1, pm.w2, pm.b2, {**pm.meta, "router": routed}, router)
+
+
+def press_map_recipe(encoder: str, cfg: PressMapConfig = PressMapConfig(), out=None,
+                     router_only: bool = False) -> dict:
+    """`ratouch train press-map`: fit an encoder set's press map and its regime router on its
+    shipped retrieval side (its encoders and default corpus), save it (default
+    `paths.press_map(encoder)`), and return its report; `router_only`: fit only the router
+    onto the shipped map (its weights unchanged).
+
+    Raises:
+        DataNotFoundError: `router_only` and no shipped map.
+    """
     from pathlib import Path
 
     from ratouch.paths import press_map
     from ratouch.search.retrieval_side import RetrievalSide
 
-    pm, report = fit_press_map(RetrievalSide.load(encoder), cfg)
+    side = RetrievalSide.load(encoder)
     path = Path(out) if out else press_map(encoder)
+    if router_only:
+        pm = with_router(side, PressMap.load(press_map(encoder)), cfg)
+        pm.save(path)
+        return {"written": str(path), "router": pm.meta["router"]}
+    pm, report = fit_press_map(side, cfg)
     pm.save(path)
-    return {"written": str(path), "p_at_5": report}
+    return {"written": str(path), "p_at_5": report, "router": pm.meta["router"]}
