@@ -31,7 +31,7 @@ import numpy as np
 
 from ratouch.eval.frames import Frame, digit_frames, firmness, read_frame, taxim_frames
 from ratouch.eval.judge import OfflineJudge
-from ratouch.eval.presses import material_label, reading_stats
+from ratouch.eval.presses import reading_scores, reading_stats
 from ratouch.files import json_text, write_json_atomic
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.train.trust import render_samples
@@ -60,13 +60,8 @@ def compare(rows: list[dict], items: list, judge, seed: int) -> dict:
     reading's, paired, with a 95 % bootstrap interval over the rows; the share routed to the
     adapted query."""
     out = {name: reading_stats(rows, items, key, judge) for name, key in KEYS.items()}
-
-    def scores(key: str) -> np.ndarray:
-        return np.array(judge.score_many([
-            (material_label(p.material), r[key] if r["state"] != "no contact" else None)
-            for r, p in zip(rows, items)]))
-
-    d = scores("reading") - scores("reading_tactile")
+    d = (np.array(reading_scores(rows, items, "reading", judge))
+         - np.array(reading_scores(rows, items, "reading_tactile", judge)))
     rng = np.random.default_rng([seed, 7])
     boot = [d[rng.integers(0, len(d), len(d))].mean() for _ in range(2000)]
     out["routed_minus_tactile"] = {"mean": round(float(d.mean()), 4), "ci95": np.round(

@@ -236,6 +236,15 @@ def press_readings(pipeline, judge, n: int = 4, seed: int = 2, k: int = 5) -> di
     return out
 
 
+def reading_scores(rows: list[dict], presses: list, key: str, judge) -> list[float]:
+    """The offline judge of one reading of each row (`key`, as `reading_stats`) against the
+    pressed material's words (`material_label`); a refused press ("no contact") scores as an
+    empty answer."""
+    return judge.score_many([(material_label(p.material),
+                              r[key] if r["state"] != "no contact" else None)
+                             for r, p in zip(rows, presses)])
+
+
 def reading_stats(rows: list[dict], presses: list, key: str, judge) -> dict:
     """The figures of `press_readings` for one reading of the rows (`key`: "reading", the
     touch-only reading; "reading_tactile", the paper's tactile query's top caption;
@@ -245,9 +254,7 @@ def reading_stats(rows: list[dict], presses: list, key: str, judge) -> dict:
     hard = [f for f, p in zip(firm, presses) if not p.soft]
     soft = [f for f, p in zip(firm, presses) if p.soft]
     right = sum(f == ("soft" if p.soft else "hard") for f, p in zip(firm, presses))
-    scores = judge.score_many([(material_label(p.material),
-                                r[key] if r["state"] != "no contact" else None)
-                               for r, p in zip(rows, presses)])
+    scores = reading_scores(rows, presses, key, judge)
     return {"presses": len(rows), "hard": len(hard), "soft": len(soft),
             "refused": sum(r["state"] == "no contact" for r in rows),
             "hard_read_soft": hard.count("soft"), "soft_read_hard": soft.count("hard"),

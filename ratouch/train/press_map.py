@@ -172,8 +172,9 @@ def fit_press_map(side, cfg: PressMapConfig = PressMapConfig()) -> tuple[PressMa
     enc = side.encoders
     mats, names, protos = material_index(side)
     index = {m: i for i, m in enumerate(names)}
-    Te, ye, _, _ = everyday_presses(enc, index, cfg.seed, cfg.fit_per_kind)
-    Tw, yw, _, _ = world_presses(enc, index, 0, cfg.world)
+    Te, ye, _, te_bg = everyday_presses(enc, index, cfg.seed, cfg.fit_per_kind)
+    Tw, yw, _, tw_bg = world_presses(enc, index, 0, cfg.world)
+    fit_alone = (Te[~te_bg], Tw[~tw_bg])  # what the router is fitted on, beside its balls
     n_world, n_balls = len(Tw), 0
     if cfg.balls:
         Tb, yb, _, _ = ball_presses(enc, index, cfg.seed, cfg.balls)
@@ -182,7 +183,8 @@ def fit_press_map(side, cfg: PressMapConfig = PressMapConfig()) -> tuple[PressMa
     Ee, ey, ef, eb = everyday_presses(enc, index, cfg.seed + 1, cfg.eval_per_kind)
     Ew, wy, wf, wb = world_presses(enc, index, VALIDATION_START, cfg.world_eval)
     Eb, _, bf, bb = ball_presses(enc, index, cfg.seed + 1, cfg.balls_eval)
-    router, routed = _router_fit_and_report(enc, index, cfg, (Ee[~eb], Ew[~wb], Eb[~bb]))
+    router, routed = _router_fit_and_report(enc, index, cfg, fit_alone,
+                                            (Ee[~eb], Ew[~wb], Eb[~bb]))
     rigid = np.array([bool(m) and material(str(m)).feel.compliance < SOFT_AT for m in mats])
     report: dict = {}
     for name, f in (("before", lambda T: T), ("after", pm.apply)):
@@ -225,22 +227,22 @@ def fit_router(everyday: np.ndarray, firm: np.ndarray) -> RegimeRouter:
 
 
 def _router_fit_and_report(enc, index: dict, cfg: PressMapConfig,
+                           fit_alone: tuple[np.ndarray, np.ndarray],
                            fresh: tuple[np.ndarray, np.ndarray, np.ndarray]
                            ) -> tuple[RegimeRouter, dict]:
-    """The router fitted on the map's fit streams read alone (its everyday presses, its world
-    presses, `cfg.router_balls` rigid balls a family), and the share of each fresh group
-    (`fresh`: everyday presses, the world's validation renders, balls, each read alone) it
-    sends to the everyday regime."""
-    Te, _, _, te_bg = everyday_presses(enc, index, cfg.seed, cfg.fit_per_kind)
-    Tw, _, _, tw_bg = world_presses(enc, index, 0, cfg.world)
+    """The router fitted on the map's fit streams read alone (`fit_alone`: its everyday
+    presses and its world presses, as `fit_press_map` encodes them) and `cfg.router_balls`
+    rigid balls a family, and the share of each fresh group (`fresh`: everyday presses, the
+    world's validation renders, balls, each read alone) it sends to the everyday regime."""
+    everyday, world = fit_alone
     Tb, _, _, tb_bg = ball_presses(enc, index, cfg.seed, cfg.router_balls)
-    router = fit_router(Te[~te_bg], np.concatenate([Tw[~tw_bg], Tb[~tb_bg]]))
+    router = fit_router(everyday, np.concatenate([world, Tb[~tb_bg]]))
     shares = {name: round(float((router.everyday(T) >= 0.5).mean()), 4)
               for name, T in zip(("everyday", "world", "balls"), fresh)}
     log.info("regime router %s: fresh renders alone read everyday: %s", enc.name, shares)
-    return router, {"fitted_on": f"{int((~te_bg).sum())} everyday presses, "
-                                 f"{int((~tw_bg).sum())} world presses and "
-                                 f"{int((~tb_bg).sum())} rigid balls, each read alone",
+    return router, {"fitted_on": f"{len(everyday)} everyday presses, {len(world)} world "
+                                 f"presses and {int((~tb_bg).sum())} rigid balls, each read "
+                                 "alone",
                     "fresh_read_everyday": shares}
 
 
@@ -250,10 +252,13 @@ def with_router(side, pm: PressMap, cfg: PressMapConfig = PressMapConfig()) -> P
     enc = side.encoders
     _, names, _ = material_index(side)
     index = {m: i for i, m in enumerate(names)}
+    Te, _, _, te_bg = everyday_presses(enc, index, cfg.seed, cfg.fit_per_kind)
+    Tw, _, _, tw_bg = world_presses(enc, index, 0, cfg.world)
     Ee, _, _, eb = everyday_presses(enc, index, cfg.seed + 1, cfg.eval_per_kind)
     Ew, _, _, wb = world_presses(enc, index, VALIDATION_START, cfg.world_eval)
     Eb, _, _, bb = ball_presses(enc, index, cfg.seed + 1, cfg.balls_eval)
-    router, routed = _router_fit_and_report(enc, index, cfg, (Ee[~eb], Ew[~wb], Eb[~bb]))
+    router, routed = _router_fit_and_report(enc, index, cfg, (Te[~te_bg], Tw[~tw_bg]),
+                                            (Ee[~eb], Ew[~wb], Eb[~bb]))
     return PressMap(pm.w1, pm.b1, pm.w2, pm.b2, {**pm.meta, "router": routed}, router)
 
 
