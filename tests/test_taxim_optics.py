@@ -78,3 +78,41 @@ def test_rigid_materials_keep_a_sphere_and_compliant_ones_flatten_it():
     rigid = [plateau(m) for m in ("glass", "polished_metal")]
     soft = [plateau(m) for m in ("sponge", "memory_foam")]
     assert max(rigid) + 0.1 < min(soft), (rigid, soft)
+
+
+def _broad_press(hw=(96, 128), depth_mm=0.1):
+    """A broad, shallow, flat press covering most of the frame (mm; < 0 into the gel)."""
+    h, w = hw
+    ys, xs = np.mgrid[0:h, 0:w]
+    rho = np.hypot((xs - w / 2) / (0.45 * w), (ys - h / 2) / (0.45 * h))
+    return -depth_mm * np.clip((1 - rho) / 0.1, 0, 1)
+
+
+def test_a_shallow_broad_press_meets_a_domed_gel_only_when_measured_from_its_rest_surface():
+    """The GelSight's gel is domed (its rest surface sags over a millimetre from apex to
+    corner): a press 0.1 mm deep measured from the apex meets only the dome's top; measured
+    from the rest surface (`on_gel`) it meets the gel wherever it covers it."""
+    o = optics("gelsight")
+    assert o.gel.min() < -1.0  # the dome
+    height = _broad_press()
+    rest = o._deform(np.full(height.shape, 1.0))
+    covered = height < 0
+    apex = (rest - o._deform(height)) > 1e-3
+    on_gel = (rest - o._deform(height, on_gel=True)) > 1e-3
+    assert apex[covered].mean() < 0.5 and on_gel[covered].mean() > 0.95
+    # and a textured press (a weave's ridges) shows its texture over the patch, not only
+    # at the dome's top
+    xs = np.mgrid[0:height.shape[0], 0:height.shape[1]][1]
+    woven = height * (1 + 0.5 * np.sin(xs / 1.5))
+    seen = np.abs(o.change(woven, on_gel=True)).sum(2) > 2 / 255
+    assert seen[covered].mean() > 0.8
+    assert (np.abs(o.change(woven)).sum(2) > 2 / 255)[covered].mean() < 0.5
+
+
+def test_on_a_flat_gel_the_rest_surface_is_the_apex():
+    """The Mini's gel is flat: both conventions render the same change."""
+    o = optics("gelsight_mini")
+    height = _broad_press()
+    np.testing.assert_array_equal(o.change(height), o.change(height, on_gel=True))
+    flat = np.full((96, 128), 0.5)  # above the gel everywhere
+    assert np.abs(o.change(flat, on_gel=True)).max() < 1e-6

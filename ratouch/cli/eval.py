@@ -41,9 +41,11 @@ from ratouch.eval.presses import (
     format_press_contact,
     format_press_probe,
     format_press_readings,
+    format_world_contact,
     press_contact,
     press_probe,
     press_readings,
+    world_contact,
 )
 from ratouch.eval.recaption import format_recaption_agreement, recaption_agreement
 from ratouch.eval.retrieval import evaluate_retrieval, format_retrieval_eval
@@ -127,12 +129,17 @@ def _eval_presses(args: argparse.Namespace) -> int:
     probe = None
     if args.probe:
         probe = press_probe(create_model(args.encoder), trust, n=args.probe, seed=args.seed + 3)
+    world = world_contact(trust, n=args.world) if args.world else None
     if args.json:
         extra = {**({"readings": readings} if readings else {}),
-                 **({"probe": probe} if probe else {})}
+                 **({"probe": probe} if probe else {}),
+                 **({"world": world} if world else {})}
         print(json.dumps({**rep, **extra}, indent=1))
         return 0
     print(format_press_contact(rep))
+    if world:
+        print()
+        print(format_world_contact(world))
     if readings:
         print()
         print(format_press_readings(readings))

@@ -481,6 +481,10 @@ def _add_eval(sub) -> None:
                     help="also probe N presses per family and kind: material and soft against "
                          "hard from the tactile embedding (with and without the background), "
                          "the press's shape, and both")
+    pe.add_argument("--world", type=_nonneg_int, default=0, metavar="N",
+                    help="also read the world's first N test presses and the same samples "
+                         "without contact, alone and against their background: how many "
+                         "land in each contact state, per family")
     pe.add_argument("--json", action="store_true")
     rp = esub.add_parser("recaption", help="recaptioners against the world's own adjectives "
                                            "on corpus entries: adjective F1 and offline judge, "

@@ -2,7 +2,8 @@
 (`ratouch.world.presses`), per sensor family and press kind, with and without the sensor's
 background (captured at another moment, drifted as Taxim's real pairs drift), and false
 alarms on drifted blank pairs; the shipped trust calibration's decision, and the
-structured-change check alone. With `--readings`, what the whole pipeline reads from those
+structured-change check alone. With `--world`, the world's own test presses and blanks read
+the same way (`world_contact`). With `--readings`, what the whole pipeline reads from those
 presses by touch alone (`press_readings`): hard against soft, the judge against the pressed
 material's own words, and how many distinct readings. Renders only: the figures the
 thresholds were not set on (fresh seeds)."""
@@ -86,6 +87,46 @@ def press_contact(trust: TrustCalibration, n: int = 10, blanks: int = 40, seed: 
             "shape_firmness": balanced_accuracy(*shape) if shape[0] else None,
             "n_presses": n * len(PRESS_KINDS), "n_blanks": blanks}
     return out
+
+
+#: The contact states `TrustCalibration.contact_state` answers with, in report order.
+STATES = ("contact", "uncertain", "no contact")
+
+
+def world_contact(trust: TrustCalibration, n: int = 402, seed: int = 0) -> dict:
+    """The world's own regime beside the everyday presses: its first `n` test presses and the
+    same samples rendered without contact, each read alone and against its unit's background;
+    per family (and "all"), how many land in each state (`STATES`) for
+    {"presses", "blanks"} x {"alone", "with_background"}. What a change made for the presses
+    people make costs the frames the models were trained on."""
+    from ratouch.train.trust import render_samples
+    from ratouch.world.config import WorldConfig
+    from ratouch.world.sampler import World
+
+    out: dict = {}
+    for kind, stress in (("presses", 0.0), ("blanks", 1.0)):
+        cfg = WorldConfig(seed=seed)
+        world = World(cfg.with_stress(no_contact=1.0) if stress else cfg).warm()
+        data = render_samples(world, "test", range(n))
+        for frame, bg, fam in zip(data["frames"], data["backgrounds"], data["families"]):
+            for way, b in (("alone", None), ("with_background", bg)):
+                state = trust.contact_state(frame, b)[0]
+                for key in (fam, "all"):
+                    counts = out.setdefault(key, {}).setdefault(kind, {}).setdefault(
+                        way, dict.fromkeys(STATES, 0))
+                    counts[state] += 1
+    return out
+
+
+def format_world_contact(rep: dict) -> str:
+    lines = ["| family | what | read | " + " | ".join(STATES) + " |",
+             "|---|---|---|" + "---|" * len(STATES)]
+    for fam, kinds in rep.items():
+        for kind, ways in kinds.items():
+            for way, counts in ways.items():
+                lines.append(f"| {fam} | world test {kind} | {way.replace('_', ' ')} | "
+                             + " | ".join(str(counts[s]) for s in STATES) + " |")
+    return "\n".join(lines)
 
 
 def balanced_accuracy(soft: list[bool], truth: list[bool]) -> dict:

@@ -13,6 +13,13 @@ renders them with the same sensor families and renderers (`tactile.contact_chang
 * ``edge``: the edge of a ruler: a straight ridge across the gel;
 * ``small_curved``: an egg, a pebble: a small curved cap.
 
+An everyday press is pressed until it meets the gel over the region it covers: its
+indentation is measured from the gel's rest surface (`tactile.contact_change`'s `on_gel`),
+which matters for the GelSight's domed gel (its rest surface sags 1.4 mm from apex to corner,
+so a press 0.03-0.18 mm deep measured from the apex met only the dome's top). A fabric or a
+foam wraps the dome so; a rigid flat face would flatten it, which this renders by its texture
+alone.
+
 And a **rigid ball** (:func:`render_ball`), kept apart from the everyday kinds: the press
 Taxim's calibrations were made with (a steel ball of radius :data:`BALL_MM`; on the GelSight
 and Mini at the calibration's pixel size, on the DIGIT in render units as the shader lookup's
@@ -252,17 +259,22 @@ def render_press(family_name: str, rng: np.random.Generator, kind: str | None = 
     not given), with its background captured at another moment (drifted, `family_drift`)."""
     kind = str(rng.choice(list(PRESS_KINDS))) if kind is None else kind
     name = str(rng.choice(list(PRESS_KINDS[kind])))
-    return _pressed(family_name, rng, kind, name, lambda: _surface(kind, name, rng, hw), hw)
+    return _pressed(family_name, rng, kind, name, lambda: _surface(kind, name, rng, hw), hw,
+                    on_gel=True)
 
 
 def _pressed(family_name: str, rng: np.random.Generator, kind: str, name: str,
-             surface: Callable[[], np.ndarray], hw: tuple[int, int]) -> Press:
+             surface: Callable[[], np.ndarray], hw: tuple[int, int], on_gel: bool = False
+             ) -> Press:
     """A press of the indentation `surface()` draws, on a random unit of `family_name`, with
-    its background captured at another moment."""
+    its background captured at another moment. `on_gel`: the indentation is measured from the
+    gel's rest surface (an everyday press meets a domed gel wherever it covers it), else from
+    its apex (a rigid ball, as Taxim's calibration presses were made)."""
     sensor = int(rng.choice(list(family_sensors(family_name))))
     bg = sensor_background(sensor, hw).astype(np.float64)
     z = surface()
-    change = gaussian_filter(contact_change(sensor, z).astype(np.float64), (0.7, 0.7, 0))
+    change = gaussian_filter(contact_change(sensor, z, on_gel=on_gel).astype(np.float64),
+                             (0.7, 0.7, 0))
     drift = family_drift(family_name)
     frame = drifted(bg + change, drift, rng)
     later = drifted(bg, drift, rng)

@@ -338,15 +338,16 @@ def _shader_change(plan: TactilePlan, z: np.ndarray, dome: np.ndarray, field: np
     return (field + shade) * press - field
 
 
-def _taxim_change(plan: TactilePlan, z: np.ndarray) -> np.ndarray:
+def _taxim_change(plan: TactilePlan, z: np.ndarray, on_gel: bool = False) -> np.ndarray:
     """Taxim's optics: the colour change (float (H, W, 3)) of the family's calibrated sensor
-    pressed `z` deep (indentation, gel thickness units; `press_mm` millimetres per unit)."""
+    pressed `z` deep (indentation, gel thickness units; `press_mm` millimetres per unit),
+    measured from the gel's apex or, `on_gel`, from its rest surface (`TaximOptics.change`)."""
     row = family(plan.family)
     height = -row.press_mm * z  # mm; below 0 presses into the gel
     if row.landscape:  # the sensor is mounted turned: render its own orientation, turn back
-        change = optics(str(row.calibration)).change(height.T).transpose(1, 0, 2)
+        change = optics(str(row.calibration)).change(height.T, on_gel).transpose(1, 0, 2)
     else:
-        change = optics(str(row.calibration)).change(height)
+        change = optics(str(row.calibration)).change(height, on_gel)
     change = change * (plan.light_gain * np.asarray(plan.tint, np.float32))
     if plan.vignette:
         change *= (1 - plan.vignette * _radius2(z.shape))[..., None]
@@ -395,12 +396,15 @@ def render_tactile(plan: TactilePlan, pyramid_fn: Callable[[PatternSpec], list],
     return (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
-def contact_change(sensor: int, z: np.ndarray, dome: np.ndarray | None = None) -> np.ndarray:
+def contact_change(sensor: int, z: np.ndarray, dome: np.ndarray | None = None,
+                   on_gel: bool = False) -> np.ndarray:
     """The colour change (float (H, W, 3), [0, 1] units) that a gel surface `z` (indentation,
     gel-thickness units, (H, W)) makes on unit `sensor`, by its family's renderer, with
     neutral per-frame settings (no light jitter, tint, vignetting, blur or noise): the
     renderer as a function of geometry, for presses planned outside `plan_tactile`
-    (`ratouch.world.presses`) and for fitting the geometry lookups."""
+    (`ratouch.world.presses`) and for fitting the geometry lookups. `on_gel`: `z` is measured
+    from the gel's rest surface rather than its apex (matters only for a domed gel: Taxim's
+    GelSight; the shader's gels and the Mini's are flat)."""
     z = np.asarray(z, np.float32)
     hw = (int(z.shape[0]), int(z.shape[1]))
     plan = TactilePlan(material="glass", sensor=int(sensor), contact=True, centre=(0.5, 0.5),
@@ -408,6 +412,6 @@ def contact_change(sensor: int, z: np.ndarray, dome: np.ndarray | None = None) -
                        texture_offset=(0.0, 0.0), texture_step=1.0, blur=0.0, noise=0.0,
                        render_seed=0)
     if family(plan.family).renderer == "taxim":
-        return _taxim_change(plan, z)
+        return _taxim_change(plan, z, on_gel)
     return _shader_change(plan, z, z if dome is None else np.asarray(dome, np.float32),
                           sensor_unit(int(sensor), hw).field)

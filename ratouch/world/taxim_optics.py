@@ -99,15 +99,16 @@ class TaximOptics:
         """The no-contact frame at size `hw` = (h, w), float [0, 1]."""
         return _resize_float(self.background, hw)
 
-    def _deform(self, height: np.ndarray) -> np.ndarray:
+    def _deform(self, height: np.ndarray, on_gel: bool = False) -> np.ndarray:
         """The gel's surface (mm) under an object at `height` (mm; < 0 presses into the gel):
         the contact region keeps the object's shape, the gel around it relaxes (a pyramid of
-        blurs that re-imposes the contact after each)."""
+        blurs that re-imposes the contact after each). `height` is measured from the gel's
+        apex, or with `on_gel` from the gel's rest surface (the object follows a domed gel)."""
         hw = height.shape
         gel = _resize_float(self.gel, hw)
         press = -float(height.min())
         contact = height < 0
-        joined = np.minimum(height, gel)
+        joined = np.minimum(gel + height if on_gel else height, gel)
         mask = (joined - gel < -press * self.params["contact_scale"]) & contact
         out = joined
         for sigma in _rel(self.params["deform_pyramid_sigma_rel"], hw):
@@ -141,13 +142,15 @@ class TaximOptics:
         feats = np.stack([xx * xx, yy * yy, xx * yy, xx, yy, np.ones_like(xx)], -1)  # (h, w, 6)
         return np.einsum("hwk,hwkc->hwc", feats, coef)
 
-    def change(self, height: np.ndarray) -> np.ndarray:
+    def change(self, height: np.ndarray, on_gel: bool = False) -> np.ndarray:
         """The colour change (float, (h, w, 3), RGB in [0, 1] units) that an object at
         `height` (mm, (h, w), landscape; < 0 presses into the gel) makes against the same gel
-        without contact."""
+        without contact. `height` is measured from the gel's apex (Taxim's convention: a
+        shallow press meets only the top of a domed gel), or with `on_gel` from the gel's
+        rest surface (a press that meets the gel wherever it is below 0)."""
         height = np.asarray(height, np.float64)
-        return (self._shade(self._deform(height)) - _resting(self.name, height.shape)).astype(
-            np.float32)
+        return (self._shade(self._deform(height, on_gel))
+                - _resting(self.name, height.shape)).astype(np.float32)
 
     def render(self, height: np.ndarray) -> np.ndarray:
         """Taxim's frame (float [0, 1], RGB) of an object at `height`, as the `taxim`
