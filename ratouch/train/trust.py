@@ -405,11 +405,14 @@ def _edge(scores) -> float | None:
 
 
 #: The families whose band gets the second reading (a press model read alone). The
-#: GelSight's was tried (2026-11-28): on fresh renders it cut refusals without a background
-#: from 0.800 to 0.614, but it turned Taxim's real GelSight background alone "uncertain"
-#: (the criterion fixed before the run: a real blank must stay "no contact"), so it is not
-#: used: a choice made after seeing that real frame. The Mini's band answers every
-#: validation press without it.
+#: GelSight's was tried (2026-11-28) when its everyday renders met only the top of its domed
+#: gel: on fresh renders it cut refusals without a background from 0.800 to 0.614, but it
+#: turned Taxim's real GelSight background alone "uncertain" (the criterion fixed before the
+#: run: a real blank must stay "no contact"), so it was not used. Tried again on the renders
+#: that meet the gel (2026-12-01, docs/geometry.md): refusals 0.614 -> 0.314 (criterion 0.30)
+#: and one of the world's 402 test presses alone turned from "uncertain" to "no contact"
+#: (criterion: none), so it is still not used. The Mini's band answers every validation
+#: press without it.
 PRESS_MODEL_FAMILIES = ("digit",)
 #: Quantiles of the held-out blanks' contact logits tried as the band's logit edge when a
 #: second reading shares the band (`with_alone_band`): lower leaves the press model more.
