@@ -320,6 +320,11 @@ def _add_train(sub) -> None:
                          "the floors a sensor unlike every rendered unit is held to, on "
                          "--pairs recoloured blank pairs a family (read from --out or the "
                          "shipped file)")
+    ge.add_argument("--floors-only", action="store_true",
+                    help="keep the calibration's lookups, unfamiliar-sensor floors and "
+                         "firmness models; set only each family's floors, threshold and the "
+                         "noise they are set at, on --pairs drifted blank pairs a family "
+                         "(read from --out or the shipped file)")
     ge.add_argument("--out", default=None,
                     help="calibration JSON (default: assets/geometry/lookups.json)")
     cc = tsub.add_parser("cascade", help="calibrate the encoder cascade (smallest confident "

@@ -28,7 +28,7 @@ from ratouch.train import recipes
 from ratouch.train.encoders import STEPS, TrainConfig, train_encoders
 from ratouch.train.gate import format_gate_report, gate_recipe
 from ratouch.train.geometry import calibrate as calibrate_geometry
-from ratouch.train.geometry import with_firmness, with_unfamiliar_floors
+from ratouch.train.geometry import with_family_floors, with_firmness, with_unfamiliar_floors
 from ratouch.train.press_map import PressMapConfig, press_map_recipe
 from ratouch.train.trust import TrustConfig, calibrate, with_alone_band, with_unfamiliar_contact
 
@@ -122,9 +122,17 @@ def _train_cascade(args: argparse.Namespace) -> int:
 
 
 def _train_geometry(args: argparse.Namespace) -> int:
-    if args.firmness_only and args.unfamiliar_floors:
-        raise usage("--firmness-only and --unfamiliar-floors each refit one part of the "
-                    "stored calibration: give one of them")
+    if sum(map(bool, (args.firmness_only, args.unfamiliar_floors, args.floors_only))) > 1:
+        raise usage("--firmness-only, --unfamiliar-floors and --floors-only each refit one "
+                    "part of the stored calibration: give one of them")
+    if args.floors_only:
+        path = args.out or geometry_calibration()
+        cal = with_family_floors(GeometryCalibration.load(path), args.seed, args.pairs)
+        out = cal.save(path)
+        print(json.dumps({"written": str(out), "floors": {
+            k: {"threshold": lk.structure_threshold, "noise_ref": lk.noise_ref}
+            for k, lk in cal.lookups.items()}}, indent=1))
+        return 0
     if args.unfamiliar_floors:
         path = args.out or geometry_calibration()
         cal = with_unfamiliar_floors(GeometryCalibration.load(path), args.seed, args.pairs)

@@ -79,6 +79,9 @@ class GradientLookup:
             (`ratouch.world.sensors.unfamiliar_view`), read through this lookup: what a frame
             from a sensor unlike every rendered unit is held to (none: the family's own).
         meta: provenance and measured figures.
+        noise_ref: the median noise (:func:`pair_noise`) of the blank pairs the floors were
+            set on; a pair noisier than that has its score against the family's floors
+            divided by how much noisier it is (None: read as is, an older file).
     """
 
     family: str
@@ -91,6 +94,7 @@ class GradientLookup:
     meta: dict = field(default_factory=dict)
     unfamiliar_floors: tuple[float, ...] = ()
     unfamiliar_threshold: float = float("inf")
+    noise_ref: float | None = None
     #: per working size (h, w): the pixel positions the perceptron reads and its output at
     #: zero change there, which depend on nothing else (computed once, not per frame)
     _at_rest: dict = field(default_factory=dict, init=False, compare=False, repr=False)
@@ -149,6 +153,8 @@ class GradientLookup:
                 **({"unfamiliar_floors": [float(f"{v:.6g}") for v in self.unfamiliar_floors],
                     "unfamiliar_threshold": self.unfamiliar_threshold}
                    if self.unfamiliar_floors else {}),
+                **({"noise_ref": float(f"{self.noise_ref:.6g}")}
+                   if self.noise_ref is not None else {}),
                 "weights": [np.round(w, 6).tolist() for w in self.weights],
                 "biases": [np.round(b, 6).tolist() for b in self.biases]}
 
@@ -160,12 +166,15 @@ class GradientLookup:
                    tuple(float(v) for v in d["structure_floors"]),
                    float(d["structure_threshold"]), dict(d.get("meta", {})),
                    tuple(float(v) for v in d.get("unfamiliar_floors", ())),
-                   float(d.get("unfamiliar_threshold", float("inf"))))
+                   float(d.get("unfamiliar_threshold", float("inf"))),
+                   None if d.get("noise_ref") is None else float(d["noise_ref"]))
 
-    def with_floors(self, floors: tuple[float, ...], threshold: float, **meta
-                    ) -> GradientLookup:
+    def with_floors(self, floors: tuple[float, ...], threshold: float,
+                    noise_ref: float | None = None, **meta) -> GradientLookup:
         return dataclasses.replace(self, structure_floors=tuple(float(f) for f in floors),
                                    structure_threshold=float(threshold),
+                                   noise_ref=self.noise_ref if noise_ref is None
+                                   else float(noise_ref),
                                    meta={**self.meta, **meta})
 
     def with_unfamiliar_floors(self, floors: tuple[float, ...], threshold: float, **meta
@@ -178,22 +187,37 @@ class GradientLookup:
         """The frame's drift-free change against `background` at this lookup's working size
         and orientation (a portrait frame of a landscape family is read turned, as the world
         mounts it): what both the height map and the structured change read."""
+        return self.change_and_noise(frame, background)[0]
+
+    def change_and_noise(self, frame: np.ndarray, background: np.ndarray
+                         ) -> tuple[np.ndarray, float]:
+        """`change(frame, background)` and the pair's noise (:func:`pair_noise`), from one
+        drift-free difference."""
         turn = (frame.shape[0] > frame.shape[1]) == self.landscape
-        return working_change(frame, background, self.work_size, turn=turn)
+        raw = drift_free_change(frame, background, self.work_size, turn=turn)
+        return gaussian_blur(raw, CHANGE_SIGMA), pair_noise(raw)
 
     def contact(self, frame: np.ndarray, background: np.ndarray,
                 change: np.ndarray | None = None, stats: np.ndarray | None = None,
-                unfamiliar: bool = False) -> tuple[bool, float]:
+                unfamiliar: bool = False, noise: float | None = None) -> tuple[bool, float]:
         """Whether `frame` shows contact against `background` by its structured change, and
         the score against this family's floors (above :attr:`structure_threshold`: contact),
         or, with `unfamiliar`, against the floors for a sensor unlike every rendered unit
-        (:attr:`unfamiliar_floors`; the family's where the lookup has none).
-        `change`: `self.change(frame, background)`, `stats`: `band_stats(change)`, where
-        already computed."""
+        (:attr:`unfamiliar_floors`; the family's where the lookup has none). Against the
+        family's floors a pair noisier than the blanks they were set on (:attr:`noise_ref`)
+        has its score divided by how much noisier it is (:func:`noise_adjusted`).
+        `change`: `self.change(frame, background)`, `stats`: `band_stats(change)`, `noise`:
+        the pair's noise, where already computed (statistics given without the frames and
+        without their noise are read as they are)."""
+        read_noise = not unfamiliar and self.noise_ref is not None
+        if read_noise and noise is None and frame is not None and background is not None:
+            change, noise = self.change_and_noise(frame, background)
         if stats is None:
             stats = band_stats(self.change(frame, background) if change is None else change)
         floors, threshold = self.floors_for(unfamiliar)
         score = structure_score(stats, floors)
+        if read_noise:
+            score = noise_adjusted(score, noise, self.noise_ref)
         return bool(score > threshold), score
 
     def floors_for(self, unfamiliar: bool) -> tuple[tuple[float, ...], float]:
@@ -223,6 +247,17 @@ def working_change(frame: np.ndarray, background: np.ndarray, size: tuple[int, i
     Raises:
         DataError: the sizes differ.
     """
+    return gaussian_blur(drift_free_change(frame, background, size, turn), CHANGE_SIGMA)
+
+
+def drift_free_change(frame: np.ndarray, background: np.ndarray, size: tuple[int, int],
+                      turn: bool = False) -> np.ndarray:
+    """`working_change` before its light blur: the frame against its background at `size`,
+    per channel the robustly fitted gain and offset undone.
+
+    Raises:
+        DataError: the sizes differ.
+    """
     check_background_size(background.shape[1::-1], frame.shape[1::-1], "the background")
     if turn:
         frame, background = frame.transpose(1, 0, 2), background.transpose(1, 0, 2)
@@ -231,7 +266,29 @@ def working_change(frame: np.ndarray, background: np.ndarray, size: tuple[int, i
     out = np.empty_like(f)
     for c in range(3):
         out[..., c] = f[..., c] - _robust_affine(b[..., c], f[..., c])
-    return gaussian_blur(out, CHANGE_SIGMA)
+    return out
+
+
+def pair_noise(raw: np.ndarray) -> float:
+    """A frame-and-background pair's noise: the robust spread (1.4826 x the median absolute
+    deviation) of the 1-px high-pass (a pixel less the mean of its four neighbours) of its
+    drift-free change before the blur (`drift_free_change`), mean over channels. A press's
+    change, blurred by the gel and the optics, carries little at one pixel; camera noise
+    carries most of its energy there."""
+    hp = raw[1:-1, 1:-1] - 0.25 * (raw[:-2, 1:-1] + raw[2:, 1:-1] + raw[1:-1, :-2]
+                                    + raw[1:-1, 2:])
+    flat = hp.reshape(-1, hp.shape[-1])
+    dev = np.abs(flat - np.median(flat, axis=0))
+    return float(np.mean(1.4826 * np.median(dev, axis=0)))
+
+
+def noise_adjusted(score: float, noise: float | None, noise_ref: float | None) -> float:
+    """A structured score against a family's floors, divided by how much noisier the pair is
+    than the blank pairs the floors were set on (unchanged where it is not noisier, or where
+    either noise is unknown)."""
+    if noise is None or noise_ref is None or noise_ref <= 0 or not np.isfinite(noise):
+        return score
+    return score / max(1.0, noise / noise_ref)
 
 
 def _resize3(a: np.ndarray, size: tuple[int, int]) -> np.ndarray:

@@ -475,11 +475,12 @@ class TrustCalibration:
         lookup = self.geometry.lookup(name)
         if lookup is None:
             return None
-        change = lookup.change(frame, background)
+        change, noise = lookup.change_and_noise(frame, background)
         stats = band_stats(change)  # read by the contact check and the firmness model
         # floors set on one family's units say nothing of a sensor unlike all of them
         beyond = unfamiliar_look(look, WITHHOLD_LIMIT) and bool(lookup.unfamiliar_floors)
-        hit, score = lookup.contact(frame, background, change, stats, unfamiliar=beyond)
+        hit, score = lookup.contact(frame, background, change, stats, unfamiliar=beyond,
+                                    noise=noise)
         hm = read_height(lookup, frame, background, change) if height else None
         return {"structure": {"contact": hit,
                               "score": round(score, 3) if np.isfinite(score) else None,

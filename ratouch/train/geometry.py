@@ -40,6 +40,7 @@ from ratouch.model.geometry import (
     RoutedFirmness,
     band_stats,
     fit_lookup,
+    noise_adjusted,
     press_shape,
     read_height,
     sphere_gradients,
@@ -179,12 +180,18 @@ def fit_shader(name: str, seed: int = 0, presses: int = 40, samples: int = 120_0
     return lookup, _summary(rows, "render units")
 
 
-def floors_and_threshold(fit: np.ndarray, held: np.ndarray) -> tuple[tuple[float, ...], float]:
+def floors_and_threshold(fit: np.ndarray, held: np.ndarray,
+                         held_noise: np.ndarray | None = None
+                         ) -> tuple[tuple[float, ...], float]:
     """Structured-change floors from blank pairs' `band_stats`: each statistic's
     :data:`FLOOR_QUANTILE` over `fit`, and the threshold, that quantile of the combined score
-    (`structure_score`) over `held`, pairs the floors were not set on."""
+    (`structure_score`) over `held`, pairs the floors were not set on (each divided by how
+    much noisier it is than the floors' blanks where `held_noise` gives that ratio, as the
+    family's floors are read: `GradientLookup.contact`)."""
     floors = tuple(float(v) for v in np.quantile(fit, FLOOR_QUANTILE, axis=0))
     scores = [structure_score(s, floors) for s in held]
+    if held_noise is not None:
+        scores = [noise_adjusted(sc, float(r), 1.0) for sc, r in zip(scores, held_noise)]
     return floors, float(np.quantile(scores, FLOOR_QUANTILE))
 
 
@@ -197,13 +204,19 @@ def set_floors(lookup: GradientLookup, seed: int = 0, pairs: int = FLOOR_PAIRS
     from ratouch.world.presses import render_blank_pair
 
     rng = np.random.default_rng([seed, 47])
-    stats = np.array([band_stats(lookup.change(*render_blank_pair(lookup.family, rng)))
-                      for _ in range(pairs)])
+    read = [lookup.change_and_noise(*render_blank_pair(lookup.family, rng))
+            for _ in range(pairs)]
+    stats = np.array([band_stats(change) for change, _ in read])
+    noise = np.array([n for _, n in read])
     half = pairs // 2
-    floors, threshold = floors_and_threshold(stats[:half], stats[half:])
-    return lookup.with_floors(floors, threshold, floors_on=(
+    # the noise the floors are set at: a pair noisier than this is read against its own
+    noise_ref = float(np.median(noise[:half]))
+    floors, threshold = floors_and_threshold(stats[:half], stats[half:],
+                                             noise[half:] / noise_ref)
+    return lookup.with_floors(floors, threshold, noise_ref, floors_on=(
         f"{pairs} drifted blank render pairs of the family: floors on {half}, the threshold "
-        f"on the other {pairs - half}, {FLOOR_QUANTILE:.1%} quantiles"))
+        f"on the other {pairs - half}, {FLOOR_QUANTILE:.1%} quantiles; the floors' noise "
+        f"their median on the first {half}"))
 
 
 def set_unfamiliar_floors(lookups: dict[str, GradientLookup], seed: int = 0,
@@ -399,6 +412,15 @@ def with_firmness(cal: GeometryCalibration, seed: int = 0,
                  report[name]["cv_balanced_accuracy"], report[name].get("world"),
                  report[name].get("router"))
     return GeometryCalibration(cal.lookups, cal.meta, models), report
+
+
+def with_family_floors(cal: GeometryCalibration, seed: int = 0, pairs: int = FLOOR_PAIRS
+                       ) -> GeometryCalibration:
+    """`cal` with every family's floors, threshold and their noise set again (`set_floors`:
+    the draws `calibrate` makes), its lookups, floors for an unfamiliar sensor and firmness
+    models unchanged."""
+    lookups = {name: set_floors(lookup, seed, pairs) for name, lookup in cal.lookups.items()}
+    return dataclasses.replace(cal, lookups=lookups)
 
 
 def calibrate(seed: int = 0, samples: int = 120_000, pairs: int = FLOOR_PAIRS,
