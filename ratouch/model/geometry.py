@@ -187,7 +187,8 @@ class GradientLookup:
         """The frame's drift-free change against `background` at this lookup's working size
         and orientation (a portrait frame of a landscape family is read turned, as the world
         mounts it): what both the height map and the structured change read."""
-        return self.change_and_noise(frame, background)[0]
+        turn = (frame.shape[0] > frame.shape[1]) == self.landscape
+        return working_change(frame, background, self.work_size, turn=turn)
 
     def change_and_noise(self, frame: np.ndarray, background: np.ndarray
                          ) -> tuple[np.ndarray, float]:
