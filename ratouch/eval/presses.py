@@ -103,11 +103,10 @@ def world_contact(trust: TrustCalibration, n: int = 402, seed: int = 0) -> dict:
     from ratouch.world.config import WorldConfig
     from ratouch.world.sampler import World
 
+    base = WorldConfig(seed=seed)
     out: dict = {}
-    for kind, stress in (("presses", 0.0), ("blanks", 1.0)):
-        cfg = WorldConfig(seed=seed)
-        world = World(cfg.with_stress(no_contact=1.0) if stress else cfg).warm()
-        data = render_samples(world, "test", range(n))
+    for kind, cfg in (("presses", base), ("blanks", base.with_stress(no_contact=1.0))):
+        data = render_samples(World(cfg).warm(), "test", range(n))
         for frame, bg, fam in zip(data["frames"], data["backgrounds"], data["families"]):
             for way, b in (("alone", None), ("with_background", bg)):
                 state = trust.contact_state(frame, b)[0]
