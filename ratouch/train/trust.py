@@ -405,15 +405,18 @@ def _edge(scores) -> float | None:
 
 
 #: The families whose band gets the second reading (a press model read alone). The
-#: GelSight's was tried (2026-11-28) when its everyday renders met only the top of its domed
-#: gel: on fresh renders it cut refusals without a background from 0.800 to 0.614, but it
-#: turned Taxim's real GelSight background alone "uncertain" (the criterion fixed before the
-#: run: a real blank must stay "no contact"), so it was not used. Tried again on the renders
-#: that meet the gel (2026-12-01, docs/geometry.md): refusals 0.614 -> 0.314 (criterion 0.30)
-#: and one of the world's 402 test presses alone turned from "uncertain" to "no contact"
-#: (criterion: none), so it is still not used. The Mini's band answers every validation
-#: press without it.
-PRESS_MODEL_FAMILIES = ("digit",)
+#: GelSight's, sharing its family's 1 %, was refuted twice (2026-11-28: Taxim's real GelSight
+#: background alone turned "uncertain"; 2026-12-01: one of the world's 402 test presses alone
+#: turned "no contact"); with a share of its own (`OWN_SHARE_FAMILIES`, 2026-12-01, second
+#: session, docs/geometry.md) every criterion fixed before the run held: refusals without a
+#: background 0.614 -> 0.271 on fresh renders. The Mini's band answers every validation press
+#: without it.
+PRESS_MODEL_FAMILIES = ("digit", "gelsight")
+#: Of `PRESS_MODEL_FAMILIES`, those whose press model gets a share of held-out blanks of its
+#: own (`UNCERTAIN_SHARE` more of them may be "uncertain") while their logit edge stays where
+#: `alone_band` puts it: the GelSight's logit edge spends its 1 % by itself, and raising it to
+#: make room lost a world press (docs/geometry.md, 2026-12-01).
+OWN_SHARE_FAMILIES = ("gelsight",)
 #: Quantiles of the held-out blanks' contact logits tried as the band's logit edge when a
 #: second reading shares the band (`with_alone_band`): lower leaves the press model more.
 LOGIT_EDGE_LEVELS = (0.99, 0.992, 0.994, 0.996, 0.998, 1.0)
@@ -438,7 +441,10 @@ def with_alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 
       `n_presses` drifted blanks and the even-numbered half of the world's blanks, all of
       streams of their own.
 
-    The logit's edge is tried at each quantile of `LOGIT_EDGE_LEVELS` of the held-out
+    For a family of `OWN_SHARE_FAMILIES` the logit's edge stays where `alone_band` puts it
+    and the press model's is set as low as `UNCERTAIN_SHARE` more of the held-out blanks
+    allows (those the logit edge leaves "no contact"): up to twice the share is "uncertain".
+    For the others the logit's edge is tried at each quantile of `LOGIT_EDGE_LEVELS` of the held-out
     blanks, the press model's then set as low as the share of blanks allows; the pair that
     answers most presses of a third stream (`n_check` everyday presses and the odd-numbered
     half of the world's presses: contact or "uncertain", as `contact_state` decides), and
@@ -455,9 +461,9 @@ def with_alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 
     fitting = _alone_blanks(n_presses, seed + 1, fit_world) if n_presses and held else {}
     fit_rng = np.random.default_rng([seed, 3309])
     check_rng = np.random.default_rng([seed, 3311])
-    bands = {fam: edge for fam, edge in _logit_bands(
-        trust, _alone_blanks(n, seed, world_blanks, drifted=drifted)).items()
-        if fam not in families}
+    logit_bands = _logit_bands(trust, _alone_blanks(n, seed, world_blanks, drifted=drifted))
+    bands = {fam: edge for fam, edge in logit_bands.items()
+             if fam not in families or fam in OWN_SHARE_FAMILIES}
     second: dict[str, tuple[ContactModel, float]] = {}
     record: dict[str, dict] = {}
     base = dataclasses.replace(trust, uncertain_alone=None, press_alone=None)
@@ -468,8 +474,9 @@ def with_alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 
         # model's read the same ones (`contact_score` is the contact model on them)
         blank_feats = np.stack([contact_features(f) for f in blanks])
         logits = trust.contact.score(blank_feats)
+        own_share = fam in OWN_SHARE_FAMILIES
         edge = _edge(logits)
-        if edge is not None and edge < trust.contact_threshold:
+        if not own_share and edge is not None and edge < trust.contact_threshold:
             bands[fam] = round(edge, 4)
         if not n_presses:
             continue
@@ -489,12 +496,15 @@ def with_alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 
         c_press = model.score(check_feats)
         allowed = int(np.floor(UNCERTAIN_SHARE * len(blanks)))
         options = []
-        for level in LOGIT_EDGE_LEVELS:
+        # a share of its own: the logit edge as `alone_band` sets it, and `allowed` more
+        # held-out blanks for the press model; else the two share `allowed`
+        levels = (LOGIT_EDGE_LEVELS[0],) if own_share else LOGIT_EDGE_LEVELS
+        for level in levels:
             e1 = float(np.quantile(logits, level)) if level < 1 else float("inf")
             if level == LOGIT_EDGE_LEVELS[0] and fam in bands:
                 e1 = bands[fam]
             left = pressed[logits < e1]
-            room = allowed - int((logits >= e1).sum())
+            room = allowed - (0 if own_share else int((logits >= e1).sum()))
             if room < 0 or not len(left):
                 continue
             e2 = float(np.sort(left)[::-1][room]) + 1e-6 if room < len(left) else -np.inf
@@ -520,8 +530,9 @@ def with_alone_band(trust: TrustCalibration, n: int = ALONE_BLANKS, seed: int = 
                                           else round(best[0], 4)},
             "logit_edge": bands.get(fam), "logit_edge_level": best[1] if keep and best else 0.99,
             "press_model_edge": second[fam][1] if fam in second else None,
-            "blank_share_allowed": UNCERTAIN_SHARE,
-            "uses": "logit and press model" if keep else "logit"}
+            "blank_share_allowed": 2 * UNCERTAIN_SHARE if own_share else UNCERTAIN_SHARE,
+            "uses": ("logit and press model" + (" (a share of its own)" if own_share else "")
+                     if keep else "logit")}
     meta = {**trust.meta, "alone_band": {
         "blanks": f"{n} drifted blank renders and the odd half of the world's no-contact "
                   "validation renders per family (at most "
