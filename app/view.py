@@ -354,7 +354,7 @@ def geometry_html(result: dict | None, picture: np.ndarray | None, background: b
                 f"{structure_line(structure)}</div>")
     unit, meaning = UNITS.get(geo["units"], (geo["units"], geo["units"]))
     digits = 2 if unit == "mm" else 1
-    depth = f"{geo['depth']:.{digits}f} {unit}"
+    depth = _length(geo["depth"], unit, digits)
     family = escape(geo["family"])
     read = (f"<b class='ra-warn'>⚠ unfamiliar sensor</b>, read as {family} (a guess)"
             if tactile.get("unfamiliar_sensor") else family)
@@ -369,9 +369,17 @@ def geometry_html(result: dict | None, picture: np.ndarray | None, background: b
             f"more than a third of the depth: a compliant object wraps the gel wide, a rigid "
             f"one small and deep'>spread <b>{geo['spread']:.0%}</b></span> · <span "
             f"title='RMS of the height map&#39;s fine detail: texture'>relief "
-            f"<b>{geo['relief']:.{digits + 1}f} {unit}</b></span>"
+            f"<b>{_length(geo['relief'], unit, digits + 1)}</b></span>"
             f"{firmness_line(tactile.get('firmness'))}</div>"
             f"{structure_line(structure)}</div></div>")
+
+
+def _length(value: float, unit: str, digits: int) -> str:
+    """A height in the map's unit at `digits` decimals; a millimetre figure that would
+    round to nothing (a texture on a domed gel) in micrometres, two significant digits."""
+    if unit == "mm" and abs(value) < 10.0 ** -digits:
+        return f"{value * 1000:.2g} µm"
+    return f"{value:.{digits}f} {unit}"
 
 
 def firmness_line(firmness: dict | None) -> str:
@@ -409,7 +417,8 @@ def structure_line(structure: dict | None) -> str:
             "below: the trust line's contact check decides")
     unlike = structure.get("floors") == "unfamiliar sensor"
     whose = ("the blank floor set for sensors unlike every rendered unit" if unlike else
-             "the family&#39;s blank floor")
+             "the family&#39;s blank floor, raised by the pair&#39;s own noise where it is "
+             "noisier than the blank pairs that floor was set on")
     return (f"<div title='structured change against the background (edges and texture, the "
             f"drift removed), in multiples of {whose}; above the "
             f"threshold is contact'>structured change <b>{shown}</b> × "

@@ -1087,6 +1087,13 @@ def test_the_height_map_is_formatted_with_its_scale_and_numbers():
             "soft": 0.778, "reads": "soft", "regime": regime}), picture, True)
         assert "shape <b>soft</b> 78%" in routed and said in routed, regime
         assert "two models fitted on renders" in routed
+    # a texture on a domed gel integrates to a few micrometres: said, not rounded to 0.00 mm
+    faint = _geometry_result()
+    faint["trust"]["tactile"]["geometry"].update(depth=0.0041, relief=0.00026)
+    faint_html = view.geometry_html(faint, picture, True)
+    for said in ("dark flat → white 4.1 µm", "depth <b>4.1 µm</b>", "relief <b>0.26 µm</b>"):
+        assert said in faint_html, said
+    assert "0.00 mm" not in faint_html
     ru = view.geometry_html(_geometry_result("render units", unfamiliar=True), picture, True)
     assert "depth <b>1.5 r.u.</b> (render units)" in ru and "no real calibration" in ru
     assert "⚠ unfamiliar sensor</b>, read as digit (a guess)" in ru
