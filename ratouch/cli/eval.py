@@ -38,6 +38,8 @@ from ratouch.eval.photos import (
 )
 from ratouch.eval.premise import format_premise, run_premise, why_ignored
 from ratouch.eval.presses import (
+    cross_unit_contact,
+    format_cross_unit_contact,
     format_press_contact,
     format_press_probe,
     format_press_readings,
@@ -130,16 +132,22 @@ def _eval_presses(args: argparse.Namespace) -> int:
     if args.probe:
         probe = press_probe(create_model(args.encoder), trust, n=args.probe, seed=args.seed + 3)
     world = world_contact(trust, n=args.world) if args.world else None
+    cross = (cross_unit_contact(trust, n=args.cross_unit, seed=args.seed)
+             if args.cross_unit else None)
     if args.json:
         extra = {**({"readings": readings} if readings else {}),
                  **({"probe": probe} if probe else {}),
-                 **({"world": world} if world else {})}
+                 **({"world": world} if world else {}),
+                 **({"cross_unit": cross} if cross else {})}
         print(json.dumps({**rep, **extra}, indent=1))
         return 0
     print(format_press_contact(rep))
     if world:
         print()
         print(format_world_contact(world))
+    if cross:
+        print()
+        print(format_cross_unit_contact(cross))
     if readings:
         print()
         print(format_press_readings(readings))

@@ -490,6 +490,10 @@ def _add_eval(sub) -> None:
                     help="also read the world's first N test presses and the same samples "
                          "without contact, alone and against their background: how many "
                          "land in each contact state, per family")
+    pe.add_argument("--cross-unit", type=_nonneg_int, default=0, metavar="N",
+                    help="also read N blank frames per family against another unit's "
+                         "background (the wrong unit's no-contact frame): how many land in "
+                         "each contact state")
     pe.add_argument("--json", action="store_true")
     rp = esub.add_parser("recaption", help="recaptioners against the world's own adjectives "
                                            "on corpus entries: adjective F1 and offline judge, "

@@ -117,6 +117,38 @@ def world_contact(trust: TrustCalibration, n: int = 402, seed: int = 0) -> dict:
     return out
 
 
+def cross_unit_contact(trust: TrustCalibration, n: int = 100, seed: int = 0) -> dict:
+    """Blank frames read against the background of another unit of the same family
+    (`render_cross_unit_pair`, `n` a family, a stream of its own): per family, how many land
+    in each contact state (`STATES`) and how many the structured check alone calls contact.
+    Not a press, so every "contact" is one the wrong background made."""
+    from ratouch.world.presses import render_cross_unit_pair
+    from ratouch.world.sensors import family_names
+
+    rng = np.random.default_rng([seed, 5501])
+    out: dict = {}
+    for fam in family_names():
+        counts = dict.fromkeys(STATES, 0)
+        structured = 0
+        for _ in range(n):
+            frame, bg = render_cross_unit_pair(fam, rng)
+            read = trust.read_geometry(frame, bg, height=False)
+            block = None if read is None else read["structure"]
+            structured += bool(block and block["contact"])
+            counts[trust.contact_state(frame, bg, structured=block)[0]] += 1
+        out[fam] = {**counts, "structured_contact": structured, "pairs": n}
+    return out
+
+
+def format_cross_unit_contact(rep: dict) -> str:
+    lines = ["| family | blank against another unit's background | " + " | ".join(STATES)
+             + " | structured check: contact |", "|---|---|" + "---|" * (len(STATES) + 1)]
+    for fam, r in rep.items():
+        lines.append(f"| {fam} | {r['pairs']} pairs | " + " | ".join(str(r[s]) for s in STATES)
+                     + f" | {r['structured_contact']} |")
+    return "\n".join(lines)
+
+
 def format_world_contact(rep: dict) -> str:
     lines = ["| family | what | read | " + " | ".join(STATES) + " |",
              "|---|---|---|" + "---|" * len(STATES)]

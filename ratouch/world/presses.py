@@ -334,3 +334,15 @@ def render_blank_pair(family_name: str, rng: np.random.Generator,
     bg = sensor_background(sensor, hw).astype(np.float64)
     drift = family_drift(family_name)
     return to_uint8(drifted(bg, drift, rng)), to_uint8(drifted(bg, drift, rng))
+
+
+def render_cross_unit_pair(family_name: str, rng: np.random.Generator,
+                           hw: tuple[int, int] = (128, 96)) -> tuple[np.ndarray, np.ndarray]:
+    """A no-contact frame of one unit of `family_name` and the background of another unit of
+    the same family (uint8), each drifted as `render_blank_pair`'s are: a user who gives the
+    wrong unit's no-contact frame."""
+    one, other = (int(s) for s in rng.choice(list(family_sensors(family_name)), 2,
+                                              replace=False))
+    drift = family_drift(family_name)
+    return tuple(to_uint8(drifted(sensor_background(s, hw).astype(np.float64), drift, rng))
+                 for s in (one, other))  # type: ignore[return-value]
