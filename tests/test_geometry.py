@@ -718,3 +718,23 @@ def test_train_geometry_floors_only_sets_the_family_floors_and_their_noise(shipp
     assert main(["train", "geometry", "--floors-only", "--firmness-only",
                  "--out", str(out)]) == 2
     assert "give one of them" in capsys.readouterr().err and out.read_bytes() == written
+
+
+def test_a_blank_against_another_units_background_is_counted_per_state(capsys):
+    """`render_cross_unit_pair` draws two units of one family; `ratouch eval presses
+    --cross-unit N` reads N such blanks a family and counts each contact state and the
+    structured check's calls (the counts add up to N)."""
+    from ratouch.world.presses import render_cross_unit_pair
+
+    a, b = render_cross_unit_pair("mini", np.random.default_rng(1))
+    assert a.shape == b.shape == (128, 96, 3) and a.dtype == np.uint8
+    assert np.abs(a.astype(int) - b.astype(int)).mean() > 0
+    assert main(["eval", "presses", "--n", "1", "--blanks", "1", "--cross-unit", "3",
+                 "--json"]) == 0
+    cross = json.loads(capsys.readouterr().out)["cross_unit"]
+    assert set(cross) == {"digit", "gelsight", "mini"}
+    for r in cross.values():
+        assert r["pairs"] == 3 and r["contact"] + r["uncertain"] + r["no contact"] == 3
+        assert 0 <= r["structured_contact"] <= 3
+    assert main(["eval", "presses", "--n", "1", "--blanks", "1", "--cross-unit", "2"]) == 0
+    assert "blank against another unit's background" in capsys.readouterr().out
