@@ -738,3 +738,71 @@ def test_a_blank_against_another_units_background_is_counted_per_state(capsys):
         assert 0 <= r["structured_contact"] <= 3
     assert main(["eval", "presses", "--n", "1", "--blanks", "1", "--cross-unit", "2"]) == 0
     assert "blank against another unit's background" in capsys.readouterr().out
+
+
+def _gelsight_units():
+    from ratouch.world.sensors import family_sensors, has_markers
+
+    units = list(family_sensors("gelsight"))
+    return [s for s in units if has_markers(s)], [s for s in units if not has_markers(s)]
+
+
+def test_a_backgrounds_marker_dots_are_found_in_its_own_units_frames_only():
+    """`background_markers`: a GelSight unit's marker grid is found in its own drifted blanks
+    and presses (share 1), not in a blank of another unit (with its own grid, or none); a
+    background without markers is not read (None); sizes must agree."""
+    from ratouch.model.markers import MIN_DOTS, background_markers, marker_dots
+    from ratouch.world.presses import drifted, family_drift, to_uint8
+    from ratouch.world.tactile import sensor_background
+
+    marked, plain = _gelsight_units()
+    assert len(marked) >= 2 and plain
+    rng = np.random.default_rng(6)
+    drift = family_drift("gelsight")
+    shot = lambda s: to_uint8(drifted(sensor_background(s, (128, 96)).astype(np.float64),  # noqa: E731
+                                      drift, rng))
+    bg = shot(marked[0])
+    assert len(marker_dots(bg)) >= MIN_DOTS and len(marker_dots(shot(plain[0]))) < MIN_DOTS
+    own = background_markers(shot(marked[0]), bg)
+    assert own is not None and own["share"] == 1.0 and not own["moved"]
+    for other in (marked[1], plain[0]):
+        cross = background_markers(shot(other), bg)
+        assert cross is not None and cross["moved"] and cross["share"] < 0.3
+    assert background_markers(shot(marked[0]), shot(plain[0])) is None
+    with pytest.raises(DataError, match="background"):
+        background_markers(bg[:64], bg)
+
+
+def test_a_frame_against_another_units_marker_grid_is_uncertain_and_said_so(pipeline):
+    """Read against a background whose marker dots the frame does not show, a GelSight blank
+    is "uncertain" (not "contact"), the trust block carries the reading and the warning says
+    to give this unit's background; against its own background the same frame is "no
+    contact", and a press on a unit with markers is read as without the check."""
+    from ratouch.world.presses import drifted, family_drift, render_press, to_uint8
+    from ratouch.world.tactile import sensor_background
+
+    marked, _ = _gelsight_units()
+    rng = np.random.default_rng(8)
+    drift = family_drift("gelsight")
+    shot = lambda s: to_uint8(drifted(sensor_background(s, (128, 96)).astype(np.float64),  # noqa: E731
+                                      drift, rng))
+    frame, own, other = shot(marked[0]), shot(marked[0]), shot(marked[1])
+    trust = pipeline.trust
+    assert trust.contact_state(frame, other)[0] == "uncertain"
+    assert trust.contact_state(frame, own)[0] == "no contact"
+    enc = pipeline.encoders
+    out = trust.assess(enc.encode_image([frame]), enc.encode_tactile([frame]), frame, other)
+    assert out["tactile"]["state"] == "uncertain" and out["tactile"]["markers"]["moved"]
+    assert any("marker dots are not where this frame's are" in w for w in out["warnings"])
+    from ratouch.model.markers import background_markers
+
+    read = 0
+    for _ in range(24):                      # presses on units with markers
+        p = render_press("gelsight", rng, kind="small_curved")
+        marks = background_markers(p.frame, p.background)
+        if marks is not None:
+            # the dots are found, so the frame is read as it was without them
+            assert not marks["moved"] and trust.contact_state(p.frame, p.background) == \
+                trust.contact_state(p.frame, p.background, markers=None)
+            read += 1
+    assert read >= 3

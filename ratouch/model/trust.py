@@ -39,6 +39,7 @@ from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
 from ratouch.images import check_background_size, gaussian_blur, resize_array
 from ratouch.model.geometry import GeometryCalibration, HeightMap, band_stats, read_height
+from ratouch.model.markers import background_markers
 from ratouch.world.sensors import WITHHOLD_LIMIT, guess_family, unfamiliar_look
 
 log = logging.getLogger(__name__)
@@ -493,10 +494,13 @@ class TrustCalibration:
 
     def contact_state(self, frame: np.ndarray, background: np.ndarray | None = None,
                       structured: dict | None = None,
-                      look: tuple[str, float] | None = None) -> tuple[str, float]:
+                      look: tuple[str, float] | None = None,
+                      markers: dict | None | str = "read") -> tuple[str, float]:
         """What the frame shows, one of :data:`CONTACT_STATES`, and its contact logit.
 
-        With a background: a frame whose structured local change (edges and texture, the
+        With a background whose marker dots the frame mostly does not show
+        (`model.markers.background_markers`: another unit's no-contact frame, or the gel
+        moved): "uncertain", whatever else it shows. Otherwise, with a background: a frame whose structured local change (edges and texture, the
         sensor's global drift removed) stands above its family's floors is "contact"
         (`structured_contact`: shallow, broad presses that change a few levels); otherwise a
         frame within sensor noise of it (`noise_floor`) is "no contact" by construction,
@@ -515,9 +519,15 @@ class TrustCalibration:
         the score returned is its logit. A score that is not a finite
         number is never "contact": it is "uncertain".
         `structured`: the `structured_contact` block where the caller already has it;
-        `look`: `guess_family(frame)` where the caller already has it.
+        `look`: `guess_family(frame)` where the caller already has it; `markers`:
+        `background_markers(frame, background)` where the caller already has it ("read":
+        read here).
         """
         if background is not None:
+            marks = background_markers(frame, background) if isinstance(markers, str) \
+                else markers
+            if marks is not None and marks["moved"]:
+                return "uncertain", float(self.contact_score(frame, background))
             if structured is None:
                 read = self.read_geometry(frame, background, height=False, look=look)
                 structured = None if read is None else read["structure"]
@@ -641,9 +651,10 @@ class TrustCalibration:
                 thr = self.contact_unfamiliar[1]
             read = (None if background is None else
                     self.read_geometry(frame, background, name, look=(name, distance)))
+            marks = None if background is None else background_markers(frame, background)
             state, score = self.contact_state(
                 frame, background, None if read is None else read["structure"],
-                (name, distance))
+                (name, distance), marks)
             tac.update({"contact": round(score, 4) if np.isfinite(score) else None,
                         "contact_threshold": round(thr, 4), "state": state,
                         "no_contact": state == "no contact", "uncertain": state == "uncertain",
@@ -652,6 +663,8 @@ class TrustCalibration:
                         # every rendered unit, else the disc-press model
                         "contact_model": None if background is not None else (
                             "colour-blind" if blind else "disc-press")})
+            if marks is not None:
+                tac["markers"] = marks
             if background is not None and self.geometry is not None:
                 tac["structure"] = None if read is None else read["structure"]
                 tac["geometry"] = None if read is None else read["height"].to_dict()
@@ -695,6 +708,13 @@ class TrustCalibration:
                     "no contact detected: the tactile image looks like the sensor's "
                     f"background with nothing pressed into it{shown}; no material "
                     f"description is given{remedy}")
+            elif tac["uncertain"] and marks is not None and marks["moved"]:
+                tac["uncertain_by"] = None
+                warnings.append(
+                    f"contact uncertain: the background's marker dots are not where this "
+                    f"frame's are (the frame shows {marks['found']} of its {marks['dots']}): it "
+                    "looks like another unit's no-contact frame, or the gel has moved; give "
+                    "this unit's background taken now; the description below is a guess")
             elif tac["uncertain"] and background is not None:
                 tac["uncertain_by"] = None
                 st = tac.get("structure") or {}
