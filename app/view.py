@@ -346,12 +346,14 @@ def geometry_html(result: dict | None, picture: np.ndarray | None, background: b
         return (f"<div class='ra-geometry-note'>{title}: none, the model has no trust "
                 "calibration, so the press is not read against its background.</div>")
     geo, structure = tactile.get("geometry"), tactile.get("structure")
+    # the background's marker dots not where the frame's are: another unit's background
+    moved = bool((tactile.get("markers") or {}).get("moved"))
     sensor = (tactile.get("sensor") or {}).get("family", "?")
     if geo is None or picture is None:
         why = ("no geometry calibration is loaded" if "geometry" not in tactile else
                f"no geometry lookup reads the sensor family “{escape(sensor)}”")
         return (f"<div class='ra-geometry-note'>{title}: none, {why}."
-                f"{structure_line(structure)}</div>")
+                f"{structure_line(structure, moved)}</div>")
     unit, meaning = UNITS.get(geo["units"], (geo["units"], geo["units"]))
     digits = 2 if unit == "mm" else 1
     depth = _length(geo["depth"], unit, digits)
@@ -371,7 +373,7 @@ def geometry_html(result: dict | None, picture: np.ndarray | None, background: b
             f"title='RMS of the height map&#39;s fine detail: texture'>relief "
             f"<b>{_length(geo['relief'], unit, digits + 1)}</b></span>"
             f"{firmness_line(tactile.get('firmness'))}</div>"
-            f"{structure_line(structure)}</div></div>")
+            f"{structure_line(structure, moved)}</div></div>")
 
 
 def _length(value: float, unit: str, digits: int) -> str:
@@ -405,15 +407,17 @@ def firmness_line(firmness: dict | None) -> str:
             f"{said}</span>")
 
 
-def structure_line(structure: dict | None) -> str:
+def structure_line(structure: dict | None, moved: bool = False) -> str:
     """The structured-contact reading against the background: its score against the
     threshold of the floors that read it (the family's, or those set for a sensor unlike
-    every rendered unit), and what it decides."""
+    every rendered unit), and what it decides (`moved`: the background's marker dots are not
+    where the frame's are, so a change over the floors is not read as contact)."""
     if not structure:
         return ""
     score = structure.get("score")
     shown = "n/a" if score is None else f"{score:.2f}"
-    mark = ("✓ contact" if structure.get("contact") else
+    mark = ("? the background&#39;s marker dots are not this frame&#39;s: contact uncertain"
+            if moved else "✓ contact" if structure.get("contact") else
             "below: the trust line's contact check decides")
     unlike = structure.get("floors") == "unfamiliar sensor"
     whose = ("the blank floor set for sensors unlike every rendered unit" if unlike else

@@ -1087,6 +1087,11 @@ def test_the_height_map_is_formatted_with_its_scale_and_numbers():
             "soft": 0.778, "reads": "soft", "regime": regime}), picture, True)
         assert "shape <b>soft</b> 78%" in routed and said in routed, regime
         assert "two models fitted on renders" in routed
+    # against another unit's background (its marker dots not the frame's) the change over
+    # the floors is not called contact
+    other = _geometry_result(markers={"dots": 72, "found": 2, "share": 0.028, "moved": True})
+    other_html = view.geometry_html(other, picture, True)
+    assert "marker dots are not this frame" in other_html and "✓ contact" not in other_html
     # a texture on a domed gel integrates to a few micrometres: said, not rounded to 0.00 mm
     faint = _geometry_result()
     faint["trust"]["tactile"]["geometry"].update(depth=0.0041, relief=0.00026)
