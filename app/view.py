@@ -411,13 +411,18 @@ def structure_line(structure: dict | None, moved: bool = False) -> str:
     """The structured-contact reading against the background: its score against the
     threshold of the floors that read it (the family's, or those set for a sensor unlike
     every rendered unit), and what it decides (`moved`: the background's marker dots are not
-    where the frame's are, so a change over the floors is not read as contact)."""
+    where the frame's are, so a change over the floors is not read as contact; nor is one that
+    the block's `lighting_field` says a smooth lighting field alone explains)."""
     if not structure:
         return ""
     score = structure.get("score")
     shown = "n/a" if score is None else f"{score:.2f}"
+    field = structure.get("lighting_field") or {}
     mark = ("? the background&#39;s marker dots are not this frame&#39;s: contact uncertain"
-            if moved else "✓ contact" if structure.get("contact") else
+            if moved else
+            f"? a smooth lighting field alone explains it ({field.get('score')} with the field "
+            "removed): contact uncertain" if structure.get("contact") and field.get("explains")
+            else "✓ contact" if structure.get("contact") else
             "below: the trust line's contact check decides")
     unlike = structure.get("floors") == "unfamiliar sensor"
     whose = ("the blank floor set for sensors unlike every rendered unit" if unlike else

@@ -1092,6 +1092,14 @@ def test_the_height_map_is_formatted_with_its_scale_and_numbers():
     other = _geometry_result(markers={"dots": 72, "found": 2, "share": 0.028, "moved": True})
     other_html = view.geometry_html(other, picture, True)
     assert "marker dots are not this frame" in other_html and "✓ contact" not in other_html
+    # a change a smooth lighting field alone explains (another DIGIT unit's background)
+    lit = _geometry_result()
+    lit["trust"]["tactile"]["structure"]["lighting_field"] = {"score": 0.84, "explains": True}
+    lit_html = view.geometry_html(lit, picture, True)
+    assert "smooth lighting field alone explains it (0.84" in lit_html
+    assert "✓ contact" not in lit_html
+    lit["trust"]["tactile"]["structure"]["lighting_field"] = {"score": 3.1, "explains": False}
+    assert "✓ contact" in view.geometry_html(lit, picture, True)
     # a texture on a domed gel integrates to a few micrometres: said, not rounded to 0.00 mm
     faint = _geometry_result()
     faint["trust"]["tactile"]["geometry"].update(depth=0.0041, relief=0.00026)

@@ -707,7 +707,14 @@ def test_train_geometry_floors_only_sets_the_family_floors_and_their_noise(shipp
     report = json.loads(capsys.readouterr().out)["floors"]
     assert set(report) == {"digit", "gelsight", "mini"}
     assert all(r["noise_ref"] > 0 and np.isfinite(r["threshold"]) for r in report.values())
+    # the DIGIT's second reading (a lighting field removed) gets floors of its own, kept
+    assert report["digit"]["field_noise_ref"] > 0 and np.isfinite(report["digit"]["field_threshold"])
+    assert "field_threshold" not in report["gelsight"] and "field_threshold" not in report["mini"]
     cal, before = GeometryCalibration.load(out), shipped.save(tmp_path / "s.json")
+    digit = cal.lookup("digit")
+    assert len(digit.field_floors) == 6 and digit.field_threshold == pytest.approx(
+        report["digit"]["field_threshold"])
+    assert not cal.lookup("mini").field_floors
     body, old = json.loads(out.read_text()), json.loads(before.read_text())
     assert body["firmness"] == old["firmness"]
     for name, lk in cal.lookups.items():
@@ -806,3 +813,62 @@ def test_a_frame_against_another_units_marker_grid_is_uncertain_and_said_so(pipe
                 trust.contact_state(p.frame, p.background, markers=None)
             read += 1
     assert read >= 3
+
+
+def test_a_smooth_lighting_field_is_removed_by_the_field_fit_only():
+    """`drift_free_change(field=True)` undoes a gain and an offset that are each a quadratic
+    in the position (a unit whose LEDs glow elsewhere); the plain gain-and-offset fit does
+    not, and a local press survives the field fit."""
+    from ratouch.model.geometry import drift_free_change
+
+    rng = np.random.default_rng(3)
+    bg = rng.uniform(60, 200, (96, 128, 3))
+    v, u = np.meshgrid(np.linspace(-1, 1, 96), np.linspace(-1, 1, 128), indexing="ij")
+    gain = (1 + 0.15 * u - 0.1 * v * v)[..., None]
+    frame = np.clip(bg * gain + 20 * u[..., None] * v[..., None], 0, 255)
+    to8 = lambda a: np.round(a).astype(np.uint8)  # noqa: E731
+    size = (128, 96)
+    plain = np.abs(drift_free_change(to8(frame), to8(bg), size)).mean()
+    field = np.abs(drift_free_change(to8(frame), to8(bg), size, field=True)).mean()
+    assert field < 0.2 * plain and field < 0.004
+    pressed = frame.copy()
+    pressed[40:56, 60:76] += 40
+    change = drift_free_change(to8(pressed), to8(bg), size, field=True)
+    assert np.abs(change[40:56, 60:76]).mean() > 20 * np.abs(change[:20, :20]).mean()
+
+
+def test_a_digit_blank_against_another_units_lighting_is_uncertain_and_said_so(pipeline):
+    """A DIGIT blank read against another DIGIT unit's background, whose structured change a
+    smooth lighting field alone explains, is "uncertain" (read, with a caveat), never
+    "contact"; the structure block carries `lighting_field` and the warning says to give this
+    unit's background. Against its own unit's background the field is not consulted for a
+    blank (the structured check finds nothing) and a firm press stays "contact"."""
+    from ratouch.world.presses import render_cross_unit_pair, render_press
+
+    trust = pipeline.trust
+    rng = np.random.default_rng(12)
+    explained = 0
+    for _ in range(12):
+        frame, bg = render_cross_unit_pair("digit", rng)
+        block = trust.read_geometry(frame, bg, height=False)["structure"]
+        state = trust.contact_state(frame, bg, structured=block)[0]
+        field = block.get("lighting_field")
+        assert (field is not None) == bool(block["contact"])
+        if field and field["explains"]:
+            explained += 1
+            assert state == "uncertain"
+            enc = pipeline.encoders
+            out = trust.assess(enc.encode_image([frame]), enc.encode_tactile([frame]), frame,
+                               bg)
+            assert out["tactile"]["state"] == "uncertain"
+            assert out["tactile"]["structure"]["lighting_field"]["explains"]
+            assert any("smooth lighting field" in w and "give this unit's background" in w
+                       for w in out["warnings"])
+    assert explained >= 4
+    for _ in range(6):
+        p = render_press("digit", rng, kind="small_curved")
+        assert trust.contact_state(p.frame, p.background)[0] == "contact"
+    for fam in ("gelsight", "mini"):   # only the DIGIT's lookup reads the field
+        frame, bg = render_cross_unit_pair(fam, rng)
+        read = trust.read_geometry(frame, bg, height=False, family=fam)
+        assert "lighting_field" not in read["structure"]

@@ -130,7 +130,9 @@ def _train_geometry(args: argparse.Namespace) -> int:
         cal = with_family_floors(GeometryCalibration.load(path), args.seed, args.pairs)
         out = cal.save(path)
         print(json.dumps({"written": str(out), "floors": {
-            k: {"threshold": lk.structure_threshold, "noise_ref": lk.noise_ref}
+            k: {"threshold": lk.structure_threshold, "noise_ref": lk.noise_ref,
+                **({"field_threshold": lk.field_threshold,
+                    "field_noise_ref": lk.field_noise_ref} if lk.field_floors else {})}
             for k, lk in cal.lookups.items()}}, indent=1))
         return 0
     if args.unfamiliar_floors:

@@ -33,6 +33,7 @@ whole change does not.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
 from dataclasses import dataclass, field
@@ -82,6 +83,9 @@ class GradientLookup:
         noise_ref: the median noise (:func:`pair_noise`) of the blank pairs the floors were
             set on; a pair noisier than that has its score against the family's floors
             divided by how much noisier it is (None: read as is, an older file).
+        field_floors, field_threshold, field_noise_ref: the same three, set on the same
+            blank pairs read with a smooth lighting field removed (:meth:`field_reading`;
+            only for :data:`FIELD_CHECK_FAMILIES`; none: not read).
     """
 
     family: str
@@ -95,6 +99,9 @@ class GradientLookup:
     unfamiliar_floors: tuple[float, ...] = ()
     unfamiliar_threshold: float = float("inf")
     noise_ref: float | None = None
+    field_floors: tuple[float, ...] = ()
+    field_threshold: float = float("inf")
+    field_noise_ref: float | None = None
     #: per working size (h, w): the pixel positions the perceptron reads and its output at
     #: zero change there, which depend on nothing else (computed once, not per frame)
     _at_rest: dict = field(default_factory=dict, init=False, compare=False, repr=False)
@@ -155,6 +162,10 @@ class GradientLookup:
                    if self.unfamiliar_floors else {}),
                 **({"noise_ref": float(f"{self.noise_ref:.6g}")}
                    if self.noise_ref is not None else {}),
+                **({"field_floors": [float(f"{v:.6g}") for v in self.field_floors],
+                    "field_threshold": self.field_threshold,
+                    "field_noise_ref": float(f"{self.field_noise_ref:.6g}")}
+                   if self.field_floors and self.field_noise_ref is not None else {}),
                 "weights": [np.round(w, 6).tolist() for w in self.weights],
                 "biases": [np.round(b, 6).tolist() for b in self.biases]}
 
@@ -167,7 +178,10 @@ class GradientLookup:
                    float(d["structure_threshold"]), dict(d.get("meta", {})),
                    tuple(float(v) for v in d.get("unfamiliar_floors", ())),
                    float(d.get("unfamiliar_threshold", float("inf"))),
-                   None if d.get("noise_ref") is None else float(d["noise_ref"]))
+                   None if d.get("noise_ref") is None else float(d["noise_ref"]),
+                   tuple(float(v) for v in d.get("field_floors", ())),
+                   float(d.get("field_threshold", float("inf"))),
+                   None if d.get("field_noise_ref") is None else float(d["field_noise_ref"]))
 
     def with_floors(self, floors: tuple[float, ...], threshold: float,
                     noise_ref: float | None = None, **meta) -> GradientLookup:
@@ -176,6 +190,12 @@ class GradientLookup:
                                    noise_ref=self.noise_ref if noise_ref is None
                                    else float(noise_ref),
                                    meta={**self.meta, **meta})
+
+    def with_field_floors(self, floors: tuple[float, ...], threshold: float,
+                          noise_ref: float, **meta) -> GradientLookup:
+        return dataclasses.replace(self, field_floors=tuple(float(f) for f in floors),
+                                   field_threshold=float(threshold),
+                                   field_noise_ref=float(noise_ref), meta={**self.meta, **meta})
 
     def with_unfamiliar_floors(self, floors: tuple[float, ...], threshold: float, **meta
                                ) -> GradientLookup:
@@ -221,6 +241,30 @@ class GradientLookup:
             score = noise_adjusted(score, noise, self.noise_ref)
         return bool(score > threshold), score
 
+    def field_change_and_noise(self, frame: np.ndarray, background: np.ndarray
+                               ) -> tuple[np.ndarray, float]:
+        """`change_and_noise` with a smooth lighting field removed instead of a plain gain
+        and offset (each channel's a quadratic in the position: :func:`drift_free_change`
+        with `field`)."""
+        turn = (frame.shape[0] > frame.shape[1]) == self.landscape
+        raw = drift_free_change(frame, background, self.work_size, turn=turn, field=True)
+        return gaussian_blur(raw, CHANGE_SIGMA), pair_noise(raw)
+
+    def field_reading(self, frame: np.ndarray, background: np.ndarray
+                      ) -> tuple[bool, float] | None:
+        """Whether a smooth lighting field alone explains `frame`'s change against
+        `background` (a unit whose LEDs glow elsewhere, or light that changed, rather than a
+        press), and the score: the change with the field removed against
+        :attr:`field_floors`, noise-adjusted as :meth:`contact` is; at or below
+        :attr:`field_threshold` the field explains it. None where the lookup has no such
+        floors."""
+        if not self.field_floors:
+            return None
+        change, noise = self.field_change_and_noise(frame, background)
+        score = noise_adjusted(structure_score(band_stats(change), self.field_floors), noise,
+                               self.field_noise_ref)
+        return not score > self.field_threshold, score
+
     def floors_for(self, unfamiliar: bool) -> tuple[tuple[float, ...], float]:
         """The structured check's floors and threshold for a frame of this family's units,
         or (`unfamiliar`) of a sensor unlike every rendered unit, where the lookup has such
@@ -252,9 +296,10 @@ def working_change(frame: np.ndarray, background: np.ndarray, size: tuple[int, i
 
 
 def drift_free_change(frame: np.ndarray, background: np.ndarray, size: tuple[int, int],
-                      turn: bool = False) -> np.ndarray:
+                      turn: bool = False, field: bool = False) -> np.ndarray:
     """`working_change` before its light blur: the frame against its background at `size`,
-    per channel the robustly fitted gain and offset undone.
+    per channel the robustly fitted gain and offset undone; with `field`, each of them a
+    quadratic in the position (a smooth lighting field, :func:`_robust_field`).
 
     Raises:
         DataError: the sizes differ.
@@ -265,8 +310,9 @@ def drift_free_change(frame: np.ndarray, background: np.ndarray, size: tuple[int
     f = _resize3(frame, size)
     b = _resize3(background, size)
     out = np.empty_like(f)
+    fit = _robust_field if field else _robust_affine
     for c in range(3):
-        out[..., c] = f[..., c] - _robust_affine(b[..., c], f[..., c])
+        out[..., c] = f[..., c] - fit(b[..., c], f[..., c])
     return out
 
 
@@ -319,6 +365,39 @@ def _robust_affine(x: np.ndarray, y: np.ndarray, rounds: int = 3) -> np.ndarray:
         if keep.sum() < 0.3 * keep.size:  # never fit on fewer than a third of the gel
             keep = np.abs(r) <= np.quantile(np.abs(r), 0.3)
     return gain * x + offset
+
+
+@functools.lru_cache(maxsize=8)
+def _quadratic_terms(h: int, w: int) -> np.ndarray:
+    """(h * w, 6) 1, u, v, u², uv, v² over a (h, w) grid, u and v in [-1, 1] (read only)."""
+    v, u = np.meshgrid(np.linspace(-1, 1, h), np.linspace(-1, 1, w), indexing="ij")
+    out = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], -1).reshape(-1, 6)
+    out.setflags(write=False)
+    return out
+
+
+def _robust_field(x: np.ndarray, y: np.ndarray, rounds: int = 3) -> np.ndarray:
+    """g(u, v) * x + o(u, v) fitted to y by least squares, g and o each a quadratic in the
+    position (u, v in [-1, 1]), refitted as :func:`_robust_affine` is on the pixels whose
+    residual is within 2.5 robust deviations (the press is left out)."""
+    h, w = x.shape
+    poly = _quadratic_terms(h, w)
+    design = np.concatenate([poly * x.reshape(-1, 1), poly], 1)
+    yv = y.ravel()
+    keep = np.ones(yv.shape, bool)
+    coef = np.zeros(design.shape[1])
+    for n in range(rounds):
+        a = design[keep]  # normal equations: 12 unknowns, well scaled
+        coef = np.linalg.solve(a.T @ a + 1e-12 * np.eye(a.shape[1]), a.T @ yv[keep])
+        if n == rounds - 1:
+            break
+        r = yv - design @ coef
+        spread = np.abs(r - np.median(r))
+        mad = np.median(spread) * 1.4826 + 1e-6
+        keep = spread < 2.5 * mad
+        if keep.sum() < 0.3 * keep.size:  # never fit on fewer than a third of the gel
+            keep = np.abs(r) <= np.quantile(np.abs(r), 0.3)
+    return (design @ coef).reshape(h, w)
 
 
 def integrate(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
@@ -414,6 +493,12 @@ def read_height(lookup: GradientLookup, frame: np.ndarray, background: np.ndarra
 
 #: Band-passes (working-pixel sigmas) of the structured change: edges, texture, small caps.
 STRUCTURE_BANDS = ((1.0, 3.0), (2.0, 6.0), (3.0, 10.0))
+#: Sensor families whose units differ by a smooth lighting field (where and how brightly
+#: their LEDs glow) that a per-channel gain and offset cannot undo: where the structured check
+#: calls contact, the change is read again with that field removed, against floors of its own
+#: (`GradientLookup.field_reading`), and a change the field alone explains is "uncertain"
+#: (docs/geometry.md). The GelSight's and the Mini's units differ by markers and noise.
+FIELD_CHECK_FAMILIES = ("digit",)
 
 
 def band_stats(c: np.ndarray) -> np.ndarray:

@@ -38,7 +38,13 @@ import numpy as np
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
 from ratouch.images import check_background_size, gaussian_blur, resize_array
-from ratouch.model.geometry import GeometryCalibration, HeightMap, band_stats, read_height
+from ratouch.model.geometry import (
+    FIELD_CHECK_FAMILIES,
+    GeometryCalibration,
+    HeightMap,
+    band_stats,
+    read_height,
+)
 from ratouch.model.markers import background_markers
 from ratouch.world.sensors import WITHHOLD_LIMIT, guess_family, unfamiliar_look
 
@@ -483,11 +489,17 @@ class TrustCalibration:
         hit, score = lookup.contact(frame, background, change, stats, unfamiliar=beyond,
                                     noise=noise)
         hm = read_height(lookup, frame, background, change) if height else None
-        return {"structure": {"contact": hit,
-                              "score": round(score, 3) if np.isfinite(score) else None,
-                              "threshold": round(lookup.floors_for(beyond)[1], 3),
-                              "family": name,
-                              "floors": "unfamiliar sensor" if beyond else "family"},
+        structure = {"contact": hit, "score": round(score, 3) if np.isfinite(score) else None,
+                     "threshold": round(lookup.floors_for(beyond)[1], 3), "family": name,
+                     "floors": "unfamiliar sensor" if beyond else "family"}
+        field = (lookup.field_reading(frame, background)
+                 if hit and not beyond and name in FIELD_CHECK_FAMILIES else None)
+        if field is not None:
+            # a second reading: does a smooth lighting field alone explain the change?
+            structure["lighting_field"] = {
+                "score": round(field[1], 3) if np.isfinite(field[1]) else None,
+                "threshold": round(lookup.field_threshold, 3), "explains": field[0]}
+        return {"structure": structure,
                 "height": hm,
                 "firmness": (None if hm is None else
                              self.geometry.read_firmness(name, hm, change, stats))}
@@ -502,7 +514,9 @@ class TrustCalibration:
         (`model.markers.background_markers`: another unit's no-contact frame, or the gel
         moved): "uncertain", whatever else it shows. Otherwise, with a background: a frame whose structured local change (edges and texture, the
         sensor's global drift removed) stands above its family's floors is "contact"
-        (`structured_contact`: shallow, broad presses that change a few levels); otherwise a
+        (`structured_contact`: shallow, broad presses that change a few levels), or
+        "uncertain" where the block's `lighting_field` says a smooth lighting field alone
+        explains it (`geometry.FIELD_CHECK_FAMILIES`: another unit's background); otherwise a
         frame within sensor noise of it (`noise_floor`) is "no contact" by construction,
         and else the model decides at `contact_threshold_bg`; for a frame beyond every
         rendered unit, held to such a sensor's floors (`GradientLookup.unfamiliar_floors`),
@@ -532,7 +546,11 @@ class TrustCalibration:
                 read = self.read_geometry(frame, background, height=False, look=look)
                 structured = None if read is None else read["structure"]
             if structured is not None and structured["contact"]:
-                return "contact", float(self.contact_score(frame, background))
+                # a change a smooth lighting field alone explains: another unit's background,
+                # or light that changed, as likely as a press; read, with a caveat
+                field = structured.get("lighting_field") or {}
+                return (("uncertain" if field.get("explains") else "contact"),
+                        float(self.contact_score(frame, background)))
             if background_change(frame, background) < self.noise_floor:
                 return "no contact", float(self.contact_score(frame, background))
         if background is None and self.contact_unfamiliar is not None:
@@ -715,6 +733,17 @@ class TrustCalibration:
                     f"frame's are (the frame shows {marks['found']} of its {marks['dots']}): it "
                     "looks like another unit's no-contact frame, or the gel has moved; give "
                     "this unit's background taken now; the description below is a guess")
+            elif tac["uncertain"] and ((tac.get("structure") or {}).get("lighting_field")
+                                       or {}).get("explains"):
+                tac["uncertain_by"] = None
+                st = tac["structure"]
+                warnings.append(
+                    f"contact uncertain: the change against the background is a smooth "
+                    f"lighting field across the whole gel (structured change "
+                    f"{st['score']} > {st['threshold']}, but {st['lighting_field']['score']} "
+                    f"with the field removed): the background may be another unit's, or the "
+                    "light changed; give this unit's background taken now; the description "
+                    "below is a guess")
             elif tac["uncertain"] and background is not None:
                 tac["uncertain_by"] = None
                 st = tac.get("structure") or {}

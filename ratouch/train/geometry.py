@@ -33,6 +33,7 @@ import numpy as np
 
 from ratouch.errors import ConfigError
 from ratouch.model.geometry import (
+    FIELD_CHECK_FAMILIES,
     WORK_LANDSCAPE,
     FirmnessModel,
     GeometryCalibration,
@@ -204,19 +205,33 @@ def set_floors(lookup: GradientLookup, seed: int = 0, pairs: int = FLOOR_PAIRS
     from ratouch.world.presses import render_blank_pair
 
     rng = np.random.default_rng([seed, 47])
-    read = [lookup.change_and_noise(*render_blank_pair(lookup.family, rng))
-            for _ in range(pairs)]
+    blanks = [render_blank_pair(lookup.family, rng) for _ in range(pairs)]
+    floors, threshold, noise_ref = _floors_of([lookup.change_and_noise(*p) for p in blanks])
+    on = (f"{pairs} drifted blank render pairs of the family: floors on {pairs // 2}, the "
+          f"threshold on the other {pairs - pairs // 2}, {FLOOR_QUANTILE:.1%} quantiles; the "
+          f"floors' noise their median on the first {pairs // 2}")
+    out = lookup.with_floors(floors, threshold, noise_ref, floors_on=on)
+    if lookup.family in FIELD_CHECK_FAMILIES:
+        # the second reading's floors: the same pairs, a smooth lighting field removed
+        floors, threshold, noise_ref = _floors_of(
+            [lookup.field_change_and_noise(*p) for p in blanks])
+        out = out.with_field_floors(floors, threshold, noise_ref,
+                                    field_floors_on=on + ", read with a lighting field removed")
+    return out
+
+
+def _floors_of(read: list[tuple[np.ndarray, float]]) -> tuple[tuple[float, ...], float, float]:
+    """Floors, threshold and noise reference from blank pairs' (change, noise): floors on
+    the first half, the threshold on the second (`floors_and_threshold`); the noise the
+    floors are set at (a pair noisier than this is read against its own) the first half's
+    median."""
     stats = np.array([band_stats(change) for change, _ in read])
     noise = np.array([n for _, n in read])
-    half = pairs // 2
-    # the noise the floors are set at: a pair noisier than this is read against its own
+    half = len(read) // 2
     noise_ref = float(np.median(noise[:half]))
     floors, threshold = floors_and_threshold(stats[:half], stats[half:],
                                              noise[half:] / noise_ref)
-    return lookup.with_floors(floors, threshold, noise_ref, floors_on=(
-        f"{pairs} drifted blank render pairs of the family: floors on {half}, the threshold "
-        f"on the other {pairs - half}, {FLOOR_QUANTILE:.1%} quantiles; the floors' noise "
-        f"their median on the first {half}"))
+    return floors, threshold, noise_ref
 
 
 def set_unfamiliar_floors(lookups: dict[str, GradientLookup], seed: int = 0,
