@@ -489,7 +489,7 @@ class TrustCalibration:
         hit, score = lookup.contact(frame, background, change, stats, unfamiliar=beyond,
                                     noise=noise)
         hm = read_height(lookup, frame, background, change) if height else None
-        structure = {"contact": hit, "score": round(score, 3) if np.isfinite(score) else None,
+        structure: dict[str, Any] = {"contact": hit, "score": round(score, 3) if np.isfinite(score) else None,
                      "threshold": round(lookup.floors_for(beyond)[1], 3), "family": name,
                      "floors": "unfamiliar sensor" if beyond else "family"}
         field = (lookup.field_reading(frame, background)
