@@ -210,12 +210,13 @@ class GradientLookup:
         turn = (frame.shape[0] > frame.shape[1]) == self.landscape
         return working_change(frame, background, self.work_size, turn=turn)
 
-    def change_and_noise(self, frame: np.ndarray, background: np.ndarray
-                         ) -> tuple[np.ndarray, float]:
+    def change_and_noise(self, frame: np.ndarray, background: np.ndarray,
+                         field: bool = False) -> tuple[np.ndarray, float]:
         """`change(frame, background)` and the pair's noise (:func:`pair_noise`), from one
-        drift-free difference."""
+        drift-free difference; with `field`, a smooth lighting field removed instead of a
+        plain gain and offset (:func:`drift_free_change`)."""
         turn = (frame.shape[0] > frame.shape[1]) == self.landscape
-        raw = drift_free_change(frame, background, self.work_size, turn=turn)
+        raw = drift_free_change(frame, background, self.work_size, turn=turn, field=field)
         return gaussian_blur(raw, CHANGE_SIGMA), pair_noise(raw)
 
     def contact(self, frame: np.ndarray, background: np.ndarray,
@@ -241,15 +242,6 @@ class GradientLookup:
             score = noise_adjusted(score, noise, self.noise_ref)
         return bool(score > threshold), score
 
-    def field_change_and_noise(self, frame: np.ndarray, background: np.ndarray
-                               ) -> tuple[np.ndarray, float]:
-        """`change_and_noise` with a smooth lighting field removed instead of a plain gain
-        and offset (each channel's a quadratic in the position: :func:`drift_free_change`
-        with `field`)."""
-        turn = (frame.shape[0] > frame.shape[1]) == self.landscape
-        raw = drift_free_change(frame, background, self.work_size, turn=turn, field=True)
-        return gaussian_blur(raw, CHANGE_SIGMA), pair_noise(raw)
-
     def field_reading(self, frame: np.ndarray, background: np.ndarray
                       ) -> tuple[bool, float] | None:
         """Whether a smooth lighting field alone explains `frame`'s change against
@@ -260,7 +252,7 @@ class GradientLookup:
         floors."""
         if not self.field_floors:
             return None
-        change, noise = self.field_change_and_noise(frame, background)
+        change, noise = self.change_and_noise(frame, background, field=True)
         score = noise_adjusted(structure_score(band_stats(change), self.field_floors), noise,
                                self.field_noise_ref)
         return not score > self.field_threshold, score
@@ -358,13 +350,20 @@ def _robust_affine(x: np.ndarray, y: np.ndarray, rounds: int = 3) -> np.ndarray:
         offset = float(ys.mean() - gain * xs.mean())
         if n == rounds - 1:  # the last fit's pixels to keep would be read by no one
             break
-        r = yv - (gain * xv + offset)
-        spread = np.abs(r - np.median(r))
-        mad = np.median(spread) * 1.4826 + 1e-6
-        keep = spread < 2.5 * mad
-        if keep.sum() < 0.3 * keep.size:  # never fit on fewer than a third of the gel
-            keep = np.abs(r) <= np.quantile(np.abs(r), 0.3)
+        keep = _inliers(yv - (gain * xv + offset))
     return gain * x + offset
+
+
+def _inliers(r: np.ndarray) -> np.ndarray:
+    """The pixels a robust refit keeps, from the last fit's residuals `r`: those within 2.5
+    robust deviations (the press is left out), never fewer than a third of the gel (else the
+    third with the smallest residuals)."""
+    spread = np.abs(r - np.median(r))
+    mad = np.median(spread) * 1.4826 + 1e-6
+    keep = spread < 2.5 * mad
+    if keep.sum() < 0.3 * keep.size:
+        keep = np.abs(r) <= np.quantile(np.abs(r), 0.3)
+    return keep
 
 
 @functools.lru_cache(maxsize=8)
@@ -391,12 +390,7 @@ def _robust_field(x: np.ndarray, y: np.ndarray, rounds: int = 3) -> np.ndarray:
         coef = np.linalg.solve(a.T @ a + 1e-12 * np.eye(a.shape[1]), a.T @ yv[keep])
         if n == rounds - 1:
             break
-        r = yv - design @ coef
-        spread = np.abs(r - np.median(r))
-        mad = np.median(spread) * 1.4826 + 1e-6
-        keep = spread < 2.5 * mad
-        if keep.sum() < 0.3 * keep.size:  # never fit on fewer than a third of the gel
-            keep = np.abs(r) <= np.quantile(np.abs(r), 0.3)
+        keep = _inliers(yv - design @ coef)
     return (design @ coef).reshape(h, w)
 
 

@@ -214,7 +214,7 @@ def set_floors(lookup: GradientLookup, seed: int = 0, pairs: int = FLOOR_PAIRS
     if lookup.family in FIELD_CHECK_FAMILIES:
         # the second reading's floors: the same pairs, a smooth lighting field removed
         floors, threshold, noise_ref = _floors_of(
-            [lookup.field_change_and_noise(*p) for p in blanks])
+            [lookup.change_and_noise(*p, field=True) for p in blanks])
         out = out.with_field_floors(floors, threshold, noise_ref,
                                     field_floors_on=on + ", read with a lighting field removed")
     return out
