@@ -182,6 +182,39 @@ def test_withhold_check_of_the_fallback_system(real_pipeline, monkeypatch, capsy
 
 
 @pytest.mark.slow
+def test_withhold_uncertain_check_reads_five_ways_and_decides(real_pipeline, monkeypatch,
+                                                              capsys, tmp_path):
+    """scripts/why_withhold_uncertain.py on the first 8 test pairs: each pair read five ways,
+    every row counted in a state, the natural split unchanged by the rule, the rule's answer
+    only where the state is uncertain (or the look beyond the limit), each criterion's CI
+    around its mean, and the verdict decided from them; the JSON file written."""
+    from ratouch.world.sensors import family_sensors, sensor_family
+
+    target = tmp_path / "r.json"
+    script, out = _run_on_shipped("why_withhold_uncertain", ["--n", "8", "--json", str(target)],
+                                  real_pipeline, monkeypatch, capsys)
+    assert json.loads(target.read_text()) == out
+    assert list(out["conditions"]) == [c[0] for c in script.CONDITIONS]
+    for rep in out["conditions"].values():
+        assert sum(rep["states"].values()) == 8
+        if "uncertain" not in rep["states"]:
+            assert rep["rule_vs_fallback_uncertain"]["rows"] == 0
+            assert rep["uncertain_rows"]["fallback_rule"] is None
+    assert out["criteria"]["3_natural_split_changed_rows"] == 0
+    assert out["conditions"]["B_press_own_background"]["all_rows_rule_vs_fallback"]["diff"] == 0
+    for d in out["criteria"].values():
+        if isinstance(d, dict) and d["rows"]:
+            assert d["ci95"][0] <= d["diff"] <= d["ci95"][1]
+    assert set(out["verdict"]) == {"1", "2", "3", "4"}
+    assert all(isinstance(v, bool) for v in out["verdict"].values())
+    # another unit of the same family, never the unit itself
+    for sensor in (0, 7, 8, 23):
+        other = script.other_unit(sensor)
+        assert other != sensor and sensor_family(other) == sensor_family(sensor)
+        assert other in family_sensors(sensor_family(sensor))
+
+
+@pytest.mark.slow
 def test_read_below_check_routes_as_the_gated_system_does(real_pipeline, monkeypatch, capsys):
     """scripts/why_read_below.py on 12 validation renders: every threshold of the grid, clean
     and mismatched touch; its row at the shipped `READ_BELOW` is the gated system's own answer
