@@ -13,11 +13,19 @@ five ways, its contact state decided by the shipped trust calibration as serving
 
 On each row the withholding rule's answer (the image query's neighbours, the reader with the
 neutral touch: `scripts/why_withhold.py`'s) replaces the system's where the frame is beyond
-`WITHHOLD_LIMIT` (today's rule, in both arms) and, with the new rule, where the state is
-"uncertain"; rows read "no contact" are answered by neither arm and only counted.
+`WITHHOLD_LIMIT` (today's rule, in both arms) and, with a new rule (`RULES`), where it fires:
+
+* "uncertain": the state is "uncertain" (docs/premise.md, "Touch withheld where contact is
+  uncertain");
+* "second-opinion": a background is given, the state against it is "uncertain" and the frame
+  read alone is not "contact" (the next section there).
+
+Rows read "no contact" are answered by neither arm and only counted. The criteria and verdict
+are `--rule`'s; both rules are reported under "rules". `--split probe --start S` reads fresh
+probe-split rows S ... S + N - 1 instead of the test split.
 
     python scripts/why_withhold_uncertain.py [--n N] [--k K] [--encoder E] [--seed S]
-        [--json F]
+        [--split test|probe] [--start S] [--rule uncertain|second-opinion] [--json F]
 """
 
 from __future__ import annotations
@@ -44,6 +52,8 @@ from ratouch.world.splits import encode_test_split
 CONDITIONS = (("A_press_alone", False, None), ("B_press_own_background", False, "own"),
               ("C_press_other_unit", False, "other"), ("D_blank_other_unit", True, "other"),
               ("E_blank_alone", True, None))
+#: The rules compared (see the module).
+RULES = ("uncertain", "second-opinion")
 
 
 def other_unit(sensor: int) -> int:
@@ -65,13 +75,18 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--k", type=int, default=5)
     ap.add_argument("--encoder", default="default-s")
     ap.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    ap.add_argument("--split", choices=("test", "probe"), default="test")
+    ap.add_argument("--start", type=int, default=0, help="(probe) the first row's index")
+    ap.add_argument("--rule", choices=RULES, default="uncertain",
+                    help="the rule the criteria and the verdict are of")
     ap.add_argument("--json", default=None, help="also write the report to this file")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
 
     p = RATouchPipeline.load(args.encoder)
     assert p.trust is not None, "the rule reads the trust calibration's contact state"
-    n = min(args.n, TEST_SIZE)
-    test = encode_test_split(p.encoders, indices=range(n))
+    n = min(args.n, TEST_SIZE) if args.split == "test" else args.n
+    start = 0 if args.split == "test" else args.start
+    test = encode_test_split(p.encoders, indices=range(start, start + n), split=args.split)
     presses = World(WorldConfig())
     blanks = World(WorldConfig().with_stress(no_contact=1.0))
     judge = OfflineJudge()
@@ -88,7 +103,7 @@ def main(argv: list[str] | None = None) -> dict:
     rows: dict[str, dict[str, list]] = {}
     for c, (name, blank, bg) in enumerate(CONDITIONS):
         world = blanks if blank else presses
-        samples = [world.sample("test", i) for i in test.indices]
+        samples = [world.sample(args.split, i) for i in test.indices]
         if blank:  # the same pair (crop, material; judged on its label), no contact
             assert [s.material for s in samples] == list(test.materials)
         backs = [None if bg is None else world.background_image(
@@ -106,22 +121,32 @@ def main(argv: list[str] | None = None) -> dict:
         base = answer_split(p, split, BASELINE, judge=judge, name="baseline").scores
         unsure = states == "uncertain"
         answered = states != "no contact"
+        # the second opinion: the frame read alone, where a background was given
+        alone = (states if bg is None else
+                 np.array([p.trust.contact_state(f, None)[0] if u else "-"
+                           for f, u in zip(frames, unsure)]))
+        fires = {"uncertain": unsure,
+                 "second-opinion": unsure & (bg is not None) & (alone != "contact")}
         arms = {"fallback": np.where(look, withheld, paper),
-                "fallback_rule": np.where(look | unsure, withheld, paper),
-                "gated": np.where(look, withheld, gated),
-                "gated_rule": np.where(look | unsure, withheld, gated)}
+                "gated": np.where(look, withheld, gated)}
+        for r, f in fires.items():
+            arms[f"fallback_{r}"] = np.where(look | f, withheld, paper)
+            arms[f"gated_{r}"] = np.where(look | f, withheld, gated)
+        arms["fallback_rule"] = arms[f"fallback_{args.rule}"]
+        arms["gated_rule"] = arms[f"gated_{args.rule}"]
         by_family: dict[str, Counter] = {}
         for s, st in zip(samples, states):
             by_family.setdefault(sensor_family(s.sensor), Counter())[str(st)] += 1
+        shown = {**arms, "paper": paper, "baseline": base}
         rep = {"states": dict(Counter(states.tolist())),
                "states_by_family": {f: dict(v) for f, v in by_family.items()},
                "beyond_limit": int(look.sum()),
+               "uncertain_read_alone": dict(Counter(alone[unsure].tolist())),
+               "fires": {r: int(f.sum()) for r, f in fires.items()},
                "all_answered_rows": {a: round(float(v[answered].mean()), 4) if answered.any()
-                                     else None for a, v in {**arms, "paper": paper,
-                                                            "baseline": base}.items()},
+                                     else None for a, v in shown.items()},
                "uncertain_rows": {a: round(float(v[unsure].mean()), 4) if unsure.any()
-                                  else None for a, v in {**arms, "paper": paper,
-                                                         "baseline": base}.items()},
+                                  else None for a, v in shown.items()},
                "rule_vs_fallback_uncertain": _diff(arms["fallback_rule"][unsure],
                                                    arms["fallback"][unsure], args.seed + c),
                "rule_vs_gated_uncertain": _diff(arms["gated_rule"][unsure],
@@ -130,10 +155,12 @@ def main(argv: list[str] | None = None) -> dict:
             rep["all_rows_rule_vs_fallback"] = _diff(arms["fallback_rule"], arms["fallback"],
                                                      args.seed + 20 + c)
             rep["changed_rows"] = int((arms["fallback_rule"] != arms["fallback"]).sum())
+            for r in RULES:
+                rep[f"all_rows_{r}_vs_fallback"] = _diff(arms[f"fallback_{r}"],
+                                                         arms["fallback"], args.seed + 20 + c)
+                rep[f"changed_rows_{r}"] = int((arms[f"fallback_{r}"] != arms["fallback"]).sum())
         out["conditions"][name] = rep
-        rows[name] = {"unsure": unsure, "fallback": arms["fallback"],
-                      "rule": arms["fallback_rule"], "gated": arms["gated"],
-                      "gated_rule": arms["gated_rule"]}
+        rows[name] = {"unsure": unsure, **arms}
 
     def pooled(names: tuple[str, ...], a: str, b: str, seed: int) -> dict:
         m = [rows[x]["unsure"] for x in names]
@@ -143,25 +170,33 @@ def main(argv: list[str] | None = None) -> dict:
     blanks_ = ("D_blank_other_unit", "E_blank_alone")
     presses_ = ("A_press_alone", "C_press_other_unit")
     every = presses_ + blanks_
-    out["criteria"] = {
-        "1_blanks_uncertain": pooled(blanks_, "rule", "fallback", args.seed + 31),
-        "2_presses_uncertain": pooled(presses_, "rule", "fallback", args.seed + 32),
-        "3_natural_split_changed_rows": out["conditions"]["B_press_own_background"][
-            "changed_rows"],
-        "3_alone_all_rows": out["conditions"]["A_press_alone"]["all_rows_rule_vs_fallback"],
-        "4_every_uncertain_row": pooled(every, "rule", "fallback", args.seed + 34)}
-    out["gated"] = {"blanks_uncertain": pooled(blanks_, "gated_rule", "gated", args.seed + 41),
-                    "presses_uncertain": pooled(presses_, "gated_rule", "gated",
-                                                args.seed + 42),
-                    "every_uncertain_row": pooled(every, "gated_rule", "gated", args.seed + 44)}
-    cr = out["criteria"]
-    c1, c2, c4 = cr["1_blanks_uncertain"], cr["2_presses_uncertain"], cr["4_every_uncertain_row"]
-    out["verdict"] = {
-        "1": bool(c1["rows"] >= 20 and c1["diff"] >= 0.30 and c1["ci95"][0] > 0),
-        "2": bool(c2["rows"] == 0 or c2["diff"] >= -0.15),
-        "3": bool(cr["3_natural_split_changed_rows"] == 0
-                  and cr["3_alone_all_rows"]["diff"] >= -0.01),
-        "4": bool(c4["rows"] > 0 and c4["diff"] > 0 and c4["ci95"][0] > 0)}
+
+    def judged(rule: str) -> dict:
+        """The criteria, their verdict and `gated`'s figures of one rule."""
+        a = f"fallback_{rule}"
+        cond_a, cond_b = out["conditions"]["A_press_alone"], out["conditions"][
+            "B_press_own_background"]
+        cr = {"1_blanks_uncertain": pooled(blanks_, a, "fallback", args.seed + 31),
+              "2_presses_uncertain": pooled(presses_, a, "fallback", args.seed + 32),
+              "3_natural_split_changed_rows": cond_b[f"changed_rows_{rule}"],
+              "3_alone_all_rows": cond_a[f"all_rows_{rule}_vs_fallback"],
+              "4_every_uncertain_row": pooled(every, a, "fallback", args.seed + 34)}
+        c1, c2, c4 = (cr["1_blanks_uncertain"], cr["2_presses_uncertain"],
+                      cr["4_every_uncertain_row"])
+        verdict = {
+            "1": bool(c1["rows"] >= 20 and c1["diff"] >= 0.30 and c1["ci95"][0] > 0),
+            "2": bool(c2["rows"] == 0 or c2["diff"] >= -0.15),
+            "3": bool(cr["3_natural_split_changed_rows"] == 0
+                      and cr["3_alone_all_rows"]["diff"] >= -0.01),
+            "4": bool(c4["rows"] > 0 and c4["diff"] > 0 and c4["ci95"][0] > 0)}
+        g = f"gated_{rule}"
+        gated = {"blanks_uncertain": pooled(blanks_, g, "gated", args.seed + 41),
+                 "presses_uncertain": pooled(presses_, g, "gated", args.seed + 42),
+                 "every_uncertain_row": pooled(every, g, "gated", args.seed + 44)}
+        return {"criteria": cr, "verdict": verdict, "gated": gated}
+
+    out["rules"] = {r: judged(r) for r in RULES}
+    out.update(out["rules"][args.rule])
     text = json.dumps(out, indent=1)
     if args.json:
         write_atomic(args.json, text + "\n")
