@@ -465,10 +465,12 @@ def trust_lines(result: dict) -> list[str]:
                 ", read blind to colour" if t.get("contact_model") == "colour-blind" else "")
             score = "n/a" if t["contact"] is None else f"{t['contact']:.2f}"
             noise = t.get("within_noise")
+            alone = t.get("alone")  # the second opinion of a frame uncertain vs background
+            second = "" if not alone else f"; read alone: {escape(alone['state'])}"
             cells.append(f"change vs background {noise['change']:.3f} (within noise < "
                          f"{noise['floor']:.3f}) {mark}" if noise else
                          f"contact {score} (flag < {t['contact_threshold']:.2f}"
-                         f"{against}) {mark}")
+                         f"{against}) {mark}{second}")
             sensor = t.get("sensor")
             if sensor:  # an unfamiliar one is said whether or not a background is given
                 cells.append(("⚠ unfamiliar sensor, " if t.get("unfamiliar_sensor") else "")

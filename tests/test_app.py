@@ -1171,6 +1171,12 @@ def test_trust_is_shown_above_the_descriptions():
     line = view.trust_lines({**result, "trust": {**result["trust"], "tactile": blind}})[0]
     assert "(flag < 2.30, read blind to colour) ✖ no contact" in line
     assert "blind to colour" not in view.trust_lines(result)[0]
+    # uncertain against the background: the frame's second opinion, read alone, is shown
+    doubted = {**result["trust"]["tactile"], "state": "uncertain", "background": True,
+               "alone": {"state": "no contact", "contact": -2.8}}
+    line = view.trust_lines({**result, "trust": {**result["trust"], "tactile": doubted}})[0]
+    assert "? contact uncertain; read alone: no contact" in line
+    assert "read alone" not in view.trust_lines(result)[0]
 
 
 def test_the_touch_only_reading_is_marked_on_its_query():

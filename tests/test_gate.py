@@ -242,6 +242,98 @@ def test_the_fallback_system_is_the_papers_unless_the_sensor_is_unlike_every_uni
     assert off["retrieval"]["reads"] == "joint" and off["description"] == paper["description"]
 
 
+def _other_unit(sensor: int) -> int:
+    """The next unit of `sensor`'s family (scripts/why_withhold_uncertain.py's choice)."""
+    from ratouch.world.sensors import family_sensors, sensor_family
+
+    units = list(family_sensors(sensor_family(sensor)))
+    return units[(units.index(int(sensor)) + 1) % len(units)]
+
+
+@pytest.mark.slow
+def test_touch_in_doubt_is_withheld_by_the_withholding_systems_only(real_pipeline):
+    """docs/premise.md, "Touch withheld where contact against the background is uncertain and
+    the frame alone shows none": a blank render (test pair 2 without contact) against another
+    unit's background reads "uncertain", and alone "no contact": `fallback` and `gated` answer
+    from the image query's neighbours with a neutral touch and say why (quoting
+    `DOUBT_EFFECT`), `regenerate` agrees, `paper` reads its touch; a press against another
+    unit's background that reads "uncertain" but "contact" alone (test pair 4) keeps its touch
+    in `fallback`, which answers it exactly as `paper`."""
+    from ratouch.model.gate import DOUBT_EFFECT
+    from ratouch.world.config import WorldConfig
+    from ratouch.world.sampler import World
+
+    blanks, presses = World(WorldConfig().with_stress(no_contact=1.0)), World(WorldConfig())
+    s = blanks.sample("test", 2)
+    bg = blanks.background_image(_other_unit(s.sensor))
+
+    def ask(sample, back, system):
+        return QueryRequest.decode(sample.visual, sample.tactile, sample.box, 5, background=back,
+                                   retrieval=system)
+
+    got = {system: real_pipeline.answer([ask(s, bg, system)])[0].to_dict()
+           for system in ("fallback", "gated", "paper")}
+    t = got["paper"]["trust"]["tactile"]
+    assert t["state"] == "uncertain" and t["alone"]["state"] == "no contact"
+    for system in ("fallback", "gated"):
+        r = got[system]["retrieval"]
+        assert (r["kind"], r["touch_weight"], r["reads"]) == ("withheld", 0.0, "image")
+        assert "the frame read alone shows no contact" in r["why"][0]
+        assert f"{DOUBT_EFFECT[system]['blanks']:+.2f} where the frame was a blank" in r["why"][0]
+        assert [n["id"] for n in got[system]["neighbours"]["gated"]] == \
+            [n["id"] for n in got[system]["neighbours"]["image"]]
+    assert got["fallback"]["description"]["ra_touch"] == got["gated"]["description"]["ra_touch"]
+    again = real_pipeline.regenerate(ask(s, bg, "fallback"),
+                                     [n["id"] for n in got["fallback"]["neighbours"]["image"]])
+    assert again["description"]["ra_touch"] == got["fallback"]["description"]["ra_touch"]
+    assert got["paper"]["retrieval"]["reads"] == "joint"
+    assert got["paper"]["retrieval"]["kind"] != "withheld"
+
+    p = presses.sample("test", 4)
+    pbg = presses.background_image(_other_unit(p.sensor))
+    kept = {system: real_pipeline.answer([ask(p, pbg, system)])[0].to_dict()
+            for system in ("fallback", "paper")}
+    t = kept["fallback"]["trust"]["tactile"]
+    assert t["state"] == "uncertain" and t["alone"]["state"] == "contact"
+    assert kept["fallback"]["retrieval"]["reads"] == "joint"
+    assert kept["fallback"]["description"] == kept["paper"]["description"]
+    assert kept["fallback"]["neighbours"] == kept["paper"]["neighbours"]
+    # without a background nothing is doubted: the frame alone is the only reading
+    alone = real_pipeline.answer([ask(s, None, "fallback")])[0].to_dict()
+    assert "alone" not in alone["trust"]["tactile"]
+
+
+def test_doubts_touch_reads_the_second_opinion():
+    """`doubts_touch`: only a block uncertain against its background whose frame alone is not
+    "contact"."""
+    from ratouch.model.trust import doubts_touch
+
+    assert not doubts_touch(None) and not doubts_touch({"state": "uncertain"})
+    for alone, doubted in (("no contact", True), ("uncertain", True), ("contact", False)):
+        assert doubts_touch({"state": "uncertain", "alone": {"state": alone, "contact": 0.1}}) \
+            is doubted
+    assert not doubts_touch({"state": "contact", "alone": {"state": "no contact"}})
+
+
+def test_the_doubt_effect_quoted_is_the_measured_one():
+    """"What retrieval did" quotes `DOUBT_EFFECT` where touch in doubt is withheld: per
+    withholding system, the rule's effect on blanks and presses read uncertain, as
+    scripts/why_withhold_uncertain.py measured it last on fresh probe rows."""
+    import json
+
+    from ratouch.model.gate import DOUBT_EFFECT
+    from ratouch.paths import REPO
+
+    assert set(DOUBT_EFFECT) == WITHHOLDING_SYSTEMS
+    d = json.loads((REPO / "docs" / "premise-result-withhold-second-opinion.json").read_text())
+    assert d["config"]["rule"] == "second-opinion" and d["config"]["split"] == "probe"
+    rule = d["rules"]["second-opinion"]
+    for key, block in (("blanks", "1_blanks_uncertain"), ("presses", "2_presses_uncertain")):
+        assert DOUBT_EFFECT["fallback"][key] == round(rule["criteria"][block]["diff"], 2)
+    for key, block in (("blanks", "blanks_uncertain"), ("presses", "presses_uncertain")):
+        assert DOUBT_EFFECT["gated"][key] == round(rule["gated"][block]["diff"], 2)
+
+
 @pytest.mark.slow
 def test_a_look_checks_false_alarm_keeps_its_touch(real_pipeline, world):
     """A world DIGIT frame beyond the look check's caution limit (test pair 13, one of its six

@@ -74,6 +74,15 @@ READ_BELOW = 0.25
 #: touch is withheld; a test holds each to its file, so a re-measured cost that moves it
 #: cannot go unsaid.
 WITHHOLD_COST = {"gated": 0.22, "fallback": 0.15}
+#: Where touch is withheld because its contact against the background is uncertain and the
+#: frame alone shows none (`ratouch.model.trust.doubts_touch`): the rule's measured effect per
+#: withholding system, in judge points, on fresh probe renders whose contact read uncertain
+#: (`python scripts/why_withhold_uncertain.py --split probe --start 2500000 --rule
+#: second-opinion`, docs/premise-result-withhold-second-opinion.json): on blanks read against
+#: another unit's background, and on presses (where it fires on few). Quoted by "What
+#: retrieval did"; a test holds each to its file.
+DOUBT_EFFECT = {"fallback": {"blanks": 1.57, "presses": -0.07},
+                "gated": {"blanks": 0.74, "presses": -0.08}}
 
 
 def mix(V: np.ndarray, J: np.ndarray, w: np.ndarray) -> np.ndarray:

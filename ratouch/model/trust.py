@@ -586,6 +586,17 @@ class TrustCalibration:
         # on one family's blanks says nothing of a sensor that looks like none of them
         return ("uncertain" if self.alone_band_reading(frame, score, look) else "no contact"), score
 
+    def second_opinion(self, frame: np.ndarray, background: np.ndarray | None, state: str
+                       ) -> dict | None:
+        """Where the contact against a background is "uncertain" (`state`): the frame read
+        alone, {"state", "contact"} (`contact_state(frame, None)`; "contact" None when not a
+        number); else None. Where it shows no contact alone either, the touch may be a
+        blank's read against the wrong background (`doubts_touch`)."""
+        if background is None or state != "uncertain":
+            return None
+        st, score = self.contact_state(frame, None)
+        return {"state": st, "contact": round(score, 4) if np.isfinite(score) else None}
+
     def alone_band_reading(self, frame: np.ndarray, score: float,
                            look: tuple[str, float] | None = None) -> dict | None:
         """Without a background, for a frame whose contact logit `score` is below the
@@ -637,7 +648,9 @@ class TrustCalibration:
             "geometry" and "firmness" (read from shape; None for no contact), and
             "within_noise" ({"change", "floor"}) where the frame was called no contact for
             being its background within the sensor's noise, though the contact model would
-            have said contact} or None,
+            have said contact, and "alone" ({"state", "contact"}: the frame read without the
+            background, `second_opinion`) where the contact against the background is
+            "uncertain"} or None,
             "warnings": [...],
             "height_map": the frame's `HeightMap` against the background (an object, not
             JSON: its numbers are "geometry"), or None}
@@ -683,6 +696,9 @@ class TrustCalibration:
                             "colour-blind" if blind else "disc-press")})
             if marks is not None:
                 tac["markers"] = marks
+            alone = self.second_opinion(frame, background, state)
+            if alone is not None:
+                tac["alone"] = alone
             if background is not None and self.geometry is not None:
                 tac["structure"] = None if read is None else read["structure"]
                 tac["geometry"] = None if read is None else read["height"].to_dict()
@@ -803,6 +819,17 @@ class TrustCalibration:
                     "and descriptions as guesses")
         out["warnings"] = warnings
         return out
+
+
+def doubts_touch(tactile: dict | None) -> bool:
+    """Whether a trust block's tactile part (`TrustCalibration.assess`) doubts the touch
+    itself: its contact against the background is "uncertain" and the frame read alone
+    (`second_opinion`, "alone") is not "contact": as likely a blank read against another
+    unit's background as a press (docs/premise.md, "Touch withheld where contact against the
+    background is uncertain and the frame alone shows none")."""
+    if not tactile or not tactile.get("alone"):
+        return False
+    return tactile.get("state") == "uncertain" and tactile["alone"]["state"] != "contact"
 
 
 def _novelty_block(model: Novelty, X: np.ndarray) -> dict:

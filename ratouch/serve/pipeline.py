@@ -25,7 +25,7 @@ import torch
 
 from ratouch.errors import ConfigError, DataNotFoundError
 from ratouch.model.fastpath import StackCache
-from ratouch.model.gate import READ_BELOW, WITHHOLD_COST, TouchGate
+from ratouch.model.gate import DOUBT_EFFECT, READ_BELOW, WITHHOLD_COST, TouchGate
 from ratouch.model.generator import RATouchGenerator, describe_together, load_generator
 from ratouch.model.geometry import GeometryCalibration
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
@@ -34,7 +34,7 @@ from ratouch.model.neighbour_text import NeighbourText, NeighbourTextConfig
 from ratouch.model.neighbour_tokens import KIND as NEIGHBOUR_TOKENS
 from ratouch.model.neighbour_tokens import NeighbourTokens, NeighbourTokensConfig
 from ratouch.model.press_map import PressMap
-from ratouch.model.trust import TrustCalibration
+from ratouch.model.trust import TrustCalibration, doubts_touch
 from ratouch.paths import generator_weights, geometry_calibration, trust_calibration
 from ratouch.search.modes import (
     IMAGE_MODE,
@@ -171,6 +171,10 @@ class Encoded:
         warnings: what encoding adds to the request's warnings (the photo route's note).
         look: the sensor family the frame looks like and how far from its units
             (`guess_family`), or None (no frame, or a request the rule cannot answer).
+        doubt: where a withholding system doubts the touch itself (`doubts_touch`: its
+            contact against the background uncertain, the frame alone showing none), the
+            trust block's alone reading ({"state", "contact"}); else None. Set by `respond`
+            once the trust block is read.
     """
 
     V: np.ndarray
@@ -180,6 +184,7 @@ class Encoded:
     photo: PhotoQuery | None = None
     warnings: list[str] = field(default_factory=list)
     look: tuple[str, float] | None = None
+    doubt: dict | None = None
 
     @property
     def unfamiliar(self) -> bool:
@@ -380,6 +385,8 @@ class RATouchPipeline(RetrievalSide):
                 clock: Laps) -> list[QueryResult]:
         """The rest, once `encode` has run: assess, search, generate, project."""
         trust = [self._assess(r, e) for r, e in zip(requests, encoded)]
+        for r, e, t in zip(requests, encoded, trust):
+            self._doubt(r, e, None if t is None else t["tactile"])
         clock.lap("trust")
         found = self._search(requests, encoded)
         clock.lap("search")
@@ -419,11 +426,25 @@ class RATouchPipeline(RetrievalSide):
 
     def withholds(self, request: QueryRequest, encoded: Encoded) -> bool:
         """Whether `request`'s touch is withheld from its answer (docs/premise.md, "An
-        unfamiliar sensor's touch withheld"): a withholding system (`WITHHOLDING_SYSTEMS`:
-        `gated` or `fallback`), a frame beyond every validation render of the sensor families
-        (`Encoded.unfamiliar`), `withhold_unfamiliar` on, and a neutral touch to read instead
-        (a trust calibration)."""
-        return self._may_withhold(request) and encoded.unfamiliar
+        unfamiliar sensor's touch withheld" and "Touch withheld where contact against the
+        background is uncertain and the frame alone shows none"): a withholding system
+        (`WITHHOLDING_SYSTEMS`: `gated` or `fallback`), `withhold_unfamiliar` on, a neutral
+        touch to read instead (a trust calibration), and a frame beyond every validation
+        render of the sensor families (`Encoded.unfamiliar`) or touch in doubt
+        (`Encoded.doubt`, set once the trust block is read)."""
+        return self._may_withhold(request) and (encoded.unfamiliar or encoded.doubt is not None)
+
+    def _doubt(self, request: QueryRequest, encoded: Encoded, tactile: dict | None) -> None:
+        """Set `encoded.doubt` from the request's trust block (its tactile part) where a
+        withholding system may withhold and the block doubts the touch (`doubts_touch`); the
+        gated query then gives touch no say, as for an unfamiliar look."""
+        if not (encoded.T is not None and self._may_withhold(request) and doubts_touch(tactile)):
+            return
+        assert tactile is not None  # doubts_touch read it
+        encoded.doubt = dict(tactile["alone"])
+        gated = RETRIEVAL_SYSTEMS["gated"]
+        if gated in encoded.queries:
+            encoded.queries[gated] = encoded.queries[IMAGE_MODE]
 
     def _may_withhold(self, request: QueryRequest) -> bool:
         """Whether `withholds` may hold for `request` once its frame's look is read (the
@@ -508,6 +529,23 @@ class RATouchPipeline(RetrievalSide):
                 ["its neighbours' captions are written into the prompt, word by word (no "
                  "Texture-Aware Integrator)"] if out["generator"] == "text" else
                 [f"{self.text_missing}: the paper's generator answers"])
+        elif held and not encoded.unfamiliar:
+            assert encoded.doubt is not None  # withheld, not for its look: for doubt
+            effect = DOUBT_EFFECT[system]
+            out.update(kind="withheld", touch_weight=0.0,
+                       why=[f"contact against the background is uncertain, and the frame read "
+                            f"alone shows {encoded.doubt['state']} (contact "
+                            f"{encoded.doubt['contact']}): the touch may be a blank's read "
+                            "against another unit's background, so it is withheld and the "
+                            "answer reads the image query's neighbours (measured on renders "
+                            f"read so: {effect['blanks']:+.2f} where the frame was a blank, "
+                            f"{effect['presses']:+.2f} where it was a press)",
+                            f"the {out['generator']}'s generator answers with a neutral touch"
+                            + (", as in its reading episodes" if out["generator"] == "reader"
+                               else ""),
+                            "to have this touch read anyway, choose the `paper` system (the "
+                            "retrieval menu, `--retrieval paper`), or give this unit's "
+                            "background taken now"])
         elif held:
             assert encoded.look is not None  # withheld: the frame was read
             out.update(kind="withheld", touch_weight=0.0,
@@ -692,6 +730,11 @@ class RATouchPipeline(RetrievalSide):
         J = self.joint_query(V, T)
         e = Encoded(V, T, {RA_TOUCH_MODE: J},
                     look=guess_family(request.frame) if self._may_withhold(request) else None)
+        if self._may_withhold(request) and bg is not None and not e.unfamiliar:
+            assert self.trust is not None  # _may_withhold checked it
+            state = self.trust.contact_state(request.frame, bg, look=e.look)[0]
+            alone = self.trust.second_opinion(request.frame, bg, state)
+            self._doubt(request, e, None if alone is None else {"state": state, "alone": alone})
         reads = self.reads(request, e)
         q = (J if reads == RA_TOUCH_MODE else V if reads == IMAGE_MODE
              else self._gated(V, T, J)[0])[0]
