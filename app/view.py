@@ -372,7 +372,8 @@ def geometry_html(result: dict | None, picture: np.ndarray | None, background: b
             f"one small and deep'>spread <b>{geo['spread']:.0%}</b></span> · <span "
             f"title='RMS of the height map&#39;s fine detail: texture'>relief "
             f"<b>{_length(geo['relief'], unit, digits + 1)}</b></span>"
-            f"{firmness_line(tactile.get('firmness'))}</div>"
+            f"{firmness_line(tactile.get('firmness'), tactile.get('state') == 'uncertain')}"
+            f"</div>"
             f"{structure_line(structure, moved)}</div></div>")
 
 
@@ -384,10 +385,12 @@ def _length(value: float, unit: str, digits: int) -> str:
     return f"{value:.{digits}f} {unit}"
 
 
-def firmness_line(firmness: dict | None) -> str:
+def firmness_line(firmness: dict | None, uncertain: bool = False) -> str:
     """The firmness read from the press's shape (the trust block's `firmness`), on the
     numbers' line (the strip keeps its height, so Run stays on the first screen): soft or
-    hard, and how sure; nothing for a blank or a family without a model."""
+    hard, and how sure; nothing for a blank or a family without a model. Where contact is
+    `uncertain`, the shape may be the wrong background's or a lighting change's, not a
+    press's: marked a guess."""
     if not firmness:
         return ""
     p = float(firmness["soft"])
@@ -401,10 +404,14 @@ def firmness_line(firmness: dict | None) -> str:
           f"world&#39;s own, mixed by how much the press looks like each (read here as "
           f"{'a firm press' if regime == 'world' else 'an everyday press'})"
           if regime else f"by a model fitted on {everyday}")
+    guess, guess_why = ((" <i class='ra-warn'>(a guess)</i>",
+                         "; contact is uncertain: the shape may be a wrong background&#39;s or a "
+                         "lighting change&#39;s, not a press&#39;s, so this is a guess")
+                        if uncertain else ("", ""))
     return (f" · <span id='geometry-firmness' title='firmness read from the height map&#39;s "
             f"profile and the change&#39;s texture {by}, {said} sure; a reading beside the "
-            f"description, not its input'>shape <b>{escape(firmness['reads'])}</b> "
-            f"{said}</span>")
+            f"description, not its input{guess_why}'>shape <b>{escape(firmness['reads'])}</b> "
+            f"{said}{guess}</span>")
 
 
 def structure_line(structure: dict | None, moved: bool = False) -> str:

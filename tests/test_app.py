@@ -1081,6 +1081,12 @@ def test_the_height_map_is_formatted_with_its_scale_and_numbers():
                               picture, True)
     assert "shape <b>soft</b> &gt;99%" in sure
     assert "by a model fitted on renders of everyday presses" in sure  # one regime
+    assert "(a guess)" not in sure and "(a guess)" not in hard
+    # contact uncertain: the shape may be a wrong background's, so its firmness is a guess
+    unsure = view.geometry_html(_geometry_result(firmness={"soft": 0.94, "reads": "soft"},
+                                                 state="uncertain"), picture, True)
+    assert "shape <b>soft</b> 94% <i class='ra-warn'>(a guess)</i>" in unsure
+    assert "contact is uncertain: the shape may be a wrong background" in unsure
     for regime, said in (("world", "read here as a firm press"),
                          ("everyday", "read here as an everyday press")):
         routed = view.geometry_html(_geometry_result(firmness={

@@ -534,8 +534,10 @@ class RATouchPipeline(RetrievalSide):
             effect = DOUBT_EFFECT[system]
             out.update(kind="withheld", touch_weight=0.0,
                        why=[f"contact against the background is uncertain, and the frame read "
-                            f"alone shows {encoded.doubt['state']} (contact "
-                            f"{encoded.doubt['contact']}): the touch may be a blank's read "
+                            f"alone shows {encoded.doubt['state']}"
+                            + ("" if encoded.doubt["contact"] is None else
+                               f" (contact {encoded.doubt['contact']:.2f})")
+                            + ": the touch may be a blank's read "
                             "against another unit's background, so it is withheld and the "
                             "answer reads the image query's neighbours (measured on renders "
                             f"read so: {effect['blanks']:+.2f} where the frame was a blank, "
