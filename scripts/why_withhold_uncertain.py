@@ -25,7 +25,8 @@ are `--rule`'s; both rules are reported under "rules". `--split probe --start S`
 probe-split rows S ... S + N - 1 instead of the test split.
 
     python scripts/why_withhold_uncertain.py [--n N] [--k K] [--encoder E] [--seed S]
-        [--split test|probe] [--start S] [--rule uncertain|second-opinion] [--json F]
+        [--split test|probe] [--start S] [--rule uncertain|second-opinion] [--serving N]
+        [--json F]
 """
 
 from __future__ import annotations
@@ -79,6 +80,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--start", type=int, default=0, help="(probe) the first row's index")
     ap.add_argument("--rule", choices=RULES, default="uncertain",
                     help="the rule the criteria and the verdict are of")
+    ap.add_argument("--serving", type=int, default=0,
+                    help="also check the serving path on the first N test pairs (`serving`)")
     ap.add_argument("--json", default=None, help="also write the report to this file")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
 
@@ -197,10 +200,52 @@ def main(argv: list[str] | None = None) -> dict:
 
     out["rules"] = {r: judged(r) for r in RULES}
     out.update(out["rules"][args.rule])
+    if args.serving:
+        out["serving"] = serving(p, args.serving, args.k)
     text = json.dumps(out, indent=1)
     if args.json:
         write_atomic(args.json, text + "\n")
     print(text)
+    return out
+
+
+def serving(p: RATouchPipeline, n: int, k: int) -> dict:
+    """The shipped rule ("second-opinion") through the serving path (`answer_one`,
+    `fallback`) on the world's first `n` test pairs: each press and blank against another
+    unit's background (C, D), whether the serving path withheld touch where the rule fires
+    and nowhere else; and each press alone and against its own background (A, B), the pairs
+    whose answers differ from `paper`'s."""
+    from ratouch.serve.request import QueryRequest, answer_one
+
+    def ask(s, bg, system):
+        return answer_one(p, QueryRequest.decode(s.visual, s.tactile, box=s.box, k=k,
+                                                 background=bg, retrieval=system))
+
+    assert p.trust is not None
+    presses, blanks = World(WorldConfig()), World(WorldConfig().with_stress(no_contact=1.0))
+    out = {"answered": 0, "fires": 0, "withheld": 0, "disagree": [], "queries_a_b": 0,
+           "differ_from_paper_a_b": []}
+    for i in range(min(n, TEST_SIZE)):
+        for w, kind in ((presses, "C"), (blanks, "D")):
+            s = w.sample("test", i)
+            bg = w.background_image(other_unit(s.sensor))
+            state = p.trust.contact_state(s.tactile, bg)[0]
+            if state == "no contact":
+                continue
+            alone = p.trust.second_opinion(s.tactile, bg, state)
+            fires = alone is not None and alone["state"] != "contact"
+            held = (ask(s, bg, "fallback").retrieval or {}).get("kind") == "withheld"
+            out["answered"] += 1
+            out["fires"] += int(fires)
+            out["withheld"] += int(held)
+            if fires != held:
+                out["disagree"].append([kind, i])
+        s = presses.sample("test", i)
+        for bg in (None, presses.background_image(s.sensor)):
+            a, b = ask(s, bg, "paper"), ask(s, bg, "fallback")
+            out["queries_a_b"] += 1
+            if a.description != b.description or a.neighbours != b.neighbours:
+                out["differ_from_paper_a_b"].append([i, bg is not None])
     return out
 
 

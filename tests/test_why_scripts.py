@@ -191,8 +191,14 @@ def test_withhold_uncertain_check_reads_five_ways_and_decides(real_pipeline, mon
     from ratouch.world.sensors import family_sensors, sensor_family
 
     target = tmp_path / "r.json"
-    script, out = _run_on_shipped("why_withhold_uncertain", ["--n", "8", "--json", str(target)],
+    script, out = _run_on_shipped("why_withhold_uncertain", ["--n", "8", "--serving", "3",
+                                                             "--json", str(target)],
                                   real_pipeline, monkeypatch, capsys)
+    # the serving path withholds where the shipped rule fires and nowhere else, and answers
+    # as `paper` alone and with the pair's own background (test pair 2's blank: it fires)
+    sv = out["serving"]
+    assert sv["disagree"] == [] and sv["fires"] == sv["withheld"] >= 1
+    assert sv["queries_a_b"] == 6 and sv["differ_from_paper_a_b"] == []
     assert json.loads(target.read_text()) == out
     assert list(out["conditions"]) == [c[0] for c in script.CONDITIONS]
     for rep in out["conditions"].values():
