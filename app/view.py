@@ -346,8 +346,10 @@ def geometry_html(result: dict | None, picture: np.ndarray | None, background: b
         return (f"<div class='ra-geometry-note'>{title}: none, the model has no trust "
                 "calibration, so the press is not read against its background.</div>")
     geo, structure = tactile.get("geometry"), tactile.get("structure")
-    # the background's marker dots not where the frame's are: another unit's background
-    moved = bool((tactile.get("markers") or {}).get("moved"))
+    # the background's marker dots not where the frame's are, or the frame's own grid not in
+    # a background without one: another unit's background
+    marks = tactile.get("markers") or {}
+    moved = "lattice" if marks.get("lattice") else bool(marks.get("moved"))
     sensor = (tactile.get("sensor") or {}).get("family", "?")
     if geo is None or picture is None:
         why = ("no geometry calibration is loaded" if "geometry" not in tactile else
@@ -414,18 +416,21 @@ def firmness_line(firmness: dict | None, uncertain: bool = False) -> str:
             f"{said}{guess}</span>")
 
 
-def structure_line(structure: dict | None, moved: bool = False) -> str:
+def structure_line(structure: dict | None, moved: bool | str = False) -> str:
     """The structured-contact reading against the background: its score against the
     threshold of the floors that read it (the family's, or those set for a sensor unlike
     every rendered unit), and what it decides (`moved`: the background's marker dots are not
-    where the frame's are, so a change over the floors is not read as contact; nor is one that
-    the block's `lighting_field` says a smooth lighting field alone explains)."""
+    where the frame's are, or "lattice": the frame shows a marker grid the background lacks,
+    so a change over the floors is not read as contact; nor is one that the block's
+    `lighting_field` says a smooth lighting field alone explains)."""
     if not structure:
         return ""
     score = structure.get("score")
     shown = "n/a" if score is None else f"{score:.2f}"
     field = structure.get("lighting_field") or {}
-    mark = ("? the background&#39;s marker dots are not this frame&#39;s: contact uncertain"
+    mark = ("? the frame&#39;s marker grid is not in the background: contact uncertain"
+            if moved == "lattice" else
+            "? the background&#39;s marker dots are not this frame&#39;s: contact uncertain"
             if moved else
             f"? a smooth lighting field alone explains it ({field.get('score')} with the field "
             "removed): contact uncertain" if structure.get("contact") and field.get("explains")

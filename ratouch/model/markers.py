@@ -8,16 +8,19 @@ they stay where the unit's background has them.
 
 `background_markers` finds the background's dots (dark peaks of a difference of Gaussians on
 the grey frame, its shorter side at :data:`MARKER_SIDE` px) and the share of them that the frame
-shows within :data:`MATCH_RADIUS` px. A background with fewer than :data:`MIN_DOTS` dots is not
-read (no markers: Taxim's real gels, the DIGIT). A frame with markers read against a background
-without any is not caught: its dots cannot be told from a texture's. The three numbers come from
-renders only (a development look, docs/geometry.md).
+shows within :data:`MATCH_RADIUS` px. A background with fewer than :data:`MIN_DOTS` dots has no
+grid (Taxim's real gels, the DIGIT); against it, a frame that shows a marker grid of its own
+(`marker_lattice`: many dots, evenly spaced at a marker pitch, covering the gel) cannot be of
+the same unit, since markers are printed on the gel. The numbers come from renders only
+(development looks, docs/geometry.md: "Another unit's background told by its marker dots" and
+"A frame's marker grid that its background lacks").
 """
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.ndimage import gaussian_filter, maximum_filter
+from scipy.spatial import cKDTree
 
 from ratouch.images import check_background_size, resize_array
 
@@ -32,6 +35,14 @@ MATCH_RADIUS = 2.0
 MIN_FOUND = 0.5
 #: A dot is a peak of the darkness map this many robust deviations above its median.
 PEAK_DEVIATIONS = 6.0
+#: A frame's dots are a marker grid (`marker_lattice`) with at least this many dots, ...
+LATTICE_DOTS = 40
+#: ... a median nearest-neighbour distance (the pitch, working px) of at least this, ...
+LATTICE_PITCH = 8.0
+#: ... a spread of those distances (coefficient of variation) of at most this, ...
+LATTICE_CV = 0.10
+#: ... and covering at least this share of the frame (the smaller of the x and y extents).
+LATTICE_COVER = 0.6
 
 
 def _grey(frame: np.ndarray) -> np.ndarray:
@@ -42,6 +53,34 @@ def _grey(frame: np.ndarray) -> np.ndarray:
     if abs(scale - 1) > 1e-6:
         grey = resize_array(grey, (max(8, round(w * scale)), max(8, round(h * scale))))
     return np.asarray(grey, np.float64)
+
+
+def marker_lattice(frame: np.ndarray, dots: np.ndarray | None = None) -> dict | None:
+    """The frame's own marker grid: {"dots", "pitch" (working px), "cv", "cover"} where its
+    dark dots (`marker_dots`, or `dots` where the caller has them) are at least
+    :data:`LATTICE_DOTS`, at a pitch of at least :data:`LATTICE_PITCH`, evenly spaced (CV of
+    the nearest-neighbour distances at most :data:`LATTICE_CV`) and cover at least
+    :data:`LATTICE_COVER` of the frame; else None (a texture's dots, or none)."""
+    d = marker_dots(frame) if dots is None else dots
+    if len(d) < LATTICE_DOTS:
+        return None
+    nn = cKDTree(d).query(d, 2)[0][:, 1]
+    pitch, cv = float(np.median(nn)), float(nn.std() / max(nn.mean(), 1e-9))
+    h, w = _grey_shape(frame)
+    cover = min(float(np.ptp(d[:, 0])) / w, float(np.ptp(d[:, 1])) / h)
+    if pitch < LATTICE_PITCH or cv > LATTICE_CV or cover < LATTICE_COVER:
+        return None
+    return {"dots": int(len(d)), "pitch": round(pitch, 2), "cv": round(cv, 3),
+            "cover": round(cover, 3)}
+
+
+def _grey_shape(frame: np.ndarray) -> tuple[int, int]:
+    """(h, w) of the frame at the working size (`_grey`'s)."""
+    h, w = frame.shape[:2]
+    scale = MARKER_SIDE / min(h, w)
+    if abs(scale - 1) <= 1e-6:
+        return h, w
+    return max(8, round(h * scale)), max(8, round(w * scale))
 
 
 def marker_dots(frame: np.ndarray) -> np.ndarray:
@@ -61,8 +100,10 @@ def marker_dots(frame: np.ndarray) -> np.ndarray:
 def background_markers(frame: np.ndarray, background: np.ndarray) -> dict | None:
     """The background's marker dots read in the frame: {"dots": how many the background
     shows, "found": how many of them the frame shows within :data:`MATCH_RADIUS`, "share",
-    "moved": whether fewer than :data:`MIN_FOUND` of them are found}; None when the background
-    shows fewer than :data:`MIN_DOTS` (nothing to read).
+    "moved": whether fewer than :data:`MIN_FOUND` of them are found}. Where the background
+    shows fewer than :data:`MIN_DOTS` (no grid): where the frame shows a grid of its own
+    (`marker_lattice`), {"dots", "found": 0, "share": None, "moved": True, "lattice": the
+    frame's grid} (the background is another unit's), else None (nothing to read).
 
     Raises:
         DataError: the sizes differ.
@@ -70,7 +111,11 @@ def background_markers(frame: np.ndarray, background: np.ndarray) -> dict | None
     check_background_size(background.shape[1::-1], frame.shape[1::-1], "the background")
     ref = marker_dots(background)
     if len(ref) < MIN_DOTS:
-        return None
+        grid = marker_lattice(frame)
+        if grid is None:
+            return None
+        return {"dots": int(len(ref)), "found": 0, "share": None, "moved": True,
+                "lattice": grid}
     seen = marker_dots(frame)
     found = 0
     if len(seen):

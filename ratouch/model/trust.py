@@ -510,7 +510,8 @@ class TrustCalibration:
                       markers: dict | None | str = "read") -> tuple[str, float]:
         """What the frame shows, one of :data:`CONTACT_STATES`, and its contact logit.
 
-        With a background whose marker dots the frame mostly does not show
+        With a background whose marker dots the frame mostly does not show, or without any
+        against a frame that shows a marker grid of its own
         (`model.markers.background_markers`: another unit's no-contact frame, or the gel
         moved): "uncertain", whatever else it shows. Otherwise, with a background: a frame whose structured local change (edges and texture, the
         sensor's global drift removed) stands above its family's floors is "contact"
@@ -742,6 +743,14 @@ class TrustCalibration:
                     "no contact detected: the tactile image looks like the sensor's "
                     f"background with nothing pressed into it{shown}; no material "
                     f"description is given{remedy}")
+            elif tac["uncertain"] and marks is not None and marks.get("lattice"):
+                tac["uncertain_by"] = None
+                grid = marks["lattice"]
+                warnings.append(
+                    f"contact uncertain: the frame shows a grid of {grid['dots']} marker dots "
+                    f"(pitch {grid['pitch']:.1f} px) that the background lacks: markers are "
+                    "printed on the gel, so the background looks like another unit's; give "
+                    "this unit's background taken now; the description below is a guess")
             elif tac["uncertain"] and marks is not None and marks["moved"]:
                 tac["uncertain_by"] = None
                 warnings.append(
