@@ -786,6 +786,46 @@ def test_a_backgrounds_marker_dots_are_found_in_its_own_units_frames_only():
         background_markers(bg[:64], bg)
 
 
+def test_another_units_grid_a_pixel_away_is_told_by_the_found_dots_shift(pipeline):
+    """Two GelSight units whose marker grids lie a pixel apart: more than half of one's dots
+    are found in the other's blank, but the found dots sit off as a whole (`shift` at least
+    `MAX_SHIFT`), so the pair is "moved" and the frame "uncertain", with a warning saying so;
+    the unit's own blank and its presses shift by 0."""
+    from ratouch.model.markers import MAX_SHIFT, MIN_FOUND, background_markers
+    from ratouch.world.presses import drifted, family_drift, render_press, to_uint8
+    from ratouch.world.tactile import sensor_background
+
+    marked, _ = _gelsight_units()
+    rng = np.random.default_rng(12)
+    drift = family_drift("gelsight")
+    shot = lambda s: to_uint8(drifted(sensor_background(s, (128, 96)).astype(np.float64),  # noqa: E731
+                                      drift, rng))
+    near = []
+    for a in marked:
+        for b in marked:
+            m = background_markers(shot(a), shot(b))
+            assert m is not None and m["moved"] == (a != b), (a, b, m)
+            if a == b:
+                assert m["shift"] == 0.0
+            elif m["share"] >= MIN_FOUND:
+                near.append((a, b))
+                assert m["shift"] >= MAX_SHIFT
+    assert near  # the renders hold such a pair (units 9 and 10: a pixel apart)
+    a, b = near[0]
+    frame, other = shot(a), shot(b)
+    trust, enc = pipeline.trust, pipeline.encoders
+    assert trust.contact_state(frame, other)[0] == "uncertain"
+    out = trust.assess(enc.encode_image([frame]), enc.encode_tactile([frame]), frame, other)
+    assert out["tactile"]["state"] == "uncertain" and out["tactile"]["markers"]["moved"]
+    assert any("px off as a whole" in w for w in out["warnings"])
+    for kind in ("flat_face", "fabric", "small_curved"):  # a press moves only its contact's
+        for _ in range(4):
+            p = render_press("gelsight", rng, kind=kind)
+            m = background_markers(p.frame, p.background)
+            if m is not None:
+                assert m["shift"] == 0.0 and not m["moved"], kind
+
+
 def test_a_marker_grid_is_told_from_a_textures_dots():
     """`marker_lattice`: every GelSight unit's marker grid (its blank, portrait at 128 x 96
     and 640 x 480) is a grid; no everyday press of a unit without markers is (every kind and

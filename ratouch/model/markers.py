@@ -33,6 +33,11 @@ MATCH_RADIUS = 2.0
 #: Below this share of the background's dots found in the frame, the background is not this
 #: frame's unit's as it is now (another unit's, or the gel moved).
 MIN_FOUND = 0.5
+#: Where the background's dots found in the frame are, as a whole (their median displacement),
+#: at least this far (working px) from where the background has them, the background is not this
+#: frame's unit's either: another unit's grid a pixel or two away, or a gel that has slid. A press
+#: moves the dots only inside its contact (docs/geometry.md, "Another unit's grid a pixel away").
+MAX_SHIFT = 0.5
 #: A dot is a peak of the darkness map this many robust deviations above its median.
 PEAK_DEVIATIONS = 6.0
 #: A frame's dots are a marker grid (`marker_lattice`) with at least this many dots, ...
@@ -100,10 +105,12 @@ def marker_dots(frame: np.ndarray) -> np.ndarray:
 def background_markers(frame: np.ndarray, background: np.ndarray) -> dict | None:
     """The background's marker dots read in the frame: {"dots": how many the background
     shows, "found": how many of them the frame shows within :data:`MATCH_RADIUS`, "share",
-    "moved": whether fewer than :data:`MIN_FOUND` of them are found}. Where the background
-    shows fewer than :data:`MIN_DOTS` (no grid): where the frame shows a grid of its own
-    (`marker_lattice`), {"dots", "found": 0, "share": None, "moved": True, "lattice": the
-    frame's grid} (the background is another unit's), else None (nothing to read).
+    "shift": the length of the found dots' median displacement (working px; None where none
+    is found), "moved": whether fewer than :data:`MIN_FOUND` of them are found, or they sit
+    :data:`MAX_SHIFT` or more away as a whole}. Where the background shows fewer than
+    :data:`MIN_DOTS` (no grid): where the frame shows a grid of its own (`marker_lattice`),
+    {"dots", "found": 0, "share": None, "shift": None, "moved": True, "lattice": the frame's
+    grid} (the background is another unit's), else None (nothing to read).
 
     Raises:
         DataError: the sizes differ.
@@ -114,13 +121,17 @@ def background_markers(frame: np.ndarray, background: np.ndarray) -> dict | None
         grid = marker_lattice(frame)
         if grid is None:
             return None
-        return {"dots": int(len(ref)), "found": 0, "share": None, "moved": True,
-                "lattice": grid}
+        return {"dots": int(len(ref)), "found": 0, "share": None, "shift": None,
+                "moved": True, "lattice": grid}
     seen = marker_dots(frame)
-    found = 0
+    found, shift = 0, None
     if len(seen):
-        d2 = ((ref[:, None, :] - seen[None, :, :]) ** 2).sum(-1).min(1)
-        found = int((d2 <= MATCH_RADIUS ** 2).sum())
+        d2 = ((ref[:, None, :] - seen[None, :, :]) ** 2).sum(-1)
+        near = d2.argmin(1)
+        ok = d2[np.arange(len(ref)), near] <= MATCH_RADIUS ** 2
+        found = int(ok.sum())
+        if found:  # the found dots' median displacement: a press moves only its contact's
+            shift = round(float(np.hypot(*np.median(seen[near[ok]] - ref[ok], 0))), 2)
     share = found / len(ref)
-    return {"dots": int(len(ref)), "found": found, "share": round(share, 3),
-            "moved": bool(share < MIN_FOUND)}
+    return {"dots": int(len(ref)), "found": found, "share": round(share, 3), "shift": shift,
+            "moved": bool(share < MIN_FOUND or (shift is not None and shift >= MAX_SHIFT))}

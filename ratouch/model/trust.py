@@ -45,7 +45,7 @@ from ratouch.model.geometry import (
     band_stats,
     read_height,
 )
-from ratouch.model.markers import background_markers
+from ratouch.model.markers import MIN_FOUND, background_markers
 from ratouch.world.sensors import WITHHOLD_LIMIT, guess_family, unfamiliar_look
 
 log = logging.getLogger(__name__)
@@ -753,11 +753,16 @@ class TrustCalibration:
                     "this unit's background taken now; the description below is a guess")
             elif tac["uncertain"] and marks is not None and marks["moved"]:
                 tac["uncertain_by"] = None
+                where = (f"the frame shows {marks['found']} of its {marks['dots']}"
+                         if marks["share"] < MIN_FOUND else
+                         f"the {marks['found']} of its {marks['dots']} the frame shows sit "
+                         f"{marks['shift']:.1f} px off as a whole, where a press moves only "
+                         "those it touches")
                 warnings.append(
                     f"contact uncertain: the background's marker dots are not where this "
-                    f"frame's are (the frame shows {marks['found']} of its {marks['dots']}): it "
-                    "looks like another unit's no-contact frame, or the gel has moved; give "
-                    "this unit's background taken now; the description below is a guess")
+                    f"frame's are ({where}): it looks like another unit's no-contact frame, "
+                    "or the gel has moved; give this unit's background taken now; the "
+                    "description below is a guess")
             elif tac["uncertain"] and ((tac.get("structure") or {}).get("lighting_field")
                                        or {}).get("explains"):
                 tac["uncertain_by"] = None
