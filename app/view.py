@@ -428,12 +428,15 @@ def structure_line(structure: dict | None, moved: bool | str = False) -> str:
     score = structure.get("score")
     shown = "n/a" if score is None else f"{score:.2f}"
     field = structure.get("lighting_field") or {}
+    band = structure.get("band") or {}
     mark = ("? the frame&#39;s marker grid is not in the background: contact uncertain"
             if moved == "lattice" else
             "? the background&#39;s marker dots are not this frame&#39;s: contact uncertain"
             if moved else
             f"? a smooth lighting field alone explains it ({field.get('score')} with the field "
             "removed): contact uncertain" if structure.get("contact") and field.get("explains")
+            else f"? barely above a blank&#39;s (within {band.get('top')}): contact uncertain"
+            if structure.get("contact") and band.get("inside")
             else "✓ contact" if structure.get("contact") else
             "below: the trust line's contact check decides")
     unlike = structure.get("floors") == "unfamiliar sensor"

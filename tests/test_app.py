@@ -1106,6 +1106,14 @@ def test_the_height_map_is_formatted_with_its_scale_and_numbers():
     assert "✓ contact" not in lit_html
     lit["trust"]["tactile"]["structure"]["lighting_field"] = {"score": 3.1, "explains": False}
     assert "✓ contact" in view.geometry_html(lit, picture, True)
+    # a Mini change barely above a blank's (inside the band): uncertain, not "✓ contact"
+    near = _geometry_result()
+    near["trust"]["tactile"]["structure"]["band"] = {"top": 2.045, "inside": True}
+    near_html = view.geometry_html(near, picture, True)
+    assert "barely above a blank&#39;s (within 2.045): contact uncertain" in near_html
+    assert "✓ contact" not in near_html
+    near["trust"]["tactile"]["structure"]["band"] = {"top": 2.045, "inside": False}
+    assert "✓ contact" in view.geometry_html(near, picture, True)
     # a texture on a domed gel integrates to a few micrometres: said, not rounded to 0.00 mm
     faint = _geometry_result()
     faint["trust"]["tactile"]["geometry"].update(depth=0.0041, relief=0.00026)

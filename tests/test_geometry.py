@@ -924,6 +924,49 @@ def test_a_smooth_lighting_field_is_removed_by_the_field_fit_only():
     assert np.abs(change[40:56, 60:76]).mean() > 20 * np.abs(change[:20, :20]).mean()
 
 
+def test_a_mini_blank_just_over_the_structured_floor_is_uncertain_and_said_so(pipeline):
+    """A Mini blank read against another Mini unit's background whose structured change is
+    barely above the threshold (within `BAND_FACTOR` x it) is "uncertain", never "contact";
+    the structure block carries `band` and the warning says the change is barely above a
+    blank's. A firm press stands far above the band and stays "contact"; the other families'
+    blocks carry no band."""
+    from ratouch.model.geometry import BAND_FACTOR
+    from ratouch.world.presses import render_cross_unit_pair, render_press
+
+    trust = pipeline.trust
+    rng = np.random.default_rng(12)
+    inside = 0
+    for _ in range(60):
+        frame, bg = render_cross_unit_pair("mini", rng)
+        block = trust.read_geometry(frame, bg, height=False)["structure"]
+        state = trust.contact_state(frame, bg, structured=block)[0]
+        band = block.get("band")
+        assert (band is not None) == bool(block["contact"])
+        if band is None:
+            continue
+        assert band["top"] == pytest.approx(BAND_FACTOR * block["threshold"], abs=2e-3)
+        assert band["inside"] == (block["score"] <= band["top"])
+        assert state == ("uncertain" if band["inside"] else "contact")
+        if band["inside"]:
+            inside += 1
+            enc = pipeline.encoders
+            out = trust.assess(enc.encode_image([frame]), enc.encode_tactile([frame]), frame,
+                               bg)
+            assert out["tactile"]["state"] == "uncertain"
+            assert any("barely above what a blank frame shows" in w
+                       and "give this unit's background" in w for w in out["warnings"])
+    assert inside >= 1
+    for _ in range(4):
+        p = render_press("mini", rng, kind="small_curved")
+        block = trust.read_geometry(p.frame, p.background, height=False)["structure"]
+        assert block["band"] == {"top": block["band"]["top"], "inside": False}
+        assert trust.contact_state(p.frame, p.background)[0] == "contact"
+    for fam in ("digit", "gelsight"):   # only the Mini reads the band
+        p = render_press(fam, rng, kind="small_curved")
+        assert "band" not in trust.read_geometry(p.frame, p.background, height=False,
+                                                 family=fam)["structure"]
+
+
 def test_a_digit_blank_against_another_units_lighting_is_uncertain_and_said_so(pipeline):
     """A DIGIT blank read against another DIGIT unit's background, whose structured change a
     smooth lighting field alone explains, is "uncertain" (read, with a caveat), never

@@ -129,26 +129,29 @@ def cross_unit_contact(trust: TrustCalibration, n: int = 100, seed: int = 0) -> 
     out: dict = {}
     for fam in family_names():
         counts = dict.fromkeys(STATES, 0)
-        structured = field = 0
+        structured = field = band = 0
         for _ in range(n):
             frame, bg = render_cross_unit_pair(fam, rng)
             read = trust.read_geometry(frame, bg, height=False)
             block = None if read is None else read["structure"]
             structured += bool(block and block["contact"])
             field += bool(block and (block.get("lighting_field") or {}).get("explains"))
+            band += bool(block and (block.get("band") or {}).get("inside"))
             counts[trust.contact_state(frame, bg, structured=block)[0]] += 1
         out[fam] = {**counts, "structured_contact": structured,
-                    "lighting_field_explains": field, "pairs": n}
+                    "lighting_field_explains": field, "band_inside": band, "pairs": n}
     return out
 
 
 def format_cross_unit_contact(rep: dict) -> str:
     lines = ["| family | blank against another unit's background | " + " | ".join(STATES)
-             + " | structured check: contact | of which a lighting field explains |",
-             "|---|---|" + "---|" * (len(STATES) + 2)]
+             + " | structured check: contact | of which a lighting field explains "
+             "| of which barely above (the band) |",
+             "|---|---|" + "---|" * (len(STATES) + 3)]
     for fam, r in rep.items():
         lines.append(f"| {fam} | {r['pairs']} pairs | " + " | ".join(str(r[s]) for s in STATES)
-                     + f" | {r['structured_contact']} | {r.get('lighting_field_explains', 0)} |")
+                     + f" | {r['structured_contact']} | {r.get('lighting_field_explains', 0)} "
+                     f"| {r.get('band_inside', 0)} |")
     return "\n".join(lines)
 
 

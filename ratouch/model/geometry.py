@@ -493,6 +493,16 @@ STRUCTURE_BANDS = ((1.0, 3.0), (2.0, 6.0), (3.0, 10.0))
 #: (`GradientLookup.field_reading`), and a change the field alone explains is "uncertain"
 #: (docs/geometry.md). The GelSight's and the Mini's units differ by markers and noise.
 FIELD_CHECK_FAMILIES = ("digit",)
+#: Sensor families whose blank frames, read against another unit's background, can score
+#: just above the structured threshold (the tail of blank noise, not a lighting field): there
+#: a structured contact scoring at most :data:`BAND_FACTOR` x the family's threshold is
+#: "uncertain", never "no contact" (docs/geometry.md, "A Mini blank just over the structured
+#: floor"). Read with the family's floors only: a sensor beyond every rendered unit has its own.
+BAND_FAMILIES = ("mini",)
+#: The top of that band, as a multiple of the family's structured threshold: a round number,
+#: not fitted (on the development look the Mini's blanks reach 1.19 x, its rendered presses
+#: start at 2.35 x).
+BAND_FACTOR = 2.0
 
 
 def band_stats(c: np.ndarray) -> np.ndarray:

@@ -39,6 +39,8 @@ from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.files import write_atomic
 from ratouch.images import check_background_size, gaussian_blur, resize_array
 from ratouch.model.geometry import (
+    BAND_FACTOR,
+    BAND_FAMILIES,
     FIELD_CHECK_FAMILIES,
     GeometryCalibration,
     HeightMap,
@@ -494,6 +496,11 @@ class TrustCalibration:
                      "floors": "unfamiliar sensor" if beyond else "family"}
         field = (lookup.field_reading(frame, background)
                  if hit and not beyond and name in FIELD_CHECK_FAMILIES else None)
+        if hit and not beyond and name in BAND_FAMILIES:
+            # a change barely above what this family's blanks show against another unit's
+            # background: read, with a caveat (docs/geometry.md)
+            top = BAND_FACTOR * lookup.floors_for(False)[1]
+            structure["band"] = {"top": round(top, 3), "inside": bool(score <= top)}
         if field is not None:
             # a second reading: does a smooth lighting field alone explain the change?
             structure["lighting_field"] = {
@@ -517,7 +524,10 @@ class TrustCalibration:
         sensor's global drift removed) stands above its family's floors is "contact"
         (`structured_contact`: shallow, broad presses that change a few levels), or
         "uncertain" where the block's `lighting_field` says a smooth lighting field alone
-        explains it (`geometry.FIELD_CHECK_FAMILIES`: another unit's background); otherwise a
+        explains it (`geometry.FIELD_CHECK_FAMILIES`: another unit's background) or its
+        `band` says it is barely above the threshold (`geometry.BAND_FAMILIES`: within
+        `BAND_FACTOR` x the threshold, where a blank against another unit's background can
+        reach); otherwise a
         frame within sensor noise of it (`noise_floor`) is "no contact" by construction,
         and else the model decides at `contact_threshold_bg`; for a frame beyond every
         rendered unit, held to such a sensor's floors (`GradientLookup.unfamiliar_floors`),
@@ -550,7 +560,9 @@ class TrustCalibration:
                 # a change a smooth lighting field alone explains: another unit's background,
                 # or light that changed, as likely as a press; read, with a caveat
                 field = structured.get("lighting_field") or {}
-                return (("uncertain" if field.get("explains") else "contact"),
+                band = structured.get("band") or {}
+                return (("uncertain" if field.get("explains") or band.get("inside")
+                         else "contact"),
                         float(self.contact_score(frame, background)))
             if background_change(frame, background) < self.noise_floor:
                 return "no contact", float(self.contact_score(frame, background))
@@ -774,6 +786,16 @@ class TrustCalibration:
                     f"with the field removed): the background may be another unit's, or the "
                     "light changed; give this unit's background taken now; the description "
                     "below is a guess")
+            elif tac["uncertain"] and ((tac.get("structure") or {}).get("band")
+                                       or {}).get("inside"):
+                tac["uncertain_by"] = None
+                st = tac["structure"]
+                warnings.append(
+                    f"contact uncertain: the change against the background is barely above "
+                    f"what a blank frame shows against it (structured change {st['score']} > "
+                    f"{st['threshold']}, but within {st['band']['top']}, {BAND_FACTOR:g} x that): a "
+                    "light touch, or another unit's background; give this unit's background "
+                    "taken now; the description below is a guess")
             elif tac["uncertain"] and background is not None:
                 tac["uncertain_by"] = None
                 st = tac.get("structure") or {}
