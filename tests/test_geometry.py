@@ -474,6 +474,35 @@ def test_eval_presses_cli(capsys):
     assert shape["n"] == 7 and 0 <= shape["balanced"] <= 1
 
 
+def test_eval_presses_landscape_renders_every_pair_landscape(capsys, monkeypatch):
+    """`ratouch eval presses --landscape`: every press, blank pair and cross-unit pair is
+    rendered 96 x 128 (portrait, 128 x 96, without it), and the report is the same shape."""
+    import ratouch.eval.presses as presses_mod
+    import ratouch.world.presses as world_presses
+
+    seen: list = []
+
+    def spy(fn):
+        def wrapped(*a, **k):
+            out = fn(*a, **k)
+            seen.append((out.frame if hasattr(out, "frame") else out[0]).shape[:2])
+            return out
+        return wrapped
+
+    for mod in (presses_mod, world_presses):
+        for name in ("render_press", "render_blank_pair", "render_cross_unit_pair"):
+            if hasattr(mod, name):
+                monkeypatch.setattr(mod, name, spy(getattr(mod, name)))
+    for flag, hw in (([], (128, 96)), (["--landscape"], (96, 128))):
+        seen.clear()
+        assert main(["eval", "presses", "--n", "1", "--blanks", "1", "--cross-unit", "1",
+                     "--json", *flag]) == 0
+        rep = json.loads(capsys.readouterr().out)
+        assert set(rep["cross_unit"]) == {"digit", "gelsight", "mini"}
+        assert rep["gelsight"]["n_blanks"] == 1
+        assert len(seen) == 3 * (7 + 1 + 1) and set(seen) == {hw}, (flag, set(seen))
+
+
 def test_eval_presses_world_reads_the_worlds_own_frames_both_ways(capsys):
     """`ratouch eval presses --world N`: the world's first N test presses and the same samples
     without contact, read alone and against their background, counted per contact state and

@@ -123,7 +123,8 @@ def _eval_presses(args: argparse.Namespace) -> int:
     trust = load_trust(args.encoder)
     if trust is None:
         raise DataNotFoundError(f"no trust calibration for {args.encoder}")
-    rep = press_contact(trust, n=args.n, blanks=args.blanks, seed=args.seed)
+    hw = (96, 128) if args.landscape else (128, 96)
+    rep = press_contact(trust, n=args.n, blanks=args.blanks, seed=args.seed, hw=hw)
     readings = None
     if args.readings:
         readings = press_readings(RATouchPipeline.load(args.encoder), OfflineJudge(),
@@ -132,7 +133,7 @@ def _eval_presses(args: argparse.Namespace) -> int:
     if args.probe:
         probe = press_probe(create_model(args.encoder), trust, n=args.probe, seed=args.seed + 3)
     world = world_contact(trust, n=args.world) if args.world else None
-    cross = (cross_unit_contact(trust, n=args.cross_unit, seed=args.seed)
+    cross = (cross_unit_contact(trust, n=args.cross_unit, seed=args.seed, hw=hw)
              if args.cross_unit else None)
     if args.json:
         extra = {**({"readings": readings} if readings else {}),

@@ -494,6 +494,9 @@ def _add_eval(sub) -> None:
                     help="also read N blank frames per family against another unit's "
                          "background (the wrong unit's no-contact frame): how many land in "
                          "each contact state")
+    pe.add_argument("--landscape", action="store_true",
+                    help="render the presses, blank pairs and cross-unit pairs landscape "
+                         "(96 x 128) instead of portrait (128 x 96)")
     pe.add_argument("--json", action="store_true")
     rp = esub.add_parser("recaption", help="recaptioners against the world's own adjectives "
                                            "on corpus entries: adjective F1 and offline judge, "

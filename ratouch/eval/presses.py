@@ -25,15 +25,16 @@ from ratouch.world.sensors import family_names
 LABEL_WORDS = 5
 
 
-def press_contact(trust: TrustCalibration, n: int = 10, blanks: int = 40, seed: int = 1
-                  ) -> dict:
+def press_contact(trust: TrustCalibration, n: int = 10, blanks: int = 40, seed: int = 1,
+                  hw: tuple[int, int] = (128, 96)) -> dict:
     """Per family: per kind the share of presses read as contact (with background, without,
     and by the structured check alone), the depth and spread of their height maps, and the
     share of blank pairs read as contact (false alarms), and the balanced accuracy of the
     firmness read from shape (`shape_firmness`, every press read against its background;
     `shape_soft` per kind). A miss is any reading but
     "contact"; a refusal is "no contact" (the answer withheld), where "uncertain" still
-    answers with a caveat: both are counted, for presses and for blanks."""
+    answers with a caveat: both are counted, for presses and for blanks. `hw`: the
+    renders' (height, width), portrait by default."""
     rng = np.random.default_rng([seed, 911])
     out: dict = {}
     for fam in family_names():
@@ -41,7 +42,7 @@ def press_contact(trust: TrustCalibration, n: int = 10, blanks: int = 40, seed: 
         shape: tuple[list, list] = ([], [])  # firmness read from shape, and the truth
         for kind in PRESS_KINDS:
             for _ in range(n):
-                p = render_press(fam, rng, kind)
+                p = render_press(fam, rng, kind, hw)
                 read = trust.read_geometry(p.frame, p.background)
                 sc = None if read is None else read["structure"]
                 hm = None if read is None else read["height"]
@@ -63,7 +64,7 @@ def press_contact(trust: TrustCalibration, n: int = 10, blanks: int = 40, seed: 
                     r["spread"].append(hm.spread)
         fa_bg, fa, empty_bg, empty = [], [], [], []
         for _ in range(blanks):
-            frame, bg = render_blank_pair(fam, rng)
+            frame, bg = render_blank_pair(fam, rng, hw)
             st_bg, st = trust.contact_state(frame, bg)[0], trust.contact_state(frame, None)[0]
             fa_bg.append(st_bg == "contact")
             fa.append(st == "contact")
@@ -117,11 +118,12 @@ def world_contact(trust: TrustCalibration, n: int = 402, seed: int = 0) -> dict:
     return out
 
 
-def cross_unit_contact(trust: TrustCalibration, n: int = 100, seed: int = 0) -> dict:
+def cross_unit_contact(trust: TrustCalibration, n: int = 100, seed: int = 0,
+                       hw: tuple[int, int] = (128, 96)) -> dict:
     """Blank frames read against the background of another unit of the same family
-    (`render_cross_unit_pair`, `n` a family, a stream of its own): per family, how many land
-    in each contact state (`STATES`) and how many the structured check alone calls contact.
-    Not a press, so every "contact" is one the wrong background made."""
+    (`render_cross_unit_pair`, `n` a family, a stream of its own, rendered at `hw`): per
+    family, how many land in each contact state (`STATES`) and how many the structured check
+    alone calls contact. Not a press, so every "contact" is one the wrong background made."""
     from ratouch.world.presses import render_cross_unit_pair
     from ratouch.world.sensors import family_names
 
@@ -131,7 +133,7 @@ def cross_unit_contact(trust: TrustCalibration, n: int = 100, seed: int = 0) -> 
         counts = dict.fromkeys(STATES, 0)
         structured = field = band = 0
         for _ in range(n):
-            frame, bg = render_cross_unit_pair(fam, rng)
+            frame, bg = render_cross_unit_pair(fam, rng, hw)
             read = trust.read_geometry(frame, bg, height=False)
             block = None if read is None else read["structure"]
             structured += bool(block and block["contact"])
