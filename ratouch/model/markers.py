@@ -46,8 +46,11 @@ LATTICE_DOTS = 40
 LATTICE_PITCH = 8.0
 #: ... a spread of those distances (coefficient of variation) of at most this, ...
 LATTICE_CV = 0.10
-#: ... and covering at least this share of the frame (the smaller of the x and y extents).
-LATTICE_COVER = 0.6
+#: ... and spanning at least this many of its pitches along each axis (the smaller of the x
+#: and y extents over the pitch): a grid printed across the gel, whatever the frame's size or
+#: orientation, where a texture's dots confined to a contact span few (docs/geometry.md, "A
+#: landscape frame's marker grid").
+LATTICE_SPAN = 5.0
 
 
 def _grey(frame: np.ndarray) -> np.ndarray:
@@ -61,19 +64,19 @@ def _grey(frame: np.ndarray) -> np.ndarray:
 
 
 def marker_lattice(frame: np.ndarray, dots: np.ndarray | None = None) -> dict | None:
-    """The frame's own marker grid: {"dots", "pitch" (working px), "cv", "cover"} where its
-    dark dots (`marker_dots`, or `dots` where the caller has them) are at least
-    :data:`LATTICE_DOTS`, at a pitch of at least :data:`LATTICE_PITCH`, evenly spaced (CV of
-    the nearest-neighbour distances at most :data:`LATTICE_CV`) and cover at least
-    :data:`LATTICE_COVER` of the frame; else None (a texture's dots, or none)."""
+    """The frame's own marker grid: {"dots", "pitch" (working px), "cv", "cover" (its smaller
+    extent in pitches)} where its dark dots (`marker_dots`, or `dots` where the caller has
+    them) are at least :data:`LATTICE_DOTS`, at a pitch of at least :data:`LATTICE_PITCH`,
+    evenly spaced (CV of the nearest-neighbour distances at most :data:`LATTICE_CV`) and span
+    at least :data:`LATTICE_SPAN` pitches along x and along y; else None (a texture's dots, or
+    none)."""
     d = marker_dots(frame) if dots is None else dots
     if len(d) < LATTICE_DOTS:
         return None
     nn = cKDTree(d).query(d, 2)[0][:, 1]
     pitch, cv = float(np.median(nn)), float(nn.std() / max(nn.mean(), 1e-9))
-    h, w = _grey_shape(frame)
-    cover = min(float(np.ptp(d[:, 0])) / w, float(np.ptp(d[:, 1])) / h)
-    if pitch < LATTICE_PITCH or cv > LATTICE_CV or cover < LATTICE_COVER:
+    cover = min(float(np.ptp(d[:, 0])), float(np.ptp(d[:, 1]))) / max(pitch, 1e-9)
+    if pitch < LATTICE_PITCH or cv > LATTICE_CV or cover < LATTICE_SPAN:
         return None
     return {"dots": int(len(d)), "pitch": round(pitch, 2), "cv": round(cv, 3),
             "cover": round(cover, 3)}
