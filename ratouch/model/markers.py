@@ -82,15 +82,6 @@ def marker_lattice(frame: np.ndarray, dots: np.ndarray | None = None) -> dict | 
             "cover": round(cover, 3)}
 
 
-def _grey_shape(frame: np.ndarray) -> tuple[int, int]:
-    """(h, w) of the frame at the working size (`_grey`'s)."""
-    h, w = frame.shape[:2]
-    scale = MARKER_SIDE / min(h, w)
-    if abs(scale - 1) <= 1e-6:
-        return h, w
-    return max(8, round(h * scale)), max(8, round(w * scale))
-
-
 def marker_dots(frame: np.ndarray) -> np.ndarray:
     """(N, 2) positions (x, y, working px) of the frame's dark dots: the peaks (in 5 x 5) of a
     difference of Gaussians (σ 3 less σ 0.8) that stand :data:`PEAK_DEVIATIONS` robust

@@ -491,15 +491,16 @@ class TrustCalibration:
         hit, score = lookup.contact(frame, background, change, stats, unfamiliar=beyond,
                                     noise=noise)
         hm = read_height(lookup, frame, background, change) if height else None
+        threshold = lookup.floors_for(beyond)[1]
         structure: dict[str, Any] = {"contact": hit, "score": round(score, 3) if np.isfinite(score) else None,
-                     "threshold": round(lookup.floors_for(beyond)[1], 3), "family": name,
+                     "threshold": round(threshold, 3), "family": name,
                      "floors": "unfamiliar sensor" if beyond else "family"}
         field = (lookup.field_reading(frame, background)
                  if hit and not beyond and name in FIELD_CHECK_FAMILIES else None)
         if hit and not beyond and name in BAND_FAMILIES:
             # a change barely above what this family's blanks show against another unit's
             # background: read, with a caveat (docs/geometry.md)
-            top = BAND_FACTOR * lookup.floors_for(False)[1]
+            top = BAND_FACTOR * threshold  # the family's: not beyond
             structure["band"] = {"top": round(top, 3), "inside": bool(score <= top)}
         if field is not None:
             # a second reading: does a smooth lighting field alone explain the change?
