@@ -101,6 +101,24 @@ def test_an_experiment_trains_judges_caches_and_reports(lab, tmp_path, monkeypat
     assert fresh.evaluate([BASELINE, RA_TOUCH])[RA_TOUCH]["scores"] == res[RA_TOUCH]["scores"]
     md = results_markdown(reports, lab.cfg, 12.0)
     assert "commit" in md and "Table 2" in md and "figures/table2.png" in md
+    assert "* commit `abc1234`," in results_markdown(reports, lab.cfg, 12.0, commit="abc1234")
+
+
+def test_the_report_names_the_commit_the_run_began_on(monkeypatch, tmp_path):
+    """`ratouch eval all` writes its figures into the tracked docs/ as it goes: the commit is
+    read before the run, not after (which would read the run's own output as "+changes")."""
+    import argparse
+
+    from ratouch.cli import experiments as cli
+
+    answers = iter(["1234abc", "1234abc+changes"])
+    monkeypatch.setattr(cli, "git_commit", lambda: next(answers))
+    monkeypatch.setattr(cli, "Lab", lambda cfg: argparse.Namespace(counts=None))
+    monkeypatch.setattr(cli, "run_experiments", lambda names, cfg, out, lab: [])
+    args = argparse.Namespace(encoder="default-s", steps=1, seed=0, workers=1,
+                              eval_cmd="all", out=str(tmp_path))
+    assert cli.run(args) == 0
+    assert "* commit `1234abc`," in (tmp_path / "results.md").read_text()
 
 
 def test_variant_labels_are_distinct():

@@ -15,6 +15,7 @@ from ratouch.eval.experiments import (
     results_markdown,
     run_experiments,
 )
+from ratouch.eval.report import git_commit
 from ratouch.files import write_atomic
 
 
@@ -22,6 +23,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = ExperimentConfig(encoder=args.encoder, steps=args.steps, seed=args.seed,
                            workers=args.workers)
     names = list(EXPERIMENTS) if args.eval_cmd == "all" else [args.eval_cmd]
+    commit = git_commit()  # the code the run uses, before its figures change the tree
     t0 = time.perf_counter()
     lab = Lab(cfg)
     reports = run_experiments(names, cfg, args.out, lab)
@@ -29,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     doc = out / ("results.md" if args.eval_cmd == "all" else f"{args.eval_cmd}.md")
     write_atomic(doc, results_markdown(reports, cfg, time.perf_counter() - t0,
                                        out=out if args.eval_cmd == "all" else None,
-                                       counts=lab.counts))
+                                       counts=lab.counts, commit=commit))
     for rep in reports:
         print(f"## {rep.title}  ({rep.seconds:.0f} s)\n\n{rep.markdown}\n")
     print(f"wrote {doc} and its figures in {out / 'figures'}")
