@@ -29,7 +29,7 @@ from ratouch.model.generator import load_generator
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.paths import generator_weights
 from ratouch.serve.pipeline import RATouchPipeline
-from ratouch.train.generator import GeneratorTrainConfig, train_stage2
+from ratouch.train.generator import GeneratorTrainConfig, seeded_build, train_stage2
 from ratouch.train.recipes import training_pairs
 from ratouch.world.scarcity import ScarceRegime
 
@@ -57,8 +57,8 @@ def main(argv: list[str] | None = None) -> None:
     rv, rl = pipe.neighbour_embeddings(ids)
     stage1 = load_generator(generator_weights("default-s", "ra"), stage1=True)
     tc = GeneratorTrainConfig(seed=0, stage2_steps=args.steps)
-    gen, _ = train_stage2(stage1, TextureAwareIntegrator(IntegratorConfig(
-        dim=pipe.encoders.dim, out_dim=stage1.decoder.hidden)),
+    gen, _ = train_stage2(stage1, seeded_build(tc.seed, lambda: TextureAwareIntegrator(
+        IntegratorConfig(dim=pipe.encoders.dim, out_dim=stage1.decoder.hidden))),
         torch.from_numpy(data["V"]), torch.from_numpy(data["T"]), data["labels"],
         torch.from_numpy(rv), torch.from_numpy(rl), tc, "ra-touch-perfect-retrieval")
     judge, out = OfflineJudge(), {}

@@ -252,3 +252,42 @@ def test_a_report_write_killed_at_any_step_leaves_each_file_old_or_new(tmp_path,
             elif name in old:
                 assert data in (old[name], new[name]), (step, name)
         assert seen["table4.md"] == (new if step > 1 else old)["table4.md"]
+
+
+def test_seeded_build_draws_the_same_module_whatever_the_callers_stream():
+    from ratouch.train.generator import seeded_build
+
+    def build():
+        return make_integrator(RA_TOUCH, 24, 16)
+
+    made = []
+    for caller_seed in (1, 2):
+        torch.manual_seed(caller_seed)
+        before = torch.get_rng_state()
+        made.append(seeded_build(0, build).state_dict())
+        assert torch.equal(torch.get_rng_state(), before)  # the caller's stream did not move
+    assert all(torch.equal(made[0][k], made[1][k]) for k in made[0])
+    other = seeded_build(1, build).state_dict()
+    assert not all(torch.equal(made[0][k], other[k]) for k in made[0])
+
+
+def test_a_variant_starts_from_the_same_integrator_in_every_process(lab, monkeypatch):
+    """torch seeds its generator afresh in each process: a variant's integrator must not be
+    drawn from it (docs/premise.md, "Why a variant's training was not repeatable")."""
+    from ratouch.eval.experiments import lab as lab_module
+
+    real, starts = lab_module.train_stage2, []
+
+    def spy(stage1, integrator, *args, **kwargs):
+        starts.append({k: t.clone() for k, t in integrator.state_dict().items()})
+        return real(stage1, integrator, *args, **kwargs)
+
+    monkeypatch.setattr(lab_module, "train_stage2", spy)
+    v = replace(RA_TOUCH, k=3)
+    answers = []
+    for process_seed in (11, 12):  # stands for two processes' different initial seeds
+        torch.manual_seed(process_seed)
+        job = (lab.stage1, lab.train, lab.test, lab.cfg, v, lab._inputs(v))
+        answers.append(lab_module._run_variant(job)[1])
+    assert all(torch.equal(starts[0][k], starts[1][k]) for k in starts[0])
+    assert answers[0] == answers[1]

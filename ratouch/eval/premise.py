@@ -36,6 +36,7 @@ from ratouch.search.modes import QUERY_MODES
 from ratouch.search.retrieval import mode_query
 from ratouch.serve.pipeline import RATouchPipeline, integrator_factory, load_for_serving
 from ratouch.timing import Progress, bars, say_to
+from ratouch.train.generator import seeded_build
 from ratouch.train.recipes import (
     generator_recipe,
     reader_recipe,
@@ -590,8 +591,8 @@ def why_ignored(encoder: str = "default-s", n: int = 3000, seed: int = 0,
     shuf = torch.from_numpy(derangement(len(V), seed))
     stage1 = load_generator(generator_weights(encoder, "ra"), stage1=True)
     start = copy.deepcopy(stage1)
-    start.integrator = TextureAwareIntegrator(IntegratorConfig(dim=pipe.encoders.dim,
-                                                               out_dim=start.decoder.hidden))
+    start.integrator = seeded_build(0, lambda: TextureAwareIntegrator(
+        IntegratorConfig(dim=pipe.encoders.dim, out_dim=start.decoder.hidden)))
     start.decoder.add_lora(start.decoder.cfg, seed=0)
     end = load_generator(generator_weights(encoder, "ra"), integrator_factory)
     grads = {}

@@ -44,6 +44,7 @@ from ratouch.train.encoders import TrainConfig, tactile_batch, training_data
 from ratouch.train.generator import (
     GeneratorTrainConfig,
     evaluate_generators,
+    seeded_build,
     train_generators,
     train_stage0,
     train_stage2,
@@ -236,8 +237,10 @@ def token_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
     tc = GeneratorTrainConfig(seed=seed, **arm_budget(stage1, **train_overrides))
     torch.set_num_threads(tc.threads)
     model, data, emb, _, rv, rl = _pairs_with_neighbours(encoder, world_seed, draw, tc.k, progress)
+    tokens = seeded_build(tc.seed, lambda: NeighbourTokens(NeighbourTokensConfig(
+        dim=model.dim, out_dim=stage1.decoder.hidden)))
     gen, history = train_stage2(
-        stage1, NeighbourTokens(NeighbourTokensConfig(dim=model.dim, out_dim=stage1.decoder.hidden)),
+        stage1, tokens,
         torch.from_numpy(emb["V"]), torch.from_numpy(emb["T"]), list(data["labels"]),
         torch.from_numpy(rv), torch.from_numpy(rl), tc, "neighbour-tokens-lora")
     report = {"arm": "neighbour_tokens", "seed": seed, "draw": draw, "stage1_from": str(stage1_from),
@@ -259,8 +262,9 @@ def text_arm_recipe(encoder: str, stage1_from, seed: int = 0, draw: int = 0,
     torch.set_num_threads(tc.threads)
     _, data, emb, retrieval, rv, rl = _pairs_with_neighbours(encoder, world_seed, draw, tc.k,
                                                              progress)
-    arm = NeighbourText.build([e.caption for e in retrieval.corpus.entries],
-                              retrieval.corpus_embeddings("tactile_caption"), stage1.decoder)
+    arm = seeded_build(tc.seed, lambda: NeighbourText.build(
+        [e.caption for e in retrieval.corpus.entries],
+        retrieval.corpus_embeddings("tactile_caption"), stage1.decoder))
     gen, history = train_stage2(
         stage1, arm, torch.from_numpy(emb["V"]), torch.from_numpy(emb["T"]),
         list(data["labels"]), torch.from_numpy(rv), torch.from_numpy(rl), tc, "text-arm-lora")
@@ -353,12 +357,13 @@ def train_reader(side: RetrievalSide, encoders, stage1, data: dict, V: np.ndarra
     rv, rl = side.neighbour_embeddings(ep["ids"])
     module: nn.Module
     if arm == "text":
-        module = NeighbourText.build([e.caption for e in side.corpus.entries],
-                                     side.corpus_embeddings("tactile_caption"), stage1.decoder)
+        module = seeded_build(tc.seed, lambda: NeighbourText.build(
+            [e.caption for e in side.corpus.entries], side.corpus_embeddings("tactile_caption"),
+            stage1.decoder))
         spec: dict = asdict(module.cfg)
     else:
         icfg = IntegratorConfig(dim=encoders.dim, out_dim=stage1.decoder.hidden)
-        module, spec = TextureAwareIntegrator(icfg), asdict(icfg)
+        module, spec = seeded_build(tc.seed, lambda: TextureAwareIntegrator(icfg)), asdict(icfg)
     gen, history = train_stage2(
         stage1, module, torch.from_numpy(np.asarray(V, np.float32)),
         torch.from_numpy(ep["T"]), list(labels), torch.from_numpy(rv), torch.from_numpy(rl),

@@ -37,7 +37,12 @@ from ratouch.processes import bind_to_parent
 from ratouch.search.index import exact_topk
 from ratouch.search.retrieval import mode_query
 from ratouch.serve.pipeline import RATouchPipeline
-from ratouch.train.generator import GeneratorTrainConfig, train_stage1, train_stage2
+from ratouch.train.generator import (
+    GeneratorTrainConfig,
+    seeded_build,
+    train_stage1,
+    train_stage2,
+)
 from ratouch.train.recipes import language_prior, training_pairs
 from ratouch.world.splits import encode_test_split
 
@@ -45,7 +50,8 @@ log = logging.getLogger(__name__)
 
 #: The code that trains a variant (a package stands for all its modules): its source is part of
 #: the cache keys, so that a change to it trains again instead of reusing stale results.
-TRAINING_CODE = ("ratouch.train", "ratouch.model", "ratouch.world.scarcity")
+TRAINING_CODE = ("ratouch.train", "ratouch.model", "ratouch.world.scarcity",
+                 "ratouch.eval.experiments.lab")
 
 
 def source_sha256(modules: Sequence[str] = TRAINING_CODE) -> str:
@@ -267,9 +273,10 @@ def _run_variant(job):
         ans = answer_split(None, test, BASELINE, generator=gen)
         return v, ans.responses, time.perf_counter() - t0
     rv, rl, trv, trl = inputs
-    gen, _ = train_stage2(stage1, make_integrator(v, V.shape[1], stage1.decoder.hidden),
-                          V, T, train["labels"], torch.from_numpy(rv), torch.from_numpy(rl), tc,
-                          v.label())
+    integrator = seeded_build(cfg.seed, lambda: make_integrator(v, V.shape[1],
+                                                                 stage1.decoder.hidden))
+    gen, _ = train_stage2(stage1, integrator, V, T, train["labels"], torch.from_numpy(rv),
+                          torch.from_numpy(rl), tc, v.label())
     ans = answer_split(None, test, RA_TOUCH, neighbours=(trv, trl), generator=gen)
     return v, ans.responses, time.perf_counter() - t0
 
