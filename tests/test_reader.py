@@ -150,7 +150,13 @@ def test_reader_trains_on_a_few_pairs_and_answers_the_gated_system(real_pipeline
                                                    torch.Generator().manual_seed(0))).numpy()
     stage1 = load_generator(generator_weights("default-s", "ra"), stage1=True)
     tc = GeneratorTrainConfig(stage2_steps=3, batch=8)
+    torch.manual_seed(1)  # two processes' different initial seeds: the same reader
     gen, info = recipes.train_reader(p, p.encoders, stage1, data, V, T, labels, tc, arm)
+    torch.manual_seed(2)
+    again, _ = recipes.train_reader(p, p.encoders, stage1, data, V, T, labels, tc, arm)
+    trained, retrained = gen.state_dict(), again.state_dict()
+    assert trained.keys() == retrained.keys()
+    assert all(torch.equal(trained[k], retrained[k]) for k in trained)
     assert info["episodes"]["n_pairs"] == 24 and 0 < info["episodes"]["degraded"] < 24
     assert info["arm"] == arm and len(info["history"]) == 1
     form = NeighbourText if arm == "text" else TextureAwareIntegrator

@@ -382,7 +382,9 @@ def _add_eval(sub) -> None:
     st.add_argument("--collapse-epochs", type=_pos_int, default=12,
                     help="epochs of the align-only retriever (the shipped one had 12)")
     st.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
-    st.add_argument("--out", default="reports/stress", help="report folder")
+    st.add_argument("--out", default="reports/stress",
+                    help="report folder (the committed full sweep is docs/stress: "
+                         "`--out docs/stress` regenerates it in place)")
     st.add_argument("--json", action="store_true", help="print the result as JSON")
 
     for name, about in [*EXPERIMENT_HELP.items(),
