@@ -28,8 +28,9 @@ from ratouch.eval.premise import GROUPS, group_split
 from ratouch.model.generator import load_generator
 from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.paths import generator_weights
+from ratouch.seeds import seeded_build
 from ratouch.serve.pipeline import RATouchPipeline
-from ratouch.train.generator import GeneratorTrainConfig, seeded_build, train_stage2
+from ratouch.train.generator import GeneratorTrainConfig, train_stage2
 from ratouch.train.recipes import training_pairs
 from ratouch.world.scarcity import ScarceRegime
 

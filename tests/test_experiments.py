@@ -255,7 +255,7 @@ def test_a_report_write_killed_at_any_step_leaves_each_file_old_or_new(tmp_path,
 
 
 def test_seeded_build_draws_the_same_module_whatever_the_callers_stream():
-    from ratouch.train.generator import seeded_build
+    from ratouch.seeds import seeded_build
 
     def build():
         return make_integrator(RA_TOUCH, 24, 16)

@@ -34,9 +34,9 @@ from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.paths import cache_dir, generator_weights
 from ratouch.search.modes import QUERY_MODES
 from ratouch.search.retrieval import mode_query
+from ratouch.seeds import seeded_build
 from ratouch.serve.pipeline import RATouchPipeline, integrator_factory, load_for_serving
 from ratouch.timing import Progress, bars, say_to
-from ratouch.train.generator import seeded_build
 from ratouch.train.recipes import (
     generator_recipe,
     reader_recipe,

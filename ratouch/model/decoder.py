@@ -36,6 +36,7 @@ from torch import Tensor, nn
 from ratouch.errors import ConfigError, DataError, DataNotFoundError
 from ratouch.model.fastpath import StackCache, supports
 from ratouch.model.pretrained_lm import PRETRAINED_LMS, load_pretrained_lm
+from ratouch.seeds import seeded_build
 from ratouch.vocabulary import TVL_QUESTION
 
 logger = logging.getLogger(__name__)
@@ -566,10 +567,7 @@ def build_small_decoder(cfg: DecoderConfig, words: Sequence[str] | TactileTokeni
                          max_position_embeddings=SMALL_MAX_POSITIONS, pad_token_id=tok.pad_id,
                          bos_token_id=tok.bos_id, eos_token_id=tok.eos_id,
                          tie_word_embeddings=False)
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        model = LlamaForCausalLM(config)
-    return Decoder(cfg, model, tok)
+    return Decoder(cfg, seeded_build(seed, lambda: LlamaForCausalLM(config)), tok)
 
 
 def load_hf_decoder(cfg: DecoderConfig) -> Decoder:

@@ -20,7 +20,6 @@ import logging
 import math
 import time
 from dataclasses import asdict, dataclass
-from typing import Callable, TypeVar
 
 import numpy as np
 import torch
@@ -37,23 +36,6 @@ from ratouch.model.integrator import IntegratorConfig, TextureAwareIntegrator
 from ratouch.vocabulary import EXTRA_TACTILE, TVL_ADJECTIVES, adjective_f1
 
 log = logging.getLogger(__name__)
-
-_M = TypeVar("_M")
-
-
-def seeded_build(seed: int, build: Callable[[], _M]) -> _M:
-    """`build()` (a module's construction) with torch's generator seeded at `seed`, on a copy
-    of it: the module's random initialisation is the same in every process, and the caller's
-    random stream does not move.
-
-    torch seeds its generator afresh in each process (`torch.initial_seed()` differs run to
-    run), so a module made before `train_stage2` seeds would start from a different draw each
-    run: a generator variant trained twice gave 18-28 of 402 descriptions apart
-    (docs/premise.md, "Why a variant's training was not repeatable")."""
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        return build()
-
 
 @dataclass(frozen=True)
 class GeneratorTrainConfig:

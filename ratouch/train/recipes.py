@@ -40,11 +40,11 @@ from ratouch.paths import (
     trust_calibration,
 )
 from ratouch.search.retrieval_side import RetrievalSide, load_gate, load_tgr
+from ratouch.seeds import seeded_build
 from ratouch.train.encoders import TrainConfig, tactile_batch, training_data
 from ratouch.train.generator import (
     GeneratorTrainConfig,
     evaluate_generators,
-    seeded_build,
     train_generators,
     train_stage0,
     train_stage2,

@@ -36,13 +36,9 @@ from ratouch.paths import cache_dir, generator_weights, retriever_weights
 from ratouch.processes import bind_to_parent
 from ratouch.search.index import exact_topk
 from ratouch.search.retrieval import mode_query
+from ratouch.seeds import seeded_build
 from ratouch.serve.pipeline import RATouchPipeline
-from ratouch.train.generator import (
-    GeneratorTrainConfig,
-    seeded_build,
-    train_stage1,
-    train_stage2,
-)
+from ratouch.train.generator import GeneratorTrainConfig, train_stage1, train_stage2
 from ratouch.train.recipes import language_prior, training_pairs
 from ratouch.world.splits import encode_test_split
 
@@ -50,7 +46,7 @@ log = logging.getLogger(__name__)
 
 #: The code that trains a variant (a package stands for all its modules): its source is part of
 #: the cache keys, so that a change to it trains again instead of reusing stale results.
-TRAINING_CODE = ("ratouch.train", "ratouch.model", "ratouch.world.scarcity",
+TRAINING_CODE = ("ratouch.train", "ratouch.model", "ratouch.world.scarcity", "ratouch.seeds",
                  "ratouch.eval.experiments.lab")
 
 
