@@ -121,6 +121,45 @@ def test_the_report_names_the_commit_the_run_began_on(monkeypatch, tmp_path):
     assert "* commit `1234abc`," in (tmp_path / "results.md").read_text()
 
 
+def test_the_speed_chart_on_the_page_says_when_it_was_measured_not_when_checked_out(
+        monkeypatch, tmp_path):
+    """The results page quotes `ratouch bench tradeoff`'s figures. It used to stamp them with
+    the file's modification time, which in a fresh clone is the checkout's: a chart measured
+    days before read as made that minute. The stamp now comes from what the bench recorded,
+    else from the last commit that changed the file, else it says it is not recorded."""
+    import argparse
+    import json
+    import os
+
+    from ratouch.cli import bench as cli
+    from ratouch.eval.experiments import results
+
+    figs = tmp_path / "figures"
+    figs.mkdir()
+    (figs / "tradeoff.md").write_text("## Speed against accuracy\n\n```\nrows\n```\n")
+    (figs / "tradeoff.data.json").write_text('{"points": []}')  # from before it was recorded
+    os.utime(figs / "tradeoff.md")  # "checked out" now
+    monkeypatch.setattr(results, "last_commit", lambda *paths: None)
+    assert "Made by `ratouch bench tradeoff` (date not recorded)." in \
+        results.companion_sections(tmp_path)
+    monkeypatch.setattr(results, "last_commit", lambda *paths: ("2026-11-29", "85f3b2e"))
+    assert "(committed 2026-11-29 in `85f3b2e`)." in results.companion_sections(tmp_path)
+
+    # the bench records the commit it measured (read before it writes into the tree) and when
+    monkeypatch.setattr(cli, "git_commit", lambda: "1234abc")
+    monkeypatch.setattr(cli, "bench_tradeoff", lambda **kw: {"points": [], "settings": {}})
+    monkeypatch.setattr(cli, "format_tradeoff", lambda r: "rows")
+    monkeypatch.setattr(cli, "tradeoff_figure", lambda r: None)
+    args = argparse.Namespace(indexes="flat", sizes="1000", ks="5", encoders="", n=1,
+                              json=False, out=str(tmp_path))
+    assert cli._bench_tradeoff(args) == 0
+    made = json.loads((figs / "tradeoff.data.json").read_text())["made"]
+    assert made["commit"] == "1234abc" and made["utc"].endswith(" UTC")
+    page = results.companion_sections(tmp_path)
+    assert f"Made by `ratouch bench tradeoff` ({made['utc']}, commit `1234abc`)." in page
+    assert "committed 2026-11-29" not in page
+
+
 def test_variant_labels_are_distinct():
     vs = [BASELINE, RA_TOUCH, replace(RA_TOUCH, k=7), replace(RA_TOUCH, mode="image"),
           replace(RA_TOUCH, corpus_size=100), Variant(integration="sum")]

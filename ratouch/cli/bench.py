@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 from pathlib import Path
 
 from ratouch.bench.corpus import bench_corpus, format_corpus_bench
@@ -24,6 +25,7 @@ from ratouch.bench.upload import bench_upload
 from ratouch.cli.common import usage
 from ratouch.corpus.imagenet_t import parse_size
 from ratouch.eval.experiments import Report, write_report
+from ratouch.eval.report import git_commit
 from ratouch.search.kinds import BENCH_KINDS
 from ratouch.threads import blas_threads, intra_op_threads
 
@@ -40,9 +42,13 @@ def _bench_tradeoff(args: argparse.Namespace) -> int:
     if bad:
         raise usage(f"--indexes: unknown index type(s) {sorted(bad)}; use "
                     f"{', '.join(BENCH_KINDS)}")
+    commit = git_commit()  # the code measured, before the figures change the tree
     r = bench_tradeoff(indexes=_csv(args.indexes), sizes=_csv(args.sizes, int),
                        ks=_csv(args.ks, int), other_encoders=_csv(args.encoders),
                        n_latency=args.n, progress=None if args.json else print)
+    # when and on what it was measured travels with the figures (a page that quotes them
+    # says so; a file's modification time is only when it was checked out)
+    r["made"] = {"utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "commit": commit}
     table = format_tradeoff(r)
     write_report(Report("tradeoff", "Speed against accuracy", f"```\n{table}\n```\n\n"
                         f"Settings: `{json.dumps(r['settings'])}`", tradeoff_figure(r), r),

@@ -25,7 +25,7 @@ from ratouch.eval.experiments.tables import (
     table6_withheld,
 )
 from ratouch.eval.experiments.variants import ExperimentConfig, Report
-from ratouch.eval.report import git_commit, save_png, write_figure_html
+from ratouch.eval.report import git_commit, last_commit, save_png, write_figure_html
 from ratouch.files import write_atomic, write_json_atomic
 
 log = logging.getLogger(__name__)
@@ -74,15 +74,29 @@ def run_experiments(names: Sequence[str], cfg: ExperimentConfig, out: str | os.P
     return reports
 
 
+def tradeoff_made(out: Path) -> str:
+    """When and at which commit the speed-against-accuracy figures in `out`/figures were
+    measured: as `ratouch bench tradeoff` recorded it in its data, else (a file from before
+    it recorded that) the last commit that changed them, else "date not recorded". Never the
+    file's modification time: that is when it was checked out."""
+    try:
+        made = json.loads((out / "figures" / "tradeoff.data.json").read_text("utf-8"))["made"]
+        return f"{made['utc']}, commit `{made['commit']}`"
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    committed = last_commit((out / "figures" / "tradeoff.md").resolve())
+    return (f"committed {committed[0]} in `{committed[1]}`" if committed
+            else "date not recorded")
+
+
 def companion_sections(out: str | os.PathLike) -> str:
     """The speed-against-accuracy and stress reports that live beside the results, when their
     commands (`ratouch bench tradeoff`, `ratouch eval stress --out <out>/stress`) made them."""
     out, parts = Path(out), []
     trade = out / "figures" / "tradeoff.md"
     if trade.is_file():
-        stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime(trade.stat().st_mtime))
         parts += [trade.read_text(encoding="utf-8").strip(), "",
-                  f"Made by `ratouch bench tradeoff` ({stamp}).", ""]
+                  f"Made by `ratouch bench tradeoff` ({tradeoff_made(out)}).", ""]
         if (out / "figures" / "tradeoff.png").is_file():
             parts += ["![Speed against accuracy](figures/tradeoff.png) "
                       "([interactive](figures/tradeoff.html))", ""]
