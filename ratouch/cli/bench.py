@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 from ratouch.bench.corpus import bench_corpus, format_corpus_bench
@@ -25,7 +24,7 @@ from ratouch.bench.upload import bench_upload
 from ratouch.cli.common import usage
 from ratouch.corpus.imagenet_t import parse_size
 from ratouch.eval.experiments import Report, write_report
-from ratouch.eval.report import git_commit
+from ratouch.eval.report import git_commit, utc_stamp
 from ratouch.search.kinds import BENCH_KINDS
 from ratouch.threads import blas_threads, intra_op_threads
 
@@ -48,7 +47,7 @@ def _bench_tradeoff(args: argparse.Namespace) -> int:
                        n_latency=args.n, progress=None if args.json else print)
     # when and on what it was measured travels with the figures (a page that quotes them
     # says so; a file's modification time is only when it was checked out)
-    r["made"] = {"utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "commit": commit}
+    r["made"] = {"utc": utc_stamp(), "commit": commit}
     table = format_tradeoff(r)
     write_report(Report("tradeoff", "Speed against accuracy", f"```\n{table}\n```\n\n"
                         f"Settings: `{json.dumps(r['settings'])}`", tradeoff_figure(r), r),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import subprocess
+import time
 from pathlib import Path
 
 from ratouch.files import write_atomic
@@ -36,6 +37,11 @@ def write_figure_html(fig, path: Path) -> Path:
     write_atomic(path, fig.to_html(include_plotlyjs="directory", full_html=True))
     write_plotly_js(path.parent)
     return path
+
+
+def utc_stamp() -> str:
+    """Now, as a report says when it was made ("2026-12-03 08:04 UTC")."""
+    return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
 
 
 def git_commit() -> str:
