@@ -19,8 +19,9 @@ import plotly.io as pio
 
 from app import view
 from app.page import Outputs, Page
+from ratouch.eval import report
 from ratouch.eval.frames import summarise
-from ratouch.eval.report import last_commit, weights_commit
+from ratouch.eval.report import weights_commit
 from ratouch.serve.pipeline import DEFAULT_RETRIEVAL
 
 MAX_FIGURES = 12  # plot slots of the tab
@@ -59,11 +60,12 @@ def wire(page: Page, ui: SimpleNamespace, tab: gr.Tab) -> None:
 
 
 def figure_made(path: Path) -> tuple[str, str | None]:
-    """(date, commit) of a file of the docs folder: its last commit, else (an untracked
-    copy) the day it was written and no commit."""
-    made = last_commit(path)
+    """(when, commit) of a file of the docs folder: what its maker recorded, else its last
+    commit (`ratouch.eval.report.figure_made`), else (an untracked copy, written here) the day
+    it was written and no commit."""
+    made = report.figure_made(path)
     if made is not None:
-        return made
+        return made[0], made[1]
     return time.strftime("%Y-%m-%d", time.gmtime(path.stat().st_mtime)), None
 
 

@@ -441,6 +441,31 @@ def _bench(docs, slots):
     return out["report"], out["note"], *(out[f"figure_{i}"] for i in range(slots))
 
 
+def test_a_chart_is_dated_by_what_its_maker_recorded_else_its_last_commit(tmp_path,
+                                                                          monkeypatch):
+    """The speed chart's label says when and at which commit `ratouch bench tradeoff` measured
+    it (it had said the commit that last changed the file, which can come days later); a
+    chart with nothing recorded is dated by its last commit."""
+    import json
+
+    from app import benchmark_tab
+    from ratouch.eval import report
+
+    figs = tmp_path / "figures"
+    figs.mkdir()
+    (figs / "tradeoff.json").write_text(_figure_json("speed vs accuracy"))
+    (figs / "table1.json").write_text(_figure_json("main"))
+    (figs / "tradeoff.data.json").write_text(json.dumps(
+        {"made": {"utc": "2026-11-29 10:00 UTC", "commit": "85f3b2e"}}))
+    monkeypatch.setattr(report, "last_commit", lambda *paths: ("2026-12-01", "abc1234"))
+    monkeypatch.setattr(benchmark_tab, "weights_commit", lambda: ("2026-12-03", "98363b2"))
+    out = benchmark_tab.benchmarks(tmp_path, 2)
+    labels = {u["label"].split(" — ")[0]: u["label"] for u in (out["figure_0"], out["figure_1"])}
+    assert "made 2026-11-29 10:00 UTC (commit 85f3b2e), on weights older than the shipped " \
+        "ones of 2026-12-03" in labels["tradeoff"]
+    assert "made 2026-12-01 (commit abc1234), on weights older" in labels["table1"]
+
+
 def test_benchmarks_tab_without_and_with_a_report(tmp_path):
     from app import view
 

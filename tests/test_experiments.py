@@ -132,6 +132,7 @@ def test_the_speed_chart_on_the_page_says_when_it_was_measured_not_when_checked_
     import os
 
     from ratouch.cli import bench as cli
+    from ratouch.eval import report
     from ratouch.eval.experiments import results
 
     figs = tmp_path / "figures"
@@ -139,10 +140,10 @@ def test_the_speed_chart_on_the_page_says_when_it_was_measured_not_when_checked_
     (figs / "tradeoff.md").write_text("## Speed against accuracy\n\n```\nrows\n```\n")
     (figs / "tradeoff.data.json").write_text('{"points": []}')  # from before it was recorded
     os.utime(figs / "tradeoff.md")  # "checked out" now
-    monkeypatch.setattr(results, "last_commit", lambda *paths: None)
+    monkeypatch.setattr(report, "last_commit", lambda *paths: None)
     assert "Made by `ratouch bench tradeoff` (date not recorded)." in \
         results.companion_sections(tmp_path)
-    monkeypatch.setattr(results, "last_commit", lambda *paths: ("2026-11-29", "85f3b2e"))
+    monkeypatch.setattr(report, "last_commit", lambda *paths: ("2026-11-29", "85f3b2e"))
     assert "(committed 2026-11-29 in `85f3b2e`)." in results.companion_sections(tmp_path)
 
     # the bench records the commit it measured (read before it writes into the tree) and when

@@ -3,6 +3,7 @@ the commit a report was made at. Shared by the experiment, stress and trade-off 
 
 from __future__ import annotations
 
+import json
 import logging
 import subprocess
 import time
@@ -66,6 +67,29 @@ def last_commit(*paths: Path) -> tuple[str, str] | None:
         return None
     parts = out.split()
     return (parts[0], parts[1]) if len(parts) == 2 else None
+
+
+def recorded_made(path: Path) -> tuple[str, str] | None:
+    """(UTC time, commit) that a figure's maker recorded in the data beside it
+    (`<stem>.data.json`'s "made", as `ratouch bench tradeoff` writes), else None."""
+    data = Path(path).with_name(f"{Path(path).name.split('.')[0]}.data.json")
+    try:
+        made = json.loads(data.read_text("utf-8"))["made"]
+        return str(made["utc"]), str(made["commit"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def figure_made(path: Path) -> tuple[str, str | None, bool] | None:
+    """When a figure of the docs folder was made: (when, commit, measured), where `measured`
+    says the time and commit are what its maker recorded, else (False) the last commit that
+    changed it; None when neither is known. Never the file's modification time, which is when
+    it was checked out."""
+    made = recorded_made(path)
+    if made is not None:
+        return made[0], made[1], True
+    committed = last_commit(Path(path).resolve())
+    return (committed[0], committed[1], False) if committed else None
 
 
 def weights_commit() -> tuple[str, str] | None:

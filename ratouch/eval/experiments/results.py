@@ -26,8 +26,8 @@ from ratouch.eval.experiments.tables import (
 )
 from ratouch.eval.experiments.variants import ExperimentConfig, Report
 from ratouch.eval.report import (
+    figure_made,
     git_commit,
-    last_commit,
     save_png,
     utc_stamp,
     write_figure_html,
@@ -82,17 +82,12 @@ def run_experiments(names: Sequence[str], cfg: ExperimentConfig, out: str | os.P
 
 def tradeoff_made(out: Path) -> str:
     """When and at which commit the speed-against-accuracy figures in `out`/figures were
-    measured: as `ratouch bench tradeoff` recorded it in its data, else (a file from before
-    it recorded that) the last commit that changed them, else "date not recorded". Never the
-    file's modification time: that is when it was checked out."""
-    try:
-        made = json.loads((out / "figures" / "tradeoff.data.json").read_text("utf-8"))["made"]
-        return f"{made['utc']}, commit `{made['commit']}`"
-    except (OSError, ValueError, KeyError, TypeError):
-        pass
-    committed = last_commit((out / "figures" / "tradeoff.md").resolve())
-    return (f"committed {committed[0]} in `{committed[1]}`" if committed
-            else "date not recorded")
+    measured (`figure_made`), as the page says it."""
+    made = figure_made(out / "figures" / "tradeoff.md")
+    if made is None:
+        return "date not recorded"
+    when, commit, measured = made
+    return f"{when}, commit `{commit}`" if measured else f"committed {when} in `{commit}`"
 
 
 def companion_sections(out: str | os.PathLike) -> str:
