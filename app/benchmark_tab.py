@@ -69,6 +69,15 @@ def figure_made(path: Path) -> tuple[str, str | None]:
     return time.strftime("%Y-%m-%d", time.gmtime(path.stat().st_mtime)), None
 
 
+def provenance(path: Path, weights: tuple[str, str] | None) -> str:
+    """When a file of the docs folder was made, against the shipped weights (`weights`:
+    their date and commit): older by commit ancestry where both commits are known
+    (`ratouch.eval.report.made_before`), else by date."""
+    made = figure_made(path)
+    older = None if weights is None else report.made_before(made[1], weights[1])
+    return view.figure_provenance(made, weights, older)
+
+
 def benchmarks(docs: Path, slots: int) -> dict:
     """The tab by output name: "story", "report", "note", and "figure_<i>" for `slots`
     plot slots (the figures found in docs/figures/, the rest hidden)."""
@@ -87,7 +96,7 @@ def benchmarks(docs: Path, slots: int) -> dict:
         # the width its maker chose (1,500 px for the trade-off) would be clipped by the
         # page: every figure takes its container's width
         fig.update_layout(width=None, autosize=True)
-        label = f"{view.figure_title(path)} — {view.figure_provenance(figure_made(path), weights)}"
+        label = f"{view.figure_title(path)} — {provenance(path, weights)}"
         updates.append(gr.update(value=fig, label=label, visible=True))
     updates += [gr.update(value=None, visible=False)] * (slots - len(updates))
     note = (f"{len(files)} figure file(s) in `docs/figures/`" if files else
@@ -98,7 +107,7 @@ def benchmarks(docs: Path, slots: int) -> dict:
     report = Path(docs) / view.REPORT_NAME
     if report.is_file():
         note += (f" · the report (`{view.REPORT_NAME}`) was "
-                 + view.figure_provenance(figure_made(report), weights))
+                 + provenance(report, weights))
     if problems:
         note += " · not shown: " + "; ".join(problems)
     return {"story": story_md(docs, weights), "report": view.report_md(docs, files),
@@ -141,7 +150,7 @@ def _premise_md(docs: Path, weights) -> str:
     rows = ["| run | verdict | group | baseline | RA-Touch | gain [95% CI] | shuffle drop, p "
             "| copy ceiling | material oracle |", "|---|---|---|---|---|---|---|---|---|"]
     for path, what, d in found:
-        when = view.figure_provenance(figure_made(path), weights)
+        when = provenance(path, weights)
         for group in ("scarce", "seen"):
             g = d.get("groups", {}).get(group)
             if not g:
@@ -173,7 +182,7 @@ def _fallback_md(docs: Path, weights) -> str:
     if d is None:
         return (head + ": *no result yet* (`python scripts/why_withhold.py --system fallback "
                 f"> docs/{FALLBACK}`).")
-    when = view.figure_provenance(figure_made(docs / FALLBACK), weights)
+    when = provenance(docs / FALLBACK, weights)
     nan = float("nan")
 
     def diff(block: dict, key: str) -> str:
@@ -216,7 +225,7 @@ def _text_arm_md(docs: Path, weights) -> str:
     rows = ["| generator | group | baseline | paper (integrator) | text arm | text − paper "
             "[95% CI] | text shuffle drop, p |", "|---|---|---|---|---|---|---|"]
     for path, what, d in found:
-        when = view.figure_provenance(figure_made(path), weights)
+        when = provenance(path, weights)
         first = True
         for group in ("seen", "scarce"):
             g = d.get("groups", {}).get(group) or {}
@@ -253,8 +262,7 @@ def _frames_md(docs: Path, weights) -> str:
     path = files[-1]
     d = _read(path) or {}
     rows = d.get("frames", [])
-    when = view.figure_provenance((d["measured"], None) if d.get("measured")
-                                  else figure_made(path), weights)
+    when = provenance(path, weights)
     taxim = summarise([r for r in rows if r.get("sensor") in ("gelsight", "mini")])
     digit = summarise([r for r in rows if r.get("sensor") == "digit"])
     alone = "presses_alone" in taxim  # a check run with --alone

@@ -688,14 +688,19 @@ def list_figures(docs: Path) -> list[Path]:
     return sorted(files, key=lambda p: (rank.get(p.stem, len(rank)), p.name))
 
 
-def figure_provenance(made: tuple[str, str | None], weights: tuple[str, str] | None) -> str:
-    """Which weights and date a figure comes from: the day (and commit) its file was made,
-    against the shipped weights' (a figure made before them was not regenerated since)."""
+def figure_provenance(made: tuple[str, str | None], weights: tuple[str, str] | None,
+                      older: bool | None = None) -> str:
+    """Which weights and date a figure comes from: the time (and commit) it was made, against
+    the shipped weights' (a figure made before them was not regenerated since). `older`:
+    whether its commit lacks the weights' (`ratouch.eval.report.made_before`), where known;
+    else the days are compared."""
     date, commit = made
     when = f"made {date}" + (f" (commit {commit})" if commit else "")
     if weights is None:
         return when
-    if date < weights[0]:
+    if older is None:
+        older = date[:10] < weights[0]
+    if older:
         return (f"{when}, on weights older than the shipped ones of {weights[0]} "
                 f"({weights[1]}): not regenerated since")
     return f"{when}, on the shipped weights of {weights[0]} ({weights[1]})"

@@ -466,6 +466,69 @@ def test_a_chart_is_dated_by_what_its_maker_recorded_else_its_last_commit(tmp_pa
     assert "made 2026-12-01 (commit abc1234), on weights older" in labels["table1"]
 
 
+def test_a_figure_is_older_than_the_weights_by_ancestry_not_by_its_day(tmp_path, monkeypatch):
+    """Two commits of one day: a figure measured at the first is on weights older than the
+    second's, which the days alone cannot tell (a recorded time sorted after the weights'
+    day and read as made on them); a commit this clone does not know falls back on the days;
+    a stored check that records its own "measured" and "commit" is dated by them."""
+    import json
+    import subprocess
+
+    from app import benchmark_tab
+    from ratouch.eval import report
+
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-c", "commit.gpgsign=false"]
+
+    def commit(msg: str) -> str:
+        (repo / "f").write_text(msg)
+        subprocess.run(["git", "add", "f"], cwd=repo, check=True)
+        subprocess.run([*git, "commit", "-qm", msg], cwd=repo, check=True)
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=repo, check=True,
+                              capture_output=True, text=True).stdout.strip()
+
+    subprocess.run(["git", "init", "-q"], cwd=repo, check=True)
+    first, second = commit("figure measured"), commit("weights shipped")
+    monkeypatch.setattr(report, "REPO", repo)
+    assert report.made_before(first, second) is True
+    assert report.made_before(second, first) is False
+    assert report.made_before(second + "+changes", second) is False
+    assert report.made_before(second, second) is False
+    assert report.made_before("0000000", second) is None
+    assert report.made_before(None, second) is None
+
+    docs = tmp_path / "docs"
+    figs = docs / "figures"
+    figs.mkdir(parents=True)
+    (figs / "tradeoff.json").write_text(_figure_json("speed vs accuracy"))
+    (figs / "tradeoff.data.json").write_text(json.dumps(
+        {"made": {"utc": "2026-12-03 10:00 UTC", "commit": first}}))
+    monkeypatch.setattr(benchmark_tab, "weights_commit", lambda: ("2026-12-03", second))
+    label = benchmark_tab.benchmarks(docs, 1)["figure_0"]["label"]
+    assert f"made 2026-12-03 10:00 UTC (commit {first}), on weights older than the shipped " \
+        f"ones of 2026-12-03 ({second})" in label
+    (figs / "tradeoff.data.json").write_text(json.dumps(
+        {"made": {"utc": "2026-12-03 11:00 UTC", "commit": second}}))
+    label = benchmark_tab.benchmarks(docs, 1)["figure_0"]["label"]
+    assert f"(commit {second}), on the shipped weights of 2026-12-03" in label
+    # a commit this clone lacks: the days decide
+    (figs / "tradeoff.data.json").write_text(json.dumps(
+        {"made": {"utc": "2026-12-02 11:00 UTC", "commit": "0000000"}}))
+    assert "on weights older" in benchmark_tab.benchmarks(docs, 1)["figure_0"]["label"]
+    # a check that records itself (`ratouch eval frames --json`)
+    check = docs / "frames-real-2026-12-03.json"
+    check.write_text(json.dumps({"measured": "2026-12-03", "commit": first, "frames": []}))
+    assert report.recorded_made(check) == ("2026-12-03", first)
+    assert report.figure_made(check) == ("2026-12-03", first, True)
+    assert f"made 2026-12-03 (commit {first}), on weights older" in \
+        benchmark_tab.provenance(check, ("2026-12-03", second))
+    check.write_text(json.dumps({"measured": "2026-12-03", "frames": []}))  # before "commit"
+    assert report.recorded_made(check) == ("2026-12-03", None)
+    assert benchmark_tab.provenance(check, ("2026-12-03", second)).startswith(
+        "made 2026-12-03, on the shipped weights")
+
+
 def test_benchmarks_tab_without_and_with_a_report(tmp_path):
     from app import view
 

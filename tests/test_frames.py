@@ -23,6 +23,7 @@ from ratouch.eval.frames import (
     summarise,
     taxim_frames,
 )
+from ratouch.eval.report import git_commit
 from ratouch.world.taxim_optics import real_presses
 
 
@@ -105,6 +106,7 @@ def test_eval_frames_cli_on_a_folder(tmp_path, capsys, shipped_corpus):
     assert out["command"].startswith(f"ratouch eval frames {tmp_path} --background ")
     assert out["encoder"] == "default-s" and out["corpus"] == str(shipped_corpus)
     assert len(out["measured"]) == 10 and out["seconds"] >= 0
+    assert out["commit"] == git_commit()  # the code it was read with
     rows = {r["frame"]: r for r in out["frames"]}
     assert set(rows) == {"press.png", "blank.png"}
     assert rows["press.png"]["state"] == "contact" and len(rows["press.png"]["neighbours"]) == 2

@@ -69,27 +69,56 @@ def last_commit(*paths: Path) -> tuple[str, str] | None:
     return (parts[0], parts[1]) if len(parts) == 2 else None
 
 
-def recorded_made(path: Path) -> tuple[str, str] | None:
-    """(UTC time, commit) that a figure's maker recorded in the data beside it
-    (`<stem>.data.json`'s "made", as `ratouch bench tradeoff` writes), else None."""
-    data = Path(path).with_name(f"{Path(path).name.split('.')[0]}.data.json")
+def recorded_made(path: Path) -> tuple[str, str | None] | None:
+    """(UTC time, commit) that a figure's maker recorded: in the data beside it
+    (`<stem>.data.json`'s "made", as `ratouch bench tradeoff` writes), or, for a stored check
+    that is itself JSON, its own "measured" (and "commit", where it has one; as `ratouch eval
+    frames --json` writes); else None."""
+    path = Path(path)
+    data = path.with_name(f"{path.name.split('.')[0]}.data.json")
+    if data.is_file():  # a figure and its data
+        try:
+            made = json.loads(data.read_text("utf-8"))["made"]
+            return str(made["utc"]), str(made["commit"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+    if path.suffix != ".json":
+        return None
     try:
-        made = json.loads(data.read_text("utf-8"))["made"]
-        return str(made["utc"]), str(made["commit"])
-    except (OSError, ValueError, KeyError, TypeError):
+        own = json.loads(path.read_text("utf-8"))
+        commit = own.get("commit")
+        return str(own["measured"]), None if commit is None else str(commit)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
 
 
 def figure_made(path: Path) -> tuple[str, str | None, bool] | None:
     """When a figure of the docs folder was made: (when, commit, measured), where `measured`
-    says the time and commit are what its maker recorded, else (False) the last commit that
-    changed it; None when neither is known. Never the file's modification time, which is when
-    it was checked out."""
+    says the time and commit are what its maker recorded (the commit None where it recorded
+    only the time), else (False) the last commit that changed it; None when neither is known.
+    Never the file's modification time, which is when it was checked out."""
     made = recorded_made(path)
     if made is not None:
         return made[0], made[1], True
     committed = last_commit(Path(path).resolve())
     return (committed[0], committed[1], False) if committed else None
+
+
+def made_before(commit: str | None, weights: str | None) -> bool | None:
+    """Whether the code at `commit` (a figure's) lacks the commit `weights` (the shipped
+    weights'), by ancestry: True where `weights` is not among `commit`'s ancestors (nor
+    `commit` itself), False where it is; None where either is unknown or git cannot say (a
+    commit not in this clone). Exact where dates are not: two commits of one day, or a time
+    against a day. A commit recorded with "+changes" is read as the commit it was made on."""
+    if not commit or not weights:
+        return None
+    commit = commit.split("+")[0]
+    try:
+        r = subprocess.run(["git", "merge-base", "--is-ancestor", weights, commit],
+                           capture_output=True, text=True, cwd=REPO, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return {0: False, 1: True}.get(r.returncode)
 
 
 def weights_commit() -> tuple[str, str] | None:
