@@ -28,8 +28,9 @@ MAX_FIGURES = 12  # plot slots of the tab
 #: The premise's results, newest last: (file, what it was run on).
 PREMISES = (("premise-result.json", "before the visual prior"),
             ("premise-result-prior.json", "with the visual prior (the shipped weights' recipe)"),
-            ("premise-result-3runs.json", "the shipped weights, 3 draws (the gated system "
-             "beside it in docs/premise.md)"))
+            ("premise-result-3runs.json", "3 draws, before the seeded retrain"),
+            ("premise-result-seeded-3runs.json", "the shipped weights, 3 draws (seeded "
+             "trainings; the gated system beside it in docs/premise.md)"))
 #: The text arm's premise runs: (file, the generator it ran on).
 TEXT_ARMS = (("premise-result-text.json", "small decoder (shipped)"),
              ("premise-result-text-smollm2.json", "SmolLM2-135M"))
@@ -165,8 +166,11 @@ def _premise_md(docs: Path, weights) -> str:
                 f"| {g.get('shuffle_drop', nan):+.3f}, p = {g.get('shuffle_p', nan):.3f} "
                 f"| {g.get('copy_ceiling', nan):.3f} | {g.get('material_oracle', nan):.3f} |")
     latest = found[-1][2]
+    gated = (f" The `gated` system on the same runs: **{latest['gated_verdict']}** — "
+             f"{latest.get('gated_verdict_reason', '')}." if latest.get("gated_verdict")
+             else "")
     return (f"{head}: **{latest.get('verdict', '?')}** — {latest.get('verdict_reason', '')}."
-            "\n\n" + "\n".join(rows))
+            + gated + "\n\n" + "\n".join(rows))
 
 
 def _fallback_md(docs: Path, weights) -> str:

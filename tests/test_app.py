@@ -1597,7 +1597,13 @@ def test_the_benchmarks_story_dates_the_premise_and_the_real_frames():
     md = story_md(DOCS, ("2026-11-27", "5a9ccf2"))
     assert "**refuted**" in md and "+0.051 [-0.004, +0.110]" in md  # the verdict's figures
     assert "before the visual prior — made 2026-11-23" in md
-    assert "the shipped weights, 3 draws" in md and "-0.019 [-0.090, +0.064]" in md
+    assert "3 draws, before the seeded retrain" in md and "-0.019 [-0.090, +0.064]" in md
+    # the newest run leads, with the gated system's verdict on the same runs
+    assert "refuted** — the copy ceiling is +0.810 above the baseline on scarce materials, " \
+        "yet RA-Touch gains only -0.034 [-0.089, +0.030]" in md
+    assert "The `gated` system on the same runs: **refuted** — on scarce materials gated " \
+        "gains -0.259 [-0.360, -0.151]" in md
+    assert "the shipped weights, 3 draws (seeded trainings" in md
     assert "Taxim's GelSight / Mini | 72 / 72" in md and "reference DIGIT" in md
     # the stored check read Taxim's presses without their background too (--alone)
     assert "presses without their background: contact |" in md and "| 69 / 72 |" in md
