@@ -35,6 +35,7 @@ import argparse
 import dataclasses
 import json
 import sys
+import time
 
 import numpy as np
 
@@ -42,6 +43,7 @@ from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split, retrieve
 from ratouch.eval.controls import derangement
 from ratouch.eval.judge import OfflineJudge
 from ratouch.eval.judge.stats import mean_ci
+from ratouch.eval.report import git_commit
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.world.config import WorldConfig
 from ratouch.world.sampler import TEST_SIZE, World
@@ -74,6 +76,8 @@ def main(argv: list[str] | None = None) -> None:
                     help="(fallback) frames of each premise group checked against the limit")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
 
+    # when and on what code it was measured: the app's Benchmarks tab dates the result by it
+    made = {"measured": time.strftime("%Y-%m-%d", time.gmtime()), "commit": git_commit()}
     p = RATouchPipeline.load(args.encoder)
     test = encode_test_split(p.encoders, indices=range(min(args.n, TEST_SIZE)))
     world = world_for(WorldConfig())
@@ -104,7 +108,7 @@ def main(argv: list[str] | None = None) -> None:
     def flags(fs) -> np.ndarray:
         return np.array([beyond_every_unit(f) for f in fs])
 
-    out: dict = {"config": {**vars(args), "n": len(test.T), "look_limit": LOOK_LIMIT,
+    out: dict = {**made, "config": {**vars(args), "n": len(test.T), "look_limit": LOOK_LIMIT,
                             "withhold_limit": WITHHOLD_LIMIT,
                             "reader": p.generator_reader is not None}}
     flagged = flags(frames)

@@ -167,6 +167,7 @@ def test_withhold_check_of_the_fallback_system(real_pipeline, monkeypatch, capsy
                                               "--premise", "3"],
                              real_pipeline, monkeypatch, capsys)
     assert out["config"]["system"] == "fallback"
+    assert len(out["measured"]) == 10 and out["commit"]  # what the app dates it by
     assert out["natural"]["rule_vs_fallback"]["diff"] == 0
     assert out["natural"]["fallback"] == out["natural"]["fallback_rule"]
     assert out["serving"] == {"queries": 12, "withheld": 0, "differ": [],
