@@ -1616,8 +1616,8 @@ def test_the_benchmarks_story_dates_the_premise_and_the_real_frames():
     assert "| | world test split | 5.913 | 6.587 | 7.25" in md
     # the default system's measures, read from its file
     assert "**The `fallback` system** (the default)" in md
-    assert "| 804 / 804 (0 withheld) |" in md and "+0.418 [+0.210, +0.628]" in md
-    assert "-0.151 [-0.319, +0.016]" in md and "| 5.859 / 4.959 / 4.970 |" in md
+    assert "| 804 / 804 (0 withheld) |" in md and "+0.397 [+0.185, +0.605]" in md
+    assert "-0.177 [-0.348, -0.013]" in md and "| 5.842 / 4.959 / 4.970 |" in md
     assert "| 1 / 2000 |" in md and "seen 0 / 500 · scarce 0 / 500" in md
 
 
