@@ -35,6 +35,7 @@ import argparse
 import dataclasses
 import json
 import sys
+import time
 from collections import Counter
 
 import numpy as np
@@ -42,6 +43,7 @@ import numpy as np
 from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split, retrieve
 from ratouch.eval.judge import OfflineJudge
 from ratouch.eval.judge.stats import mean_ci
+from ratouch.eval.report import git_commit
 from ratouch.files import write_atomic
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.world.config import WorldConfig
@@ -85,6 +87,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--json", default=None, help="also write the report to this file")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
 
+    # when and on what code it was measured, as the other checks of docs/ record it
+    made = {"measured": time.strftime("%Y-%m-%d", time.gmtime()), "commit": git_commit()}
     p = RATouchPipeline.load(args.encoder)
     assert p.trust is not None, "the rule reads the trust calibration's contact state"
     n = min(args.n, TEST_SIZE) if args.split == "test" else args.n
@@ -101,7 +105,7 @@ def main(argv: list[str] | None = None) -> dict:
                             ids=retrieve(p, test.V, test.T, args.k, "image"), generator=reader,
                             name="withheld").scores
 
-    out: dict = {"config": {**vars(args), "n": n, "withhold_limit": WITHHOLD_LIMIT,
+    out: dict = {**made, "config": {**vars(args), "n": n, "withhold_limit": WITHHOLD_LIMIT,
                             "reader": p.generator_reader is not None}, "conditions": {}}
     rows: dict[str, dict[str, list]] = {}
     for c, (name, blank, bg) in enumerate(CONDITIONS):

@@ -195,6 +195,7 @@ def test_withhold_uncertain_check_reads_five_ways_and_decides(real_pipeline, mon
     script, out = _run_on_shipped("why_withhold_uncertain", ["--n", "8", "--serving", "3",
                                                              "--json", str(target)],
                                   real_pipeline, monkeypatch, capsys)
+    assert len(out["measured"]) == 10 and out["commit"]  # when and on what it was measured
     # the serving path withholds where the shipped rule fires and nowhere else, and answers
     # as `paper` alone and with the pair's own background (test pair 2's blank: it fires)
     sv = out["serving"]
