@@ -81,9 +81,11 @@ WITHHOLD_COST = {"gated": 0.24, "fallback": 0.18}
 #: (`python scripts/why_withhold_uncertain.py --split probe --start 2500000 --rule
 #: second-opinion`, docs/premise-result-withhold-second-opinion.json): on blanks read against
 #: another unit's background, and on presses (where it fires on few). Quoted by "What
-#: retrieval did"; a test holds each to its file.
-DOUBT_EFFECT = {"fallback": {"blanks": 1.57, "presses": -0.07},
-                "gated": {"blanks": 0.74, "presses": -0.08}}
+#: retrieval did"; a test holds each to its file. Measured again on 2026-12-03 on the shipped
+#: weights and trust (fallback 1.57 / -0.07 and gated 0.74 / -0.08 on 2026-12-01: the trust
+#: changes of 2026-12-02 read more of the rows uncertain, and the reader was retrained).
+DOUBT_EFFECT = {"fallback": {"blanks": 1.28, "presses": -0.01},
+                "gated": {"blanks": 0.58, "presses": 0.01}}
 
 
 def mix(V: np.ndarray, J: np.ndarray, w: np.ndarray) -> np.ndarray:
