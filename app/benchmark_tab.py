@@ -84,7 +84,8 @@ def benchmarks(docs: Path, slots: int) -> dict:
     plot slots (the figures found in docs/figures/, the rest hidden)."""
     files = view.list_figures(docs)
     weights = weights_commit()
-    updates, problems = [], []
+    updates: list = []
+    problems: list[str] = []
     for path in files:
         if len(updates) == slots:
             problems.append(f"{path.name} (only {slots} figures are shown)")
@@ -139,9 +140,15 @@ def _read(path: Path) -> dict | None:
         return None
 
 
+def _stored(docs: Path, names: tuple[tuple[str, str], ...]) -> list[tuple[Path, str, dict]]:
+    """(path, what it was run on, its JSON) of each stored result of `names` ((file, what))
+    that the docs folder holds and that reads, in their order."""
+    read = [(docs / name, what, _read(docs / name)) for name, what in names]
+    return [(path, what, d) for path, what, d in read if d is not None]
+
+
 def _premise_md(docs: Path, weights) -> str:
-    found = [(docs / name, what, _read(docs / name)) for name, what in PREMISES]
-    found = [(p, what, d) for p, what, d in found if d is not None]
+    found = _stored(docs, PREMISES)
     page = view.docs_url(docs, "premise.md")
     head = ("**The paper's premise** (retrieving from a visual corpus with tactile captions "
             "improves descriptions where paired touch data is scarce), tested by "
@@ -221,8 +228,7 @@ def _fallback_md(docs: Path, weights) -> str:
 def _text_arm_md(docs: Path, weights) -> str:
     """The text arm against the paper's integrator on the same neighbours, per generator it
     ran on; empty where no run is stored."""
-    found = [(docs / name, what, _read(docs / name)) for name, what in TEXT_ARMS]
-    found = [(p, what, d) for p, what, d in found if d is not None]
+    found = _stored(docs, TEXT_ARMS)
     if not found:
         return ""
     nan = float("nan")
