@@ -35,7 +35,6 @@ import argparse
 import dataclasses
 import json
 import sys
-import time
 
 import numpy as np
 
@@ -43,7 +42,7 @@ from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split, retrieve
 from ratouch.eval.controls import derangement
 from ratouch.eval.judge import OfflineJudge
 from ratouch.eval.judge.stats import mean_ci
-from ratouch.eval.report import git_commit
+from ratouch.eval.report import measured_stamp
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.world.config import WorldConfig
 from ratouch.world.sampler import TEST_SIZE, World
@@ -77,7 +76,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
 
     # when and on what code it was measured: the app's Benchmarks tab dates the result by it
-    made = {"measured": time.strftime("%Y-%m-%d", time.gmtime()), "commit": git_commit()}
+    made = measured_stamp()
     p = RATouchPipeline.load(args.encoder)
     test = encode_test_split(p.encoders, indices=range(min(args.n, TEST_SIZE)))
     world = world_for(WorldConfig())

@@ -35,7 +35,6 @@ import argparse
 import dataclasses
 import json
 import sys
-import time
 from collections import Counter
 
 import numpy as np
@@ -43,7 +42,7 @@ import numpy as np
 from ratouch.eval.answer import BASELINE, RA_TOUCH, answer_split, retrieve
 from ratouch.eval.judge import OfflineJudge
 from ratouch.eval.judge.stats import mean_ci
-from ratouch.eval.report import git_commit
+from ratouch.eval.report import measured_stamp
 from ratouch.files import write_atomic
 from ratouch.serve.pipeline import RATouchPipeline
 from ratouch.world.config import WorldConfig
@@ -88,7 +87,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
 
     # when and on what code it was measured, as the other checks of docs/ record it
-    made = {"measured": time.strftime("%Y-%m-%d", time.gmtime()), "commit": git_commit()}
+    made = measured_stamp()
     p = RATouchPipeline.load(args.encoder)
     assert p.trust is not None, "the rule reads the trust calibration's contact state"
     n = min(args.n, TEST_SIZE) if args.split == "test" else args.n

@@ -50,7 +50,7 @@ from ratouch.eval.presses import (
     world_contact,
 )
 from ratouch.eval.recaption import format_recaption_agreement, recaption_agreement
-from ratouch.eval.report import git_commit
+from ratouch.eval.report import measured_stamp
 from ratouch.eval.retrieval import evaluate_retrieval, format_retrieval_eval
 from ratouch.eval.sensor_families import evaluate_families, format_families
 from ratouch.eval.sensors import compare_sensors, format_sensors
@@ -170,7 +170,7 @@ def _eval_frames(args: argparse.Namespace) -> int:
     else:
         frames = frames_in(args.folder, args.background)
     t0 = time.perf_counter()
-    commit = git_commit()  # the code read with, before anything is written
+    stamp = measured_stamp()  # the code read with, before anything is written
     pipeline = RATouchPipeline.load(args.encoder, args.corpus)
     rows = read_frames(pipeline, frames, k=args.k)
     if args.json:  # with its provenance: the app's Benchmarks tab dates a stored check by it
@@ -179,8 +179,7 @@ def _eval_frames(args: argparse.Namespace) -> int:
                            + [f"--{n} {getattr(args, n)}" for n in ("background", "corpus")
                               if getattr(args, n)]
                            + [f"--encoder {args.encoder}", f"--k {args.k}", "--json"])
-        print(json.dumps({"measured": time.strftime("%Y-%m-%d", time.gmtime()),
-                          "commit": commit, "command": command, "encoder": args.encoder,
+        print(json.dumps({**stamp, "command": command, "encoder": args.encoder,
                           "corpus": str(args.corpus) if args.corpus else None,
                           "seconds": round(time.perf_counter() - t0, 1),
                           "frames": rows, "summary": summarise(rows)}, indent=1))

@@ -69,6 +69,14 @@ def last_commit(*paths: Path) -> tuple[str, str] | None:
     return (parts[0], parts[1]) if len(parts) == 2 else None
 
 
+def measured_stamp() -> dict[str, str]:
+    """What a stored check records of when and on what code it was measured: {"measured": today
+    (UTC, YYYY-MM-DD), "commit": `git_commit()`}, as `recorded_made` reads it back. Taken
+    before the check writes anything, so that its own output does not mark the commit
+    "+changes"."""
+    return {"measured": time.strftime("%Y-%m-%d", time.gmtime()), "commit": git_commit()}
+
+
 def recorded_made(path: Path) -> tuple[str, str | None] | None:
     """(UTC time, commit) that a figure's maker recorded: in the data beside it
     (`<stem>.data.json`'s "made", as `ratouch bench tradeoff` writes), or, for a stored check
