@@ -43,6 +43,39 @@ def pytest_configure(config):
     threadpool_limits(int(share))  # numpy's BLAS in this worker
 
 
+#: The test files that take longest, longest first: seconds of test time each in a clean clone's
+#: `pytest -n 2 --dist loadfile --durations=80` (2026-12-03; the sum of its listed tests). Under
+#: xdist a file is one unit of work and a worker takes the next unit in the queue when it is
+#: nearly done with its own, so a long file queued late runs alone at the end (the run that
+#: measured these spent its last 8 minutes on one worker). `make test` passes
+#: `--no-loadscope-reorder`, so the queue is the order `pytest_collection_modifyitems` leaves.
+LONGEST_FILES = {"test_ray_build.py": 653, "test_app_browser.py": 250, "test_why_scripts.py": 247,
+                 "test_trust.py": 208, "test_smollm.py": 188, "test_pool.py": 151,
+                 "test_geometry.py": 146, "test_premise.py": 100,
+                 "test_pretrained_generator.py": 90}
+
+
+def queue_order(items: list) -> list:
+    """`items` (whole files kept together, each file's own order kept) with the files of
+    LONGEST_FILES first, longest first, then the others by their number of tests, most first
+    (the order xdist's loadfile gives by default); ties in file order. The same on every worker,
+    as xdist requires."""
+    files: dict[str, list] = {}
+    for item in items:
+        files.setdefault(item.path.name, []).append(item)
+    order = sorted(files, key=lambda f: (-LONGEST_FILES.get(f, 0), -len(files[f])))
+    return [item for f in order for item in files[f]]
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under xdist, the files queued longest first (`queue_order`); one process keeps the
+    collection's order."""
+    import os
+
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        items[:] = queue_order(items)
+
+
 @pytest.fixture(scope="module")
 def one_thread():
     """Tiny models on one intra-op thread (more only add overhead on shared cores); a test
@@ -190,13 +223,16 @@ def tiny_llama(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def shipped_corpus(tmp_path_factory):
-    """A 600-entry world corpus embedded with the shipped default encoder."""
-    from ratouch.corpus.imagenet_t import build_corpus
+    """A 600-entry world corpus (seed 0) embedded with the shipped default encoder, built once
+    per session: the fake-free pipelines (`pipeline`, `real_pipeline`) and the CLI tests read
+    it, none writes to it."""
+    from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
     from ratouch.search.retrieval_side import embed_and_index
 
-    folder = tmp_path_factory.mktemp("shipped") / "c600"
-    build_corpus(folder, 600, seed=0, progress=False)
-    embed_and_index(folder, "default-s", workers=1, progress=False)
+    folder = tmp_path_factory.getbasetemp() / "corpus-600"
+    if not (folder / MANIFEST).is_file():
+        build_corpus(folder, 600, seed=0, progress=False)
+    embed_and_index(folder, "default-s", workers=1, progress=False)  # a no-op once done
     return folder
 
 
@@ -296,20 +332,15 @@ HAVE_ASSETS = (generator_weights("default-s", "ra") / "manifest.json").is_file()
 
 
 @pytest.fixture(scope="session")
-def real_pipeline(tmp_path_factory):
-    """The real pipeline (shipped default-s weights) on a 600-entry world corpus, built once
-    per session and shared, read-only, by every test that needs it."""
-    from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
-    from ratouch.search.retrieval_side import embed_and_index
+def real_pipeline(shipped_corpus):
+    """The real pipeline (shipped default-s weights) on the session's 600-entry world corpus
+    (`shipped_corpus`), loaded once per session and shared, read-only, by every test that needs
+    it."""
     from ratouch.serve.pipeline import RATouchPipeline
 
     if not HAVE_ASSETS:
         pytest.skip("the trained retriever/generator weights are not in assets/")
-    folder = tmp_path_factory.getbasetemp() / "app-corpus-600"
-    if not (folder / MANIFEST).is_file():
-        build_corpus(folder, 600, progress=False)
-    embed_and_index(folder, "default-s", workers=1, progress=False)  # a no-op once done
-    return RATouchPipeline.load("default-s", corpus=folder)
+    return RATouchPipeline.load("default-s", corpus=shipped_corpus)
 
 
 # ------------------------------------------------------------------------- a fake pipeline

@@ -110,19 +110,13 @@ def test_an_error_answer_is_counted_by_what_it_says(load_test, choice_app, pairs
 
 
 @pytest.fixture(scope="session")
-def app_corpus(tmp_path_factory):
-    """The real pipeline's corpus for `python -m app --corpus`: the 600-entry world corpus
-    that `conftest.real_pipeline` builds (the same folder), embedded with default-s."""
-    from ratouch.corpus.imagenet_t import MANIFEST, build_corpus
-    from ratouch.search.retrieval_side import embed_and_index
-
+def app_corpus(shipped_corpus):
+    """The real pipeline's corpus for `python -m app --corpus`: the session's 600-entry world
+    corpus, embedded with default-s (`conftest.shipped_corpus`, the one `real_pipeline`
+    reads)."""
     if not HAVE_ASSETS:
         pytest.skip("the trained retriever/generator weights are not in assets/")
-    folder = tmp_path_factory.getbasetemp() / "app-corpus-600"
-    if not (folder / MANIFEST).is_file():
-        build_corpus(folder, 600, progress=False)
-    embed_and_index(folder, "default-s", workers=1, progress=False)  # a no-op once done
-    return folder
+    return shipped_corpus
 
 
 @pytest.mark.slow
