@@ -8,11 +8,9 @@ app: install
 	.venv/bin/python -m app
 
 # The suite on two pytest-xdist workers, whole test files each (their module fixtures are
-# built once), the longest files queued first (tests/conftest.py's queue_order; xdist's own
-# reorder, by number of tests, off); tests/conftest.py gives each worker its share of the
-# cores' threads.
+# built once); tests/conftest.py gives each worker its share of the cores' threads.
 # TEST_WORKERS=0 runs it in one process.
 TEST_WORKERS ?= 2
 
 test: install
-	.venv/bin/python -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
+	.venv/bin/python -m pytest -n $(TEST_WORKERS) --dist loadfile

@@ -43,39 +43,6 @@ def pytest_configure(config):
     threadpool_limits(int(share))  # numpy's BLAS in this worker
 
 
-#: The test files that take longest, longest first: seconds of test time each in a clean clone's
-#: `pytest -n 2 --dist loadfile --durations=80` (2026-12-03; the sum of its listed tests). Under
-#: xdist a file is one unit of work and a worker takes the next unit in the queue when it is
-#: nearly done with its own, so a long file queued late runs alone at the end (the run that
-#: measured these spent its last 8 minutes on one worker). `make test` passes
-#: `--no-loadscope-reorder`, so the queue is the order `pytest_collection_modifyitems` leaves.
-LONGEST_FILES = {"test_ray_build.py": 653, "test_app_browser.py": 250, "test_why_scripts.py": 247,
-                 "test_trust.py": 208, "test_smollm.py": 188, "test_pool.py": 151,
-                 "test_geometry.py": 146, "test_premise.py": 100,
-                 "test_pretrained_generator.py": 90}
-
-
-def queue_order(items: list) -> list:
-    """`items` (whole files kept together, each file's own order kept) with the files of
-    LONGEST_FILES first, longest first, then the others by their number of tests, most first
-    (the order xdist's loadfile gives by default); ties in file order. The same on every worker,
-    as xdist requires."""
-    files: dict[str, list] = {}
-    for item in items:
-        files.setdefault(item.path.name, []).append(item)
-    order = sorted(files, key=lambda f: (-LONGEST_FILES.get(f, 0), -len(files[f])))
-    return [item for f in order for item in files[f]]
-
-
-def pytest_collection_modifyitems(config, items):
-    """Under xdist, the files queued longest first (`queue_order`); one process keeps the
-    collection's order."""
-    import os
-
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        items[:] = queue_order(items)
-
-
 @pytest.fixture(scope="module")
 def one_thread():
     """Tiny models on one intra-op thread (more only add overhead on shared cores); a test
