@@ -64,7 +64,7 @@ def load_visual(source: str | np.ndarray, title: str, label: str | None = None,
     scale = PREVIEW_SIDE / max(w, h)
     size = (max(1, round(w * scale)), max(1, round(h * scale)))
     # small (world) images are upscaled with NEAREST so their pixels stay visible for clicking
-    resample = Image.NEAREST if scale >= 2 else Image.LANCZOS
+    resample = Image.Resampling.NEAREST if scale >= 2 else Image.Resampling.LANCZOS
     base = resize_array(image, size, resample)
     return Visual(source, (w, h), base, size[0] / w, title, label, example=example)
 

@@ -237,8 +237,8 @@ def wire(demo: gr.Blocks, page: Page, ui: SimpleNamespace) -> SimpleNamespace:
     query_out = (out.answer + out.kept).components
     # uploads reach the handlers undecoded (preprocess=False): the library decodes them with
     # its bounds and its messages, which name the file and its role
-    raw = dict(preprocess=False)
-    private = dict(api_visibility="private")
+    raw: dict[str, Any] = dict(preprocess=False)
+    private: dict[str, Any] = dict(api_visibility="private")
     light = dict(concurrency_limit=None, show_progress="hidden", **private)  # milliseconds
     # queries share one pool; a batching pipeline answers its concurrent calls together
     queries = dict(concurrency_id="query", concurrency_limit=page.max_batch)

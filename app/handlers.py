@@ -146,7 +146,8 @@ def upload_visual(value: Any) -> BoxView:
     if path is None:
         return BoxView(None, None, *NO_BOX, "")
     try:
-        visual = boxes.load_visual(path, f"uploaded image {Path(path).name}")
+        name = Path(path).name if isinstance(path, str) else "(an array)"
+        visual = boxes.load_visual(path, f"uploaded image {name}")
     except USER_ERRORS as e:
         return BoxView(None, None, *NO_BOX, f"✖ {_fail(e, {'visual image': path})}")
     return BoxView(visual, boxes.draw(visual, None), *NO_BOX, _box_note(visual, None))
@@ -212,6 +213,12 @@ def example_item(world, index: int) -> tuple[np.ndarray, str]:
     return s.visual, s.caption
 
 
+def _box4(box) -> tuple[int, int, int, int]:
+    """A sample's contact box as four ints (x0, y0, x1, y1)."""
+    x0, y0, x1, y1 = (int(v) for v in box)
+    return x0, y0, x1, y1
+
+
 def load_example(world, index: Any) -> ExampleView:
     """Load test-split pair `index` (visual, tactile, its sensor's background, its contact
     box and label). The background fills the optional field, as TVL rows carry one: the
@@ -220,7 +227,7 @@ def load_example(world, index: Any) -> ExampleView:
         i = int(index)
         s = world.sample("test", i)
         what = s.class_name or "close-up"
-        box = tuple(int(v) for v in s.box)
+        box = _box4(s.box)
         visual = boxes.load_visual(s.visual, f"test example #{i} ({s.subset}: {what}, "
                                    f"{s.material.replace('_', ' ')})", label=s.caption,
                                    example={"index": i, "condition": None, "box": box})
@@ -579,7 +586,7 @@ def judged_descriptions(visual: boxes.Visual | None) -> dict[str, tuple[str | No
     return dict(visual.judged) if isinstance(visual, CaseVisual) else {}
 
 
-def _row_judged(row: Any, label: str) -> dict[str, tuple[str | None, float]]:
+def _row_judged(row: Any, label: str | None) -> dict[str, tuple[str | None, float]]:
     """A clicked failure-table row's judged descriptions; {} for a row without them (a row
     holds the table's columns, `view.case_columns()`, in order) or judged against another
     label than the case's."""
@@ -610,9 +617,10 @@ def open_case(world_cfg, row: Any) -> ExampleView:
         raise gr.Error(user_message(e if isinstance(e, USER_ERRORS) else
                                     DataError(f"not a failure case: {row!r}")),
                        print_exception=False) from e
-    visual = CaseVisual(**{f.name: getattr(loaded.state, f.name)
-                           for f in fields(loaded.state)},
-                        judged=_row_judged(row, loaded.state.label))
+    state = loaded.state
+    assert state is not None  # load_case always loads the case's image
+    visual = CaseVisual(**{f.name: getattr(state, f.name) for f in fields(state)},
+                        judged=_row_judged(row, state.label))
     return loaded._replace(state=visual)
 
 
@@ -625,7 +633,7 @@ def load_case(world_cfg, condition: str, index: int) -> ExampleView:
     """
     s = failures.case_sample(condition, index, world_cfg)
     background = failures.case_world(condition, world_cfg).background_image(s.sensor)
-    box = tuple(int(v) for v in s.box)
+    box = _box4(s.box)
     visual = boxes.load_visual(
         s.visual, f"failure case #{index} under “{condition}” ({s.subset}: "
         f"{s.class_name or 'close-up'}, {s.material.replace('_', ' ')})", label=s.caption,
@@ -681,7 +689,7 @@ def open_link(world, world_cfg, params: Mapping[str, str], models: Sequence[str]
             raise DataError(f"link: box must be x0,y0,x1,y1, got {params['box']!r}")
         box = boxes.fields_to_box(*parts)
         visual = loaded.state
-        loaded = loaded._replace(visual=boxes.draw(visual, box),
-                                 **dict(zip(("x0", "y0", "x1", "y1"), parts)),
-                                 box_note=_box_note(visual, box))
+        assert visual is not None  # an example without its image was refused above
+        loaded = loaded._replace(visual=boxes.draw(visual, box), x0=parts[0], y0=parts[1],
+                                 x1=parts[2], y1=parts[3], box_note=_box_note(visual, box))
     return LinkView(loaded, k, model)

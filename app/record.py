@@ -13,7 +13,7 @@ import hashlib
 import io
 import json
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from html import escape
 from pathlib import Path
@@ -221,14 +221,17 @@ def compare_html(a: RunRecord | None, b: RunRecord | None) -> str:
         return " · ".join(f"{role} {(v or {}).get('sha256', '')[:10] or '—'}"
                           for role, v in r.inputs.items())
 
-    rows = [("run", lambda r: escape(r.label)), ("settings", settings),
-            ("inputs (sha256)", inputs),
-            ("RA-Touch", lambda r: escape(r.result["description"].get("ra_touch") or "—")),
-            ("baseline", lambda r: escape(r.result["description"].get("baseline") or "—")),
-            ("trust", lambda r: escape(_trust(r.result))),
-            ("what retrieval did", lambda r: escape(_retrieval(r.result)))]
-    rows += [(f"{QUERY_MODES[m].title} neighbours", lambda r, m=m: _neighbours(r.result, m))
-             for m in QUERY_MODES]
+    rows: list[tuple[str, Callable[[RunRecord], str]]] = [
+        ("run", lambda r: escape(r.label)), ("settings", settings),
+        ("inputs (sha256)", inputs),
+        ("RA-Touch", lambda r: escape(r.result["description"].get("ra_touch") or "—")),
+        ("baseline", lambda r: escape(r.result["description"].get("baseline") or "—")),
+        ("trust", lambda r: escape(_trust(r.result))),
+        ("what retrieval did", lambda r: escape(_retrieval(r.result)))]
+    def neighbours(mode: str) -> Callable[[RunRecord], str]:
+        return lambda r: _neighbours(r.result, mode)
+
+    rows += [(f"{QUERY_MODES[m].title} neighbours", neighbours(m)) for m in QUERY_MODES]
     out = ["<table class='ra-table ra-compare'><tr><th></th>"
            f"<th>run {a.number}</th><th>run {b.number}</th></tr>"]
     for name, cell in rows:

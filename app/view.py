@@ -598,9 +598,11 @@ def case_columns() -> tuple[tuple[str, str], ...]:
     return _CASE_HEAD + precision_columns()
 
 
-def case_widths() -> list[str]:
+def case_widths() -> list[str | int]:
     """The case table's column widths, one per `case_columns()`."""
-    return [f"{w}px" for w in (*_CASE_WIDTHS, *[_PRECISION_WIDTH] * len(MODES))]
+    widths: list[str | int] = [f"{w}px" for w in (*_CASE_WIDTHS,
+                                                  *[_PRECISION_WIDTH] * len(MODES))]
+    return widths
 
 
 def summary_columns() -> tuple[tuple[str, str], ...]:

@@ -1,5 +1,5 @@
 """The house tools, run as CI runs them: lint (ruff), the layers contract (import-linter) and
-the library's types (mypy). Each reads its configuration from pyproject.toml; a finding fails
+the library's and the app's types (mypy). Each reads its configuration from pyproject.toml; a finding fails
 the test with the tool's own report.
 """
 
@@ -41,6 +41,6 @@ def test_imports_keep_the_layers():
 
 @pytest.mark.slow
 def test_mypy_finds_no_type_errors():
-    """`[tool.mypy]` checks the library: about a minute from a fresh clone, a second or two
-    on its cache (.mypy_cache) afterwards."""
+    """`[tool.mypy]` checks the library and the app: about a minute and a half from a fresh
+    clone, a second or two on its cache (.mypy_cache) afterwards."""
     _check(_run(sys.executable, "-m", "mypy", timeout=600))
