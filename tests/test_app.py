@@ -96,6 +96,16 @@ def test_default_box_when_none_is_marked(fake, pair_files):
     assert fields == [None] * 4 and "centred crop" in note
 
 
+def test_an_image_given_as_an_array_is_previewed_not_a_stack_trace():
+    """An API caller may send the visual as an array where the page sends a file: it is
+    read as one, named as an array (there is no file name to show)."""
+    from app import handlers
+
+    visual, preview, *fields, note = handlers.upload_visual(np.full((40, 60, 3), 128, np.uint8))
+    assert visual is not None and visual.title == "uploaded image (an array)"
+    assert fields == [None] * 4 and "✖" not in note and "centred crop" in note
+
+
 def test_example_pair_brings_its_box_label_and_tactile(fake, world):
     from app import handlers
 
