@@ -32,7 +32,7 @@ PREMISES = (("premise-result.json", "before the visual prior"),
             ("premise-result-seeded-3runs.json", "the shipped weights, 3 draws (seeded "
              "trainings; the gated system beside it in docs/premise.md)"))
 #: The text arm's premise runs: (file, the generator it ran on).
-TEXT_ARMS = (("premise-result-text.json", "small decoder (shipped)"),
+TEXT_ARMS = (("premise-result-text-seeded.json", "small decoder (shipped)"),
              ("premise-result-text-smollm2.json", "SmolLM2-135M"))
 FRAMES_GLOB = "frames-real-*.json"
 #: The fallback system's measures (`scripts/why_withhold.py --system fallback`).

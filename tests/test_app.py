@@ -1620,8 +1620,10 @@ def test_the_benchmarks_story_dates_the_premise_and_the_real_frames():
     assert "ratouch-docs/premise.md" in md and str(DOCS) not in md
     # the text arm, on each generator it ran on, against the paper's integrator
     assert "**The neighbours as text**" in md
-    assert "| small decoder (shipped) — made 2026-11-28" in md
+    # the run on the seeded weights (2026-12-03): the arm's figures repeat 2026-11-28's
+    assert "| small decoder (shipped) — made 2026-12-03" in md
     assert "| | scarce | 6.622 | 6.577 | 6.162 | -0.415 [-0.585, -0.257] |" in md
+    assert "| | world test split | 7.577 | 7.568 | 7.677 | +0.109 [+0.009, +0.207] |" in md
     assert "SmolLM2-135M — made 2026-11-28" in md
     assert "| | world test split | 5.913 | 6.587 | 7.25" in md
     # the default system's measures, read from its file
