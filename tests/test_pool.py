@@ -200,6 +200,17 @@ def test_warming_a_model_choice_answers_two_made_up_queries_with_the_default_mod
     assert all(r.frame is not None and r.k == 1 and r.model is None for r in batch)
     with pytest.raises(RuntimeError, match="no"):
         ModelChoice("a", ["a"], load=lambda n: Recording(fail=True)).warm()
+    # the photo route, which no grey crop takes, is warmed on its own: of a pipeline and of
+    # each stage of a cascade
+    warmed = []
+    route = SimpleNamespace(warm=lambda: warmed.append("route"))
+    with_route = Recording()
+    with_route.photos = route
+    ModelChoice("a", ["a"], load=lambda n: with_route).warm()
+    cascade = Recording()
+    cascade.stages = [SimpleNamespace(photos=None), SimpleNamespace(photos=route)]
+    ModelChoice("a", ["a"], load=lambda n: cascade).warm()
+    assert warmed == ["route", "route"]
     ModelChoice("default-s", ["default-s"], load=lambda name: pipeline).warm()
 
 

@@ -122,6 +122,30 @@ def test_photo_route_classifies_at_the_priors_own_input_size():
     assert sizes == [224]
 
 
+def test_a_warmed_photo_route_answers_its_first_photo_without_tracing(monkeypatch):
+    """`PhotoRoute.warm` does the tracing a fresh prior's first photo would do inside its
+    query (the classifier's extractor at 224 px): once warmed, the first photo traces nothing
+    and is answered as an unwarmed route answers it."""
+    from ratouch.encoders.prior import VisualPrior
+
+    names = ["tabby"] * 3 + ["teapot"] * 3
+    emb = np.zeros((6, 4), np.float32)
+    emb[:3, 0], emb[3:, 1] = 1, 1
+    traced = []
+    trace = torch.jit.trace
+    monkeypatch.setattr(torch.jit, "trace", lambda *a, **k: (traced.append(1), trace(*a, **k))[1])
+    crop = _centre_crop(skimage_data.chelsea())
+    cold = PhotoRoute(VisualPrior("lite0"), names, emb)  # a fresh prior: nothing traced yet
+    expected = cold.query(crop)
+    assert traced == [1]  # the control: an unwarmed route traces during its first photo
+    route = PhotoRoute(VisualPrior("lite0"), names, emb)
+    route.warm()
+    assert traced == [1, 1]
+    photo = route.query(crop)
+    assert traced == [1, 1]  # nothing left for the photo to build
+    assert photo.classes == expected.classes and np.array_equal(photo.query, expected.query)
+
+
 def test_real_photo_goes_the_photo_route_and_a_render_does_not(pipeline, world):
     cat = skimage_data.chelsea()
     r = pipeline.query(cat, None)

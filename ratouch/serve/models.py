@@ -168,14 +168,22 @@ class ModelChoice:
         image with a mid-grey tactile frame, alone and against itself as the background. What
         a process's first query builds once for all (the visual prior's traced extractor,
         the sensor families' looks: about 2 s on 2 cores) is then built before a user's
-        first query, not during it. A model process warms before it says it is ready, while
-        the server still answers; raises what the default model raises."""
+        first query, not during it; then the photo route of each of the model's pipelines
+        (`PhotoRoute.warm`: a grey crop does not take it, and a user's first real photo
+        paid 1.1 s for it). A model process warms before it says it is ready, while the
+        server still answers; raises what the default model raises."""
         grey = np.full((96, 128, 3), 128, np.uint8)
         requests = [QueryRequest.decode(grey, grey, k=1),
                     QueryRequest.decode(grey, grey, k=1, background=grey)]
-        for res in self.model().answer(requests):
+        model = self.model()
+        for res in model.answer(requests):
             if isinstance(res, Exception):
                 raise res
+        # a grey crop is no photo: the photo route's classifier is warmed on its own
+        for stage in getattr(model, "stages", None) or [model]:
+            photos = getattr(stage, "photos", None)
+            if photos is not None:
+                photos.warm()
 
     def answer(self, requests: Sequence[QueryRequest]) -> list[QueryResult | Exception]:
         """Each request answered by its own model (one batch per model); an unknown model,
