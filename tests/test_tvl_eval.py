@@ -77,3 +77,44 @@ def test_cli_ttest(tmp_path, capsys):
     assert "SSVTP" in out and "+1.000" in out
     fb.write_text("not json")
     assert main(["eval", "ttest", str(fa), str(fb)]) == 2
+
+
+def test_validation_pairs_come_from_the_train_split_beyond_every_training_set(pipeline):
+    from ratouch.world.splits import VALIDATION_START, encode_validation_split
+
+    val = encode_validation_split(pipeline.encoders, n=3)
+    world = world_for(val.world)
+    assert val.split == "train" and val.indices == [VALIDATION_START + i for i in range(3)]
+    assert val.labels == [world.sample("train", i).caption for i in val.indices]
+    assert val.image_fp(0).endswith(f"/vision/train_{VALIDATION_START:06d}.png")
+    assert val.tactile_fp(0).endswith(f"/tactile/train_{VALIDATION_START:06d}.png")
+    test = encode_test_split(pipeline.encoders, indices=[0])
+    assert test.image_fp(0).endswith("/vision/test_000000.png")
+    with pytest.raises(ConfigError):
+        encode_validation_split(pipeline.encoders, n=0)
+
+
+def test_cli_eval_tvl_judges_the_validation_pairs_when_asked(pipeline, tmp_path, capsys,
+                                                            monkeypatch):
+    import ratouch.cli.eval as cli_eval
+    from ratouch.cli import main
+    from ratouch.world.splits import VALIDATION_START, encode_validation_split
+
+    asked = []
+
+    def small(encoders, world=None):
+        asked.append(world)
+        return encode_validation_split(encoders, world, n=3)
+
+    monkeypatch.setattr(cli_eval, "_pipeline_on_lm", lambda args: pipeline)
+    monkeypatch.setattr(cli_eval, "encode_validation_split", small)
+    out = tmp_path / "val.json"
+    assert main(["eval", "tvl", "--system", "baseline", "--validation", "--out", str(out),
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    records = json.loads(out.read_text())
+    assert len(asked) == 1 and summary["split"] == "validation" and summary["n"] == 3
+    assert [r["image_fp"].rsplit("/", 1)[1] for r in records] == \
+        [f"train_{VALIDATION_START + i:06d}.png" for i in range(3)]
+    assert main(["eval", "tvl", "--system", "baseline", "--validation", "--out", str(out)]) == 0
+    assert f"validation pairs (train[{VALIDATION_START}:" in capsys.readouterr().out

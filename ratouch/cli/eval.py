@@ -62,6 +62,7 @@ from ratouch.serve.models import language_models
 from ratouch.serve.pipeline import RATouchPipeline, load_trust
 from ratouch.world.config import WorldConfig
 from ratouch.world.dataset import check_writable
+from ratouch.world.splits import VALIDATION_SIZE, VALIDATION_START, encode_validation_split
 from ratouch.world.taxim_optics import CALIBRATIONS
 
 
@@ -234,13 +235,19 @@ def _eval_controls(args: argparse.Namespace) -> int:
 def _eval_tvl(args: argparse.Namespace) -> int:
     judge = make_judge(args)  # configuration errors before any work
     pipeline = _pipeline_on_lm(args)
-    records, summary = run_tvl(pipeline, args.system, args.k, judge, world_cfg(args),
+    world = world_cfg(args)
+    split = encode_validation_split(pipeline.encoders, world) if args.validation else None
+    records, summary = run_tvl(pipeline, args.system, args.k, judge, world, split=split,
                                retrieval=args.retrieval)
+    summary["split"] = "validation" if args.validation else "test"
     write_json_atomic(args.out, records)
     if args.json:
         print(json.dumps({**summary, "out": str(args.out)}, indent=1))
         return 0
-    print(f"{args.system} of {pipeline.name} on the world's test split (seed {args.seed}, "
+    end = VALIDATION_START + VALIDATION_SIZE
+    where = (f"{VALIDATION_SIZE} validation pairs (train[{VALIDATION_START}:{end}])"
+             if args.validation else "the world's test split")
+    print(f"{args.system} of {pipeline.name} on {where} (seed {args.seed}, "
           f"K={args.k}, retrieval {args.retrieval}):")
     print(format_summary(summary))
     if summary["families"]:

@@ -360,6 +360,10 @@ def _add_eval(sub) -> None:
                         "rendered units, so 'fallback' answers there as 'paper' does)")
     _add_lm(t)
     t.add_argument("--seed", type=_nonneg_int, default=0, help="world seed of the test split")
+    t.add_argument("--validation", action="store_true",
+                   help="judge 402 validation pairs of the world's train split (from index "
+                        "4,000,000, used by no training) instead of the test split: for "
+                        "choosing a setting without looking at the test split")
     _add_stress(t)
     _add_judge_options(t)
     t.add_argument("--json", action="store_true")

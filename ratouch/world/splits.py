@@ -34,6 +34,8 @@ class TestSplit:
         object_scale: object size / frame side per sample (a failure-mode axis).
         world: the world config (seed and stress knobs) the split was rendered with.
         families: the sensor family (a key of `world.sensors.SENSOR_FAMILIES`) of each tactile frame.
+        split: the world split the pairs were drawn from ("test", or "train" for the
+            validation pairs); it names their TVL-layout files.
     """
 
     V: np.ndarray
@@ -45,13 +47,32 @@ class TestSplit:
     object_scale: list[float]
     world: WorldConfig
     families: list[str] = field(default_factory=list)
+    split: str = "test"
 
     def image_fp(self, i: int) -> str:
 
-        return f"{SUBSET_DIRS[self.subsets[i]]}/vision/test_{self.indices[i]:06d}.png"
+        return f"{SUBSET_DIRS[self.subsets[i]]}/vision/{self.split}_{self.indices[i]:06d}.png"
 
     def tactile_fp(self, i: int) -> str:
         return self.image_fp(i).replace("/vision/", "/tactile/")
+
+
+#: The validation pairs: this many train-split pairs from this index on, far beyond every
+#: training set (12,000 pairs) and used by nothing else, for choosing a setting without
+#: looking at the test split (`ratouch eval tvl --validation`).
+VALIDATION_START = 4_000_000
+VALIDATION_SIZE = TEST_SIZE
+
+
+def encode_validation_split(encoders, world: WorldConfig | None = None,
+                            n: int = VALIDATION_SIZE) -> TestSplit:
+    """Render and encode `n` validation pairs (train[VALIDATION_START:VALIDATION_START + n]),
+    as the test split is encoded: crops, and tactile frames against their sensor's
+    background."""
+    if n < 1:
+        raise ConfigError(f"n={n} must be positive")
+    return encode_test_split(encoders, world, range(VALIDATION_START, VALIDATION_START + n),
+                             split="train")
 
 
 def encode_test_split(encoders, world: WorldConfig | None = None,
@@ -66,11 +87,11 @@ def encode_test_split(encoders, world: WorldConfig | None = None,
         raise ConfigError(f"split {split!r} needs explicit indices")
     idx = list(range(TEST_SIZE)) if indices is None else [int(i) for i in indices]
     samples = [gen.sample(split, i) for i in idx]
-    return encode_samples(encoders, samples, [gen] * len(samples), idx, world)
+    return encode_samples(encoders, samples, [gen] * len(samples), idx, world, split)
 
 
 def encode_samples(encoders, samples: Sequence[Sample], worlds: Sequence[World],
-                   indices: Sequence[int], world: WorldConfig) -> TestSplit:
+                   indices: Sequence[int], world: WorldConfig, split: str = "test") -> TestSplit:
     """Encode rendered pairs: each contact-box crop, and each tactile frame against the
     background of its sensor in the world that rendered it (`worlds[j]` rendered
     `samples[j]`; `world` is the config the split is reported under)."""
@@ -82,4 +103,4 @@ def encode_samples(encoders, samples: Sequence[Sample], worlds: Sequence[World],
         labels=[s.caption for s in samples], subsets=[s.subset for s in samples],
         materials=[s.material for s in samples], indices=[int(i) for i in indices],
         object_scale=[float(s.object_scale) for s in samples], world=world,
-        families=[sensor_family(s.sensor) for s in samples])
+        families=[sensor_family(s.sensor) for s in samples], split=split)
