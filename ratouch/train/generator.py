@@ -40,7 +40,7 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class GeneratorTrainConfig:
     stage0_steps: int = 600
-    stage1_steps: int = 800
+    stage1_steps: int = 1600  # 800 until 2026-12-03: docs/premise.md, "A longer stage 1"
     stage2_steps: int = 600
     batch: int = 64
     lr: float = 1e-3
